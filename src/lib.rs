@@ -1,0 +1,20 @@
+//! octolod: out-of-core simplification and viewing of triangle meshes far
+//! larger than RAM.
+//!
+//! Data flow, one module per stage:
+//! `ply` (stream PLY) → `soup` (external sort + dereference into a triangle
+//! soup) → octree → simplify/quadric → store → view, plus metro.
+//! Shared plumbing: [`mesh`] (attribute model), [`error`], [`io`],
+//! [`progress`], [`extsort`], [`mem`].
+
+pub mod error;
+pub mod extsort;
+pub mod gen;
+pub mod io;
+pub mod mem;
+pub mod mesh;
+pub mod ply;
+pub mod progress;
+pub mod soup;
+
+pub use error::{Error, Result};

@@ -1,0 +1,49 @@
+//! Memory budgets: parsing `--mem 256M` style sizes and splitting a budget
+//! between the buffers of a stage.
+//!
+//! Takes: a size string. Gives: bytes. The budget bounds the working set of
+//! the data-proportional buffers (sort runs, merge buffers, vertex tables);
+//! fixed overheads (code, thread stacks, a few MiB of I/O buffers) come on
+//! top and are what the "budget + 64 MB" peak-RSS allowance is for.
+
+use crate::error::{Error, Result};
+
+/// Parses `123`, `64K`, `256M`, `1.5G`, `2GiB`, `512MB` (powers of 1024).
+pub fn parse_size(s: &str) -> Result<u64> {
+    let t = s.trim();
+    let split = t.find(|c: char| !(c.is_ascii_digit() || c == '.')).unwrap_or(t.len());
+    let (num, unit) = t.split_at(split);
+    let x: f64 = num.parse().map_err(|_| Error::Usage(format!("invalid size '{s}': expected e.g. 512M or 2G")))?;
+    let mult: u64 = match unit.trim().to_ascii_uppercase().as_str() {
+        "" | "B" => 1,
+        "K" | "KB" | "KIB" => 1 << 10,
+        "M" | "MB" | "MIB" => 1 << 20,
+        "G" | "GB" | "GIB" => 1 << 30,
+        "T" | "TB" | "TIB" => 1 << 40,
+        _ => return Err(Error::Usage(format!("invalid size unit in '{s}': use K, M, G or T"))),
+    };
+    let v = x * mult as f64;
+    if !v.is_finite() || v < 1.0 {
+        return Err(Error::Usage(format!("invalid size '{s}'")));
+    }
+    Ok(v as u64)
+}
+
+/// Smallest budget we accept: below this, per-stream buffers dominate.
+pub const MIN_BUDGET: u64 = 1 << 20;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    #[test]
+    fn sizes() {
+        assert_eq!(parse_size("1024").unwrap(), 1024);
+        assert_eq!(parse_size("64K").unwrap(), 65536);
+        assert_eq!(parse_size("256M").unwrap(), 256 << 20);
+        assert_eq!(parse_size("1.5G").unwrap(), 3 << 29);
+        assert_eq!(parse_size("2GiB").unwrap(), 2 << 30);
+        assert!(parse_size("12X").is_err());
+        assert!(parse_size("").is_err());
+        assert!(parse_size("0").is_err());
+    }
+}

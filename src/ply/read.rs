@@ -1,0 +1,779 @@
+//! Streaming PLY body decoder.
+//!
+//! Takes: a parsed [`PlyHeader`] and the file. Gives: batches of decoded
+//! vertices (in index order) and of fan-triangulated triangles (in face
+//! order) to a [`BodySink`], validating as it goes: non-finite coordinates,
+//! negative or out-of-range indices, faces with fewer than three corners,
+//! truncated bodies and trailing bytes (wrong header counts) are errors naming
+//! the file, element, record and byte offset. Triangles with a repeated
+//! index are dropped and counted.
+//!
+//! Binary records are decoded through per-field (offset, type) tables
+//! compiled from the header, over a large refillable buffer fed by plain
+//! sequential `read`s (no mmap: file pages would count against the memory
+//! budget), so decoding runs at memory speed. Extra properties and extra
+//! elements are skipped by size.
+
+use super::{color_names, face_index_prop, uv_names, ElementDef, Encoding, PlyHeader, PropType, Scalar};
+use crate::error::{Error, Location, Result};
+use crate::mesh::{AttrSet, Vertex};
+use crate::progress::Progress;
+use std::fs::File;
+use std::io::{Read, Seek, SeekFrom};
+use std::path::{Path, PathBuf};
+
+/// Receives the body in batches.
+pub trait BodySink {
+    /// `batch[k]` is vertex number `first + k`.
+    fn vertices(&mut self, first: u64, batch: &[Vertex]) -> Result<()>;
+    /// Triangles in face order (polygons fan-triangulated, degenerate ones dropped).
+    fn triangles(&mut self, batch: &[[u64; 3]]) -> Result<()>;
+}
+
+/// What the body held.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct BodyStats {
+    pub vertices: u64,
+    pub faces: u64,
+    /// Triangles passed to the sink.
+    pub triangles: u64,
+    /// Triangles dropped because two corners had the same index.
+    pub degenerate: u64,
+    /// Faces with more than three corners (fan-triangulated).
+    pub polygons: u64,
+    /// Bytes read from the file.
+    pub bytes: u64,
+}
+
+const BATCH: usize = 1 << 15;
+const BUF: usize = 4 << 20;
+
+/// Sequential buffered input that tracks absolute file offsets.
+struct Input {
+    file: File,
+    buf: Vec<u8>,
+    pos: usize,
+    end: usize,
+    /// File offset of `buf[0]`.
+    base: u64,
+    eof: bool,
+    path: PathBuf,
+}
+
+impl Input {
+    fn open(path: &Path, offset: u64) -> Result<Input> {
+        let mut file = File::open(path).map_err(|e| Error::io(path, "open", e))?;
+        file.seek(SeekFrom::Start(offset)).map_err(|e| Error::io(path, "seek", e))?;
+        Ok(Input { file, buf: vec![0; BUF], pos: 0, end: 0, base: offset, eof: false, path: path.to_path_buf() })
+    }
+
+    #[inline]
+    fn offset(&self) -> u64 {
+        self.base + self.pos as u64
+    }
+
+    #[inline]
+    fn avail(&self) -> usize {
+        self.end - self.pos
+    }
+
+    /// Makes at least `n` bytes available; false when the file ends first.
+    #[inline]
+    fn ensure(&mut self, n: usize) -> Result<bool> {
+        if self.end - self.pos >= n {
+            Ok(true)
+        } else {
+            self.refill(n)
+        }
+    }
+
+    #[cold]
+    fn refill(&mut self, n: usize) -> Result<bool> {
+        if self.pos > 0 {
+            self.buf.copy_within(self.pos..self.end, 0);
+            self.base += self.pos as u64;
+            self.end -= self.pos;
+            self.pos = 0;
+        }
+        if n > self.buf.len() {
+            self.buf.resize(n.next_power_of_two(), 0);
+        }
+        while self.end < n && !self.eof {
+            let got = self.file.read(&mut self.buf[self.end..]).map_err(|e| Error::io(&self.path, "read", e))?;
+            if got == 0 {
+                self.eof = true;
+            }
+            self.end += got;
+        }
+        Ok(self.end - self.pos >= n)
+    }
+
+    /// True when no byte is left.
+    fn at_eof(&mut self) -> Result<bool> {
+        Ok(!self.ensure(1)?)
+    }
+}
+
+/// How to read one scalar from a binary record.
+#[derive(Clone, Copy)]
+struct Field {
+    off: usize,
+    ty: Scalar,
+}
+
+#[inline(always)]
+fn load<const N: usize>(b: &[u8], off: usize) -> [u8; N] {
+    b[off..off + N].try_into().unwrap()
+}
+
+#[inline(always)]
+fn bin_f64(b: &[u8], off: usize, ty: Scalar, be: bool) -> f64 {
+    macro_rules! rd {
+        ($t:ty, $n:literal) => {{
+            let a = load::<$n>(b, off);
+            (if be { <$t>::from_be_bytes(a) } else { <$t>::from_le_bytes(a) }) as f64
+        }};
+    }
+    match ty {
+        Scalar::I8 => b[off] as i8 as f64,
+        Scalar::U8 => b[off] as f64,
+        Scalar::I16 => rd!(i16, 2),
+        Scalar::U16 => rd!(u16, 2),
+        Scalar::I32 => rd!(i32, 4),
+        Scalar::U32 => rd!(u32, 4),
+        Scalar::F32 => rd!(f32, 4),
+        Scalar::F64 => rd!(f64, 8),
+    }
+}
+
+/// Integer value of a binary scalar (list counts and indices); floats are rejected earlier.
+#[inline(always)]
+fn bin_i64(b: &[u8], off: usize, ty: Scalar, be: bool) -> i64 {
+    macro_rules! rd {
+        ($t:ty, $n:literal) => {{
+            let a = load::<$n>(b, off);
+            (if be { <$t>::from_be_bytes(a) } else { <$t>::from_le_bytes(a) }) as i64
+        }};
+    }
+    match ty {
+        Scalar::I8 => b[off] as i8 as i64,
+        Scalar::U8 => b[off] as i64,
+        Scalar::I16 => rd!(i16, 2),
+        Scalar::U16 => rd!(u16, 2),
+        Scalar::I32 => rd!(i32, 4),
+        Scalar::U32 => rd!(u32, 4),
+        Scalar::F32 => rd!(f32, 4),
+        Scalar::F64 => rd!(f64, 8),
+    }
+}
+
+/// Maps a color channel of any type to 0..=255.
+#[inline]
+fn color_u8(x: f64, ty: Scalar) -> u8 {
+    let v = match ty {
+        Scalar::F32 | Scalar::F64 => x * 255.0,
+        Scalar::U16 => x / 257.0,
+        _ => x,
+    };
+    if v.is_nan() {
+        0
+    } else {
+        v.round().clamp(0.0, 255.0) as u8
+    }
+}
+
+/// Which vertex properties feed which [`Vertex`] fields (indices into the element's props).
+struct VertexPlan {
+    pos: [usize; 3],
+    normal: Option<[usize; 3]>,
+    color: Option<[usize; 3]>,
+    alpha: Option<usize>,
+    uv: Option<[usize; 2]>,
+}
+
+impl VertexPlan {
+    fn new(e: &ElementDef, attrs: AttrSet) -> VertexPlan {
+        let p = |n: &str| e.prop(n).expect("checked by header");
+        VertexPlan {
+            pos: [p("x"), p("y"), p("z")],
+            normal: attrs.normal().then(|| [p("nx"), p("ny"), p("nz")]),
+            color: attrs.color().then(|| color_names(e).unwrap().map(p)),
+            alpha: attrs.alpha().then(|| p("alpha")),
+            uv: attrs.uv().then(|| uv_names(e).unwrap().map(p)),
+        }
+    }
+}
+
+/// Reads the whole body of `path` described by `header`, feeding `sink`.
+pub fn read_body(path: &Path, header: &PlyHeader, sink: &mut dyn BodySink, progress: &Progress) -> Result<BodyStats> {
+    let mut r = BodyReader {
+        input: Input::open(path, header.body_offset)?,
+        header,
+        stats: BodyStats::default(),
+        progress,
+        reported: header.body_offset,
+        tris: Vec::with_capacity(BATCH),
+        verts: Vec::with_capacity(BATCH),
+    };
+    for (ei, e) in header.elements.iter().enumerate() {
+        if ei == header.vertex_elem {
+            r.read_vertices(e, sink)?;
+        } else if Some(ei) == header.face_elem {
+            r.read_faces(e, sink)?;
+        } else {
+            r.skip_element(e)?;
+        }
+    }
+    r.finish()
+}
+
+struct BodyReader<'a> {
+    input: Input,
+    header: &'a PlyHeader,
+    stats: BodyStats,
+    progress: &'a Progress,
+    reported: u64,
+    tris: Vec<[u64; 3]>,
+    verts: Vec<Vertex>,
+}
+
+impl BodyReader<'_> {
+    fn loc(&self, elem: &str, record: u64, offset: u64) -> Location {
+        Location {
+            file: self.input.path.clone(),
+            element: Some(elem.to_string()),
+            record: Some(record),
+            offset: Some(offset),
+            line: None,
+        }
+    }
+
+    fn truncated(&self, elem: &ElementDef, record: u64) -> Error {
+        Error::input(
+            self.loc(&elem.name, record, self.input.offset()),
+            format!(
+                "unexpected end of file: the header declares {} '{}' records but the body ends inside record {record}",
+                elem.count, elem.name
+            ),
+        )
+    }
+
+    fn tick(&mut self) {
+        let off = self.input.offset();
+        self.progress.inc(off - self.reported);
+        self.reported = off;
+    }
+
+    fn finish(mut self) -> Result<BodyStats> {
+        let binary = self.header.encoding != Encoding::Ascii;
+        if binary {
+            if !self.input.at_eof()? {
+                let start = self.input.offset();
+                let mut extra = self.input.avail() as u64;
+                self.input.pos = self.input.end;
+                while self.input.ensure(1)? {
+                    extra += self.input.avail() as u64;
+                    self.input.pos = self.input.end;
+                }
+                return Err(Error::input(
+                    Location { file: self.input.path.clone(), offset: Some(start), ..Default::default() },
+                    format!("{extra} unexpected bytes after the last element: the header's element counts are too small"),
+                ));
+            }
+        } else {
+            let mut t = AsciiTok { input: &mut self.input };
+            if let Some((tok, off)) = t.next_token()? {
+                let tok = String::from_utf8_lossy(&tok).into_owned();
+                return Err(Error::input(
+                    Location { file: self.input.path.clone(), offset: Some(off), ..Default::default() },
+                    format!("unexpected data '{tok}' after the last element: the header's element counts are too small"),
+                ));
+            }
+        }
+        self.tick();
+        self.stats.bytes = self.input.offset();
+        Ok(self.stats)
+    }
+
+    // ---------------------------------------------------------------- vertices
+
+    fn read_vertices(&mut self, e: &ElementDef, sink: &mut dyn BodySink) -> Result<()> {
+        let plan = VertexPlan::new(e, self.header.attrs);
+        match (self.header.encoding, e.fixed_size()) {
+            (Encoding::Ascii, _) => self.read_vertices_ascii(e, &plan, sink),
+            (enc, Some(size)) => self.read_vertices_fixed(e, &plan, size, enc == Encoding::BinaryBe, sink),
+            (enc, None) => self.read_vertices_varying(e, &plan, enc == Encoding::BinaryBe, sink),
+        }
+    }
+
+    fn check_vertex(&self, v: &Vertex, e: &ElementDef, record: u64, offset: u64) -> Result<()> {
+        if !(v.pos[0].is_finite() && v.pos[1].is_finite() && v.pos[2].is_finite()) {
+            return Err(Error::input(
+                self.loc(&e.name, record, offset),
+                format!("non-finite coordinate ({}, {}, {})", v.pos[0], v.pos[1], v.pos[2]),
+            ));
+        }
+        Ok(())
+    }
+
+    fn flush_vertices(&mut self, sink: &mut dyn BodySink) -> Result<()> {
+        if !self.verts.is_empty() {
+            let first = self.stats.vertices;
+            sink.vertices(first, &self.verts)?;
+            self.stats.vertices += self.verts.len() as u64;
+            self.verts.clear();
+            self.tick();
+        }
+        Ok(())
+    }
+
+    fn read_vertices_fixed(
+        &mut self,
+        e: &ElementDef,
+        plan: &VertexPlan,
+        size: usize,
+        be: bool,
+        sink: &mut dyn BodySink,
+    ) -> Result<()> {
+        let mut offs = Vec::with_capacity(e.props.len());
+        let mut o = 0;
+        for p in &e.props {
+            let PropType::Scalar(s) = p.ty else { unreachable!() };
+            offs.push(Field { off: o, ty: s });
+            o += s.size();
+        }
+        let f = |i: usize| offs[i];
+        let pos = plan.pos.map(f);
+        let normal = plan.normal.map(|a| a.map(f));
+        let color = plan.color.map(|a| a.map(f));
+        let alpha = plan.alpha.map(f);
+        let uv = plan.uv.map(|a| a.map(f));
+        let mut rec = 0u64;
+        while rec < e.count {
+            if !self.input.ensure(size)? {
+                self.flush_vertices(sink)?;
+                return Err(self.truncated(e, rec));
+            }
+            let n = ((self.input.avail() / size) as u64).min(e.count - rec).min((BATCH - self.verts.len()) as u64) as usize;
+            let start = self.input.pos;
+            for k in 0..n {
+                let b = &self.input.buf[start + k * size..start + (k + 1) * size];
+                let mut v = Vertex::default();
+                for a in 0..3 {
+                    v.pos[a] = bin_f64(b, pos[a].off, pos[a].ty, be);
+                }
+                if !(v.pos[0].is_finite() && v.pos[1].is_finite() && v.pos[2].is_finite()) {
+                    let off = self.input.base + (start + k * size) as u64;
+                    self.check_vertex(&v, e, rec + k as u64, off)?;
+                }
+                if let Some(nf) = normal {
+                    for a in 0..3 {
+                        v.normal[a] = bin_f64(b, nf[a].off, nf[a].ty, be) as f32;
+                    }
+                }
+                if let Some(cf) = color {
+                    for a in 0..3 {
+                        v.color[a] = color_u8(bin_f64(b, cf[a].off, cf[a].ty, be), cf[a].ty);
+                    }
+                }
+                if let Some(af) = alpha {
+                    v.color[3] = color_u8(bin_f64(b, af.off, af.ty, be), af.ty);
+                }
+                if let Some(uf) = uv {
+                    for a in 0..2 {
+                        v.uv[a] = bin_f64(b, uf[a].off, uf[a].ty, be) as f32;
+                    }
+                }
+                self.verts.push(v);
+            }
+            self.input.pos += n * size;
+            rec += n as u64;
+            if self.verts.len() == BATCH {
+                self.flush_vertices(sink)?;
+            }
+        }
+        self.flush_vertices(sink)
+    }
+
+    /// Binary vertex element with list properties (rare): decode record by record.
+    fn read_vertices_varying(
+        &mut self,
+        e: &ElementDef,
+        plan: &VertexPlan,
+        be: bool,
+        sink: &mut dyn BodySink,
+    ) -> Result<()> {
+        let mut vals = vec![0f64; e.props.len()];
+        for rec in 0..e.count {
+            let start = self.input.offset();
+            for (pi, p) in e.props.iter().enumerate() {
+                match p.ty {
+                    PropType::Scalar(s) => {
+                        if !self.input.ensure(s.size())? {
+                            return Err(self.truncated(e, rec));
+                        }
+                        vals[pi] = bin_f64(&self.input.buf, self.input.pos, s, be);
+                        self.input.pos += s.size();
+                    }
+                    PropType::List(c, s) => {
+                        let n = self.read_bin_count(e, rec, c, be)?;
+                        let bytes = n as usize * s.size();
+                        if !self.input.ensure(bytes)? {
+                            return Err(self.truncated(e, rec));
+                        }
+                        self.input.pos += bytes;
+                    }
+                }
+            }
+            let v = assemble_vertex(plan, &vals, e);
+            self.check_vertex(&v, e, rec, start)?;
+            self.verts.push(v);
+            if self.verts.len() == BATCH {
+                self.flush_vertices(sink)?;
+            }
+        }
+        self.flush_vertices(sink)
+    }
+
+    fn read_vertices_ascii(&mut self, e: &ElementDef, plan: &VertexPlan, sink: &mut dyn BodySink) -> Result<()> {
+        let mut vals = vec![0f64; e.props.len()];
+        for rec in 0..e.count {
+            let start = self.input.offset();
+            for (pi, p) in e.props.iter().enumerate() {
+                match p.ty {
+                    PropType::Scalar(s) => vals[pi] = self.ascii_number(e, rec, s, &p.name)?,
+                    PropType::List(c, s) => {
+                        let n = self.ascii_count(e, rec, c, &p.name)?;
+                        for _ in 0..n {
+                            self.ascii_number(e, rec, s, &p.name)?;
+                        }
+                    }
+                }
+            }
+            let v = assemble_vertex(plan, &vals, e);
+            self.check_vertex(&v, e, rec, start)?;
+            self.verts.push(v);
+            if self.verts.len() == BATCH {
+                self.flush_vertices(sink)?;
+            }
+        }
+        self.flush_vertices(sink)
+    }
+
+    // ------------------------------------------------------------------- faces
+
+    fn read_faces(&mut self, e: &ElementDef, sink: &mut dyn BodySink) -> Result<()> {
+        let idx_prop = face_index_prop(e).expect("checked by header");
+        let nv = self.header.vertex_count();
+        let be = self.header.encoding == Encoding::BinaryBe;
+        let ascii = self.header.encoding == Encoding::Ascii;
+        let mut poly: Vec<u64> = Vec::with_capacity(16);
+        // Fast path: binary face element holding only the index list with a 1-byte count.
+        let simple = !ascii && e.props.len() == 1;
+        for rec in 0..e.count {
+            let start = self.input.offset();
+            poly.clear();
+            if simple {
+                let PropType::List(c, s) = e.props[0].ty else { unreachable!() };
+                let n = self.read_bin_count(e, rec, c, be)?;
+                let bytes = n as usize * s.size();
+                if !self.input.ensure(bytes)? {
+                    self.flush_triangles(sink)?;
+                    return Err(self.truncated(e, rec));
+                }
+                let b = &self.input.buf[self.input.pos..self.input.pos + bytes];
+                for k in 0..n as usize {
+                    let i = bin_i64(b, k * s.size(), s, be);
+                    if i < 0 || i as u64 >= nv {
+                        return Err(self.bad_index(e, rec, start, i, nv));
+                    }
+                    poly.push(i as u64);
+                }
+                self.input.pos += bytes;
+            } else {
+                for (pi, p) in e.props.iter().enumerate() {
+                    let want = pi == idx_prop;
+                    match p.ty {
+                        PropType::Scalar(s) => {
+                            if ascii {
+                                self.ascii_number(e, rec, s, &p.name)?;
+                            } else {
+                                if !self.input.ensure(s.size())? {
+                                    self.flush_triangles(sink)?;
+                                    return Err(self.truncated(e, rec));
+                                }
+                                self.input.pos += s.size();
+                            }
+                        }
+                        PropType::List(c, s) => {
+                            let n = if ascii {
+                                self.ascii_count(e, rec, c, &p.name)?
+                            } else {
+                                self.read_bin_count(e, rec, c, be)?
+                            };
+                            if ascii {
+                                for _ in 0..n {
+                                    let x = self.ascii_number(e, rec, s, &p.name)?;
+                                    if want {
+                                        if x < 0.0 || x >= nv as f64 {
+                                            return Err(self.bad_index(e, rec, start, x as i64, nv));
+                                        }
+                                        poly.push(x as u64);
+                                    }
+                                }
+                            } else {
+                                let bytes = n as usize * s.size();
+                                if !self.input.ensure(bytes)? {
+                                    self.flush_triangles(sink)?;
+                                    return Err(self.truncated(e, rec));
+                                }
+                                if want {
+                                    let b = &self.input.buf[self.input.pos..self.input.pos + bytes];
+                                    for k in 0..n as usize {
+                                        let i = bin_i64(b, k * s.size(), s, be);
+                                        if i < 0 || i as u64 >= nv {
+                                            return Err(self.bad_index(e, rec, start, i, nv));
+                                        }
+                                        poly.push(i as u64);
+                                    }
+                                }
+                                self.input.pos += bytes;
+                            }
+                        }
+                    }
+                }
+            }
+            if poly.len() < 3 {
+                return Err(Error::input(
+                    self.loc(&e.name, rec, start),
+                    format!("face with {} vertex index(es); a face needs at least 3", poly.len()),
+                ));
+            }
+            if poly.len() > 3 {
+                self.stats.polygons += 1;
+            }
+            for k in 1..poly.len() - 1 {
+                let t = [poly[0], poly[k], poly[k + 1]];
+                if t[0] == t[1] || t[1] == t[2] || t[0] == t[2] {
+                    self.stats.degenerate += 1;
+                } else {
+                    self.tris.push(t);
+                    if self.tris.len() == BATCH {
+                        self.flush_triangles(sink)?;
+                    }
+                }
+            }
+            self.stats.faces += 1;
+        }
+        self.flush_triangles(sink)
+    }
+
+    fn bad_index(&self, e: &ElementDef, rec: u64, start: u64, i: i64, nv: u64) -> Error {
+        let msg = if i < 0 {
+            format!("negative vertex index {i}")
+        } else {
+            format!("vertex index {i} out of range (the file has {nv} vertices)")
+        };
+        Error::input(self.loc(&e.name, rec, start), msg)
+    }
+
+    fn flush_triangles(&mut self, sink: &mut dyn BodySink) -> Result<()> {
+        if !self.tris.is_empty() {
+            sink.triangles(&self.tris)?;
+            self.stats.triangles += self.tris.len() as u64;
+            self.tris.clear();
+            self.tick();
+        }
+        Ok(())
+    }
+
+    // ----------------------------------------------------------------- helpers
+
+    fn read_bin_count(&mut self, e: &ElementDef, rec: u64, c: Scalar, be: bool) -> Result<u64> {
+        if !self.input.ensure(c.size())? {
+            return Err(self.truncated(e, rec));
+        }
+        let at = self.input.offset();
+        let n = bin_i64(&self.input.buf, self.input.pos, c, be);
+        if n < 0 || c.is_float() {
+            return Err(Error::input(self.loc(&e.name, rec, at), format!("invalid list length {n}")));
+        }
+        self.input.pos += c.size();
+        Ok(n as u64)
+    }
+
+    fn skip_element(&mut self, e: &ElementDef) -> Result<()> {
+        let ascii = self.header.encoding == Encoding::Ascii;
+        let be = self.header.encoding == Encoding::BinaryBe;
+        if let (false, Some(size)) = (ascii, e.fixed_size()) {
+            let mut left = e.count.checked_mul(size as u64).unwrap_or(u64::MAX);
+            while left > 0 {
+                if !self.input.ensure(1)? {
+                    let rec = (e.count * size as u64 - left) / size.max(1) as u64;
+                    return Err(self.truncated(e, rec));
+                }
+                let n = (self.input.avail() as u64).min(left) as usize;
+                self.input.pos += n;
+                left -= n as u64;
+                self.tick();
+            }
+            return Ok(());
+        }
+        for rec in 0..e.count {
+            for p in &e.props {
+                match (p.ty, ascii) {
+                    (PropType::Scalar(s), true) => {
+                        self.ascii_number(e, rec, s, &p.name)?;
+                    }
+                    (PropType::Scalar(s), false) => {
+                        if !self.input.ensure(s.size())? {
+                            return Err(self.truncated(e, rec));
+                        }
+                        self.input.pos += s.size();
+                    }
+                    (PropType::List(c, s), true) => {
+                        let n = self.ascii_count(e, rec, c, &p.name)?;
+                        for _ in 0..n {
+                            self.ascii_number(e, rec, s, &p.name)?;
+                        }
+                    }
+                    (PropType::List(c, s), false) => {
+                        let n = self.read_bin_count(e, rec, c, be)?;
+                        let bytes = n.checked_mul(s.size() as u64).unwrap_or(u64::MAX);
+                        let mut left = bytes;
+                        while left > 0 {
+                            if !self.input.ensure(1)? {
+                                return Err(self.truncated(e, rec));
+                            }
+                            let k = (self.input.avail() as u64).min(left) as usize;
+                            self.input.pos += k;
+                            left -= k as u64;
+                        }
+                    }
+                }
+            }
+            if rec % 65536 == 0 {
+                self.tick();
+            }
+        }
+        Ok(())
+    }
+
+    fn ascii_number(&mut self, e: &ElementDef, rec: u64, ty: Scalar, prop: &str) -> Result<f64> {
+        let mut t = AsciiTok { input: &mut self.input };
+        let Some((tok, off)) = t.next_token()? else {
+            return Err(self.truncated(e, rec));
+        };
+        let s = std::str::from_utf8(&tok).unwrap_or("");
+        let parsed = if ty.is_float() {
+            s.parse::<f64>().ok()
+        } else {
+            s.parse::<i64>().ok().map(|x| x as f64)
+        };
+        match parsed {
+            Some(x) => Ok(x),
+            None => Err(Error::input(
+                self.loc(&e.name, rec, off),
+                format!("property '{prop}': '{}' is not a valid {}", String::from_utf8_lossy(&tok), ty.name()),
+            )),
+        }
+    }
+
+    fn ascii_count(&mut self, e: &ElementDef, rec: u64, ty: Scalar, prop: &str) -> Result<u64> {
+        let off = self.input.offset();
+        let x = self.ascii_number(e, rec, ty, prop)?;
+        if x < 0.0 {
+            return Err(Error::input(self.loc(&e.name, rec, off), format!("invalid list length {x}")));
+        }
+        Ok(x as u64)
+    }
+}
+
+fn assemble_vertex(plan: &VertexPlan, vals: &[f64], e: &ElementDef) -> Vertex {
+    let ty = |i: usize| match e.props[i].ty {
+        PropType::Scalar(s) => s,
+        PropType::List(..) => unreachable!(),
+    };
+    let mut v = Vertex { pos: plan.pos.map(|i| vals[i]), ..Default::default() };
+    if let Some(n) = plan.normal {
+        v.normal = n.map(|i| vals[i] as f32);
+    }
+    if let Some(c) = plan.color {
+        for a in 0..3 {
+            v.color[a] = color_u8(vals[c[a]], ty(c[a]));
+        }
+    }
+    if let Some(a) = plan.alpha {
+        v.color[3] = color_u8(vals[a], ty(a));
+    }
+    if let Some(u) = plan.uv {
+        v.uv = u.map(|i| vals[i] as f32);
+    }
+    v
+}
+
+/// Whitespace tokenizer over the buffered input (ascii bodies).
+struct AsciiTok<'a> {
+    input: &'a mut Input,
+}
+
+impl AsciiTok<'_> {
+    /// Next token and its byte offset, or None at end of file.
+    fn next_token(&mut self) -> Result<Option<(Vec<u8>, u64)>> {
+        loop {
+            if !self.input.ensure(1)? {
+                return Ok(None);
+            }
+            let b = self.input.buf[self.input.pos];
+            if b.is_ascii_whitespace() {
+                self.input.pos += 1;
+            } else {
+                break;
+            }
+        }
+        let off = self.input.offset();
+        let mut tok = Vec::with_capacity(24);
+        loop {
+            if !self.input.ensure(1)? {
+                break;
+            }
+            let b = self.input.buf[self.input.pos];
+            if b.is_ascii_whitespace() {
+                break;
+            }
+            tok.push(b);
+            self.input.pos += 1;
+            if tok.len() > 4096 {
+                break;
+            }
+        }
+        Ok(Some((tok, off)))
+    }
+}
+
+/// A sink that collects everything in memory (tests, small inputs, `ply-info`).
+#[derive(Default, Debug, Clone)]
+pub struct CollectSink {
+    pub vertices: Vec<Vertex>,
+    pub triangles: Vec<[u64; 3]>,
+}
+
+impl BodySink for CollectSink {
+    fn vertices(&mut self, first: u64, batch: &[Vertex]) -> Result<()> {
+        debug_assert_eq!(first, self.vertices.len() as u64);
+        self.vertices.extend_from_slice(batch);
+        Ok(())
+    }
+    fn triangles(&mut self, batch: &[[u64; 3]]) -> Result<()> {
+        self.triangles.extend_from_slice(batch);
+        Ok(())
+    }
+}
+
+/// Reads a whole PLY into memory. For small meshes only.
+pub fn read_all(path: &Path) -> Result<(PlyHeader, CollectSink, BodyStats)> {
+    let header = super::read_header(path)?;
+    let mut sink = CollectSink::default();
+    let stats = read_body(path, &header, &mut sink, &Progress::hidden())?;
+    Ok((header, sink, stats))
+}

@@ -1,0 +1,324 @@
+//! Soup stage: indexed PLY → triangle soup under a fixed memory budget.
+//!
+//! Takes: a PLY path, an output path and a budget (`--mem`). Gives: a `.soup`
+//! file ([`format`]) whose records are the input's triangles in face order
+//! (polygons fan-triangulated, degenerate triangles dropped and counted),
+//! each corner carrying exactly the input's attributes, plus a [`SoupReport`].
+//!
+//! Two paths, same output byte for byte:
+//! * **in memory** when the vertex table fits in ¾ of the budget and vertices
+//!   precede faces in the file: one pass, faces dereferenced on the fly;
+//! * **external** otherwise, never random-accessing the disk:
+//!   1. stream the PLY once: vertices go to a packed vertex file in index
+//!      order, each triangle corner becomes a record (vertex index, slot =
+//!      3·triangle + corner);
+//!   2. external-sort the corner records by vertex index ([`crate::extsort`]);
+//!   3. merge them against the vertex file read sequentially (a join): each
+//!      corner becomes (slot, vertex bytes);
+//!   4. external-sort those by slot and write every three consecutive corners
+//!      as one soup triangle.
+//!
+//! Budget split: phase 1 gives the corner sort the whole budget less I/O
+//! buffers; in phase 3 the first sort's merge buffers and the second sort's
+//! run buffer share it half and half; phase 4's merge has it all.
+
+pub mod format;
+
+use crate::error::{Error, IoContext, Location, Result};
+use crate::extsort::{ExtSorter, SortStats};
+use crate::io::SEQ_BUF;
+use crate::mesh::{Vertex, VertexLayout};
+use crate::ply::read::{read_body, BodySink, BodyStats};
+use crate::ply::{read_header, PlyHeader};
+use crate::progress::Progress;
+use format::{SoupHeader, SoupWriter};
+use std::fs::File;
+use std::io::{BufReader, BufWriter, Read, Write};
+use std::path::Path;
+use std::time::Instant;
+
+/// Options for [`build_soup`].
+#[derive(Clone, Debug)]
+pub struct SoupOptions {
+    /// Working-memory budget in bytes.
+    pub mem: u64,
+    pub quiet: bool,
+    /// Take the external path even when the input fits (tests, benchmarks).
+    pub force_external: bool,
+    /// Cap on runs per merge (tests force multi-pass merges with 2).
+    pub max_fan_in: Option<usize>,
+}
+
+impl Default for SoupOptions {
+    fn default() -> Self {
+        SoupOptions { mem: 256 << 20, quiet: true, force_external: false, max_fan_in: None }
+    }
+}
+
+/// What a soup build did.
+#[derive(Clone, Debug)]
+pub struct SoupReport {
+    pub header: SoupHeader,
+    pub body: BodyStats,
+    pub input_bytes: u64,
+    pub external: bool,
+    pub sort_by_vertex: SortStats,
+    pub sort_by_slot: SortStats,
+    pub seconds: f64,
+}
+
+impl SoupReport {
+    /// The one-line summary printed at the end of `octolod soup`.
+    pub fn summary(&self, peak_rss: Option<u64>) -> String {
+        let mb_s = self.input_bytes as f64 / 1e6 / self.seconds.max(1e-9);
+        let mt_s = self.body.triangles as f64 / 1e6 / self.seconds.max(1e-9);
+        format!(
+            "soup: {} faces in, {} triangles out, {} degenerate dropped, {} path, {:.2} s, {:.1} MB/s, {:.2} M tri/s, peak RSS {}",
+            self.body.faces,
+            self.header.triangles,
+            self.header.degenerate,
+            if self.external { "external-sort" } else { "in-memory" },
+            self.seconds,
+            mb_s,
+            mt_s,
+            peak_rss.map(crate::progress::mib).unwrap_or_else(|| "n/a".into())
+        )
+    }
+}
+
+/// I/O buffers held besides the budgeted sort memory.
+const IO_RESERVE: u64 = 6 * SEQ_BUF as u64;
+
+/// Builds a soup from `input` into `output`; see the module doc.
+pub fn build_soup(input: &Path, output: &Path, opts: &SoupOptions) -> Result<SoupReport> {
+    let t0 = Instant::now();
+    if opts.mem < crate::mem::MIN_BUDGET {
+        return Err(Error::Usage(format!("--mem must be at least {} bytes", crate::mem::MIN_BUDGET)));
+    }
+    let header = read_header(input)?;
+    check_has_faces(input, &header)?;
+    let input_bytes = std::fs::metadata(input).ctx(input, "stat")?.len();
+    let layout = VertexLayout::new(header.attrs);
+    let vertex_table = header.vertex_count().saturating_mul(layout.size as u64);
+    let vertices_first = header.face_elem.is_some_and(|f| header.vertex_elem < f);
+    let in_memory = !opts.force_external && vertices_first && vertex_table <= opts.mem / 4 * 3;
+    let progress = Progress::bytes(input_bytes, "reading", opts.quiet);
+    let mut report = if in_memory {
+        build_in_memory(input, output, &header, &progress)?
+    } else {
+        build_external(input, output, &header, opts, &progress)?
+    };
+    progress.finish();
+    report.input_bytes = input_bytes;
+    report.seconds = t0.elapsed().as_secs_f64();
+    Ok(report)
+}
+
+fn check_has_faces(input: &Path, header: &PlyHeader) -> Result<()> {
+    if header.face_count() == 0 {
+        let loc = Location {
+            file: input.to_path_buf(),
+            element: Some("face".into()),
+            offset: Some(header.body_offset),
+            ..Default::default()
+        };
+        return Err(Error::input(loc, "the file declares no faces: nothing to turn into a triangle soup"));
+    }
+    Ok(())
+}
+
+fn no_triangles_error(input: &Path, header: &PlyHeader, body: &BodyStats) -> Error {
+    let loc = Location { file: input.to_path_buf(), element: Some("face".into()), ..Default::default() };
+    Error::input(
+        loc,
+        format!("all {} faces are degenerate (repeated vertex indices): no triangle left", header.face_count().max(body.faces)),
+    )
+}
+
+// ------------------------------------------------------------------ in memory
+
+struct InMemorySink<'a> {
+    table: Vec<u8>,
+    layout: VertexLayout,
+    soup: &'a mut SoupWriter,
+    rec: Vec<u8>,
+}
+
+impl BodySink for InMemorySink<'_> {
+    fn vertices(&mut self, first: u64, batch: &[Vertex]) -> Result<()> {
+        let s = self.layout.size;
+        debug_assert_eq!(self.table.len(), first as usize * s);
+        let at = self.table.len();
+        self.table.resize(at + batch.len() * s, 0);
+        for (k, v) in batch.iter().enumerate() {
+            self.layout.encode(v, &mut self.table[at + k * s..]);
+        }
+        Ok(())
+    }
+    fn triangles(&mut self, batch: &[[u64; 3]]) -> Result<()> {
+        let s = self.layout.size;
+        for t in batch {
+            for c in 0..3 {
+                let i = t[c] as usize * s;
+                self.rec[c * s..(c + 1) * s].copy_from_slice(&self.table[i..i + s]);
+            }
+            self.soup.push_encoded(&self.rec)?;
+        }
+        Ok(())
+    }
+}
+
+fn build_in_memory(input: &Path, output: &Path, header: &PlyHeader, progress: &Progress) -> Result<SoupReport> {
+    let layout = VertexLayout::new(header.attrs);
+    let mut soup = SoupWriter::create(output, header.attrs)?;
+    let mut sink = InMemorySink {
+        table: Vec::with_capacity(header.vertex_count() as usize * layout.size),
+        layout,
+        soup: &mut soup,
+        rec: vec![0; 3 * layout.size],
+    };
+    let body = read_body(input, header, &mut sink, progress)?;
+    drop(sink);
+    if body.triangles == 0 {
+        return Err(no_triangles_error(input, header, &body));
+    }
+    let h = soup.commit(body.vertices, body.faces, body.degenerate)?;
+    Ok(SoupReport {
+        header: h,
+        body,
+        input_bytes: 0,
+        external: false,
+        sort_by_vertex: SortStats::default(),
+        sort_by_slot: SortStats::default(),
+        seconds: 0.0,
+    })
+}
+
+// ------------------------------------------------------------------- external
+
+struct ExternalSink<'a> {
+    layout: VertexLayout,
+    vfile: BufWriter<File>,
+    vpath: &'a Path,
+    vbuf: Vec<u8>,
+    corners: ExtSorter,
+    next_tri: u64,
+}
+
+impl BodySink for ExternalSink<'_> {
+    fn vertices(&mut self, _first: u64, batch: &[Vertex]) -> Result<()> {
+        let s = self.layout.size;
+        self.vbuf.resize(batch.len() * s, 0);
+        for (k, v) in batch.iter().enumerate() {
+            self.layout.encode(v, &mut self.vbuf[k * s..]);
+        }
+        self.vfile.write_all(&self.vbuf).ctx(self.vpath, "write vertex file")
+    }
+    fn triangles(&mut self, batch: &[[u64; 3]]) -> Result<()> {
+        for t in batch {
+            let slot0 = self.next_tri * 3;
+            for c in 0..3 {
+                self.corners.push_with(|b| {
+                    b[..8].copy_from_slice(&t[c].to_le_bytes());
+                    b[8..16].copy_from_slice(&(slot0 + c as u64).to_le_bytes());
+                })?;
+            }
+            self.next_tri += 1;
+        }
+        Ok(())
+    }
+}
+
+fn build_external(
+    input: &Path,
+    output: &Path,
+    header: &PlyHeader,
+    opts: &SoupOptions,
+    progress: &Progress,
+) -> Result<SoupReport> {
+    let layout = VertexLayout::new(header.attrs);
+    let scratch = crate::io::scratch_dir(output)?;
+    let budget = opts.mem.saturating_sub(IO_RESERVE).max(opts.mem / 2) as usize;
+    let fan = |s: ExtSorter| match opts.max_fan_in {
+        Some(k) => s.with_max_fan_in(k),
+        None => s,
+    };
+
+    // Phase 1: one pass over the PLY.
+    let vpath = scratch.path().join("vertices.bin");
+    let vfile = File::create(&vpath).ctx(&vpath, "create vertex file")?;
+    let mut sink = ExternalSink {
+        layout,
+        vfile: BufWriter::with_capacity(SEQ_BUF, vfile),
+        vpath: &vpath,
+        vbuf: Vec::new(),
+        corners: fan(ExtSorter::new("corners", 16, budget, scratch.path())),
+        next_tri: 0,
+    };
+    let body = read_body(input, header, &mut sink, progress)?;
+    if body.triangles == 0 {
+        return Err(no_triangles_error(input, header, &body));
+    }
+    let ExternalSink { vfile, corners, .. } = sink;
+    vfile.into_inner().map_err(|e| e.into_error()).ctx(&vpath, "write vertex file")?;
+    progress.finish();
+
+    // Phases 2+3: corners in vertex order, joined with the vertex file.
+    let n_corners = body.triangles * 3;
+    let join_progress = Progress::items(n_corners, "joining", opts.quiet);
+    let mut by_slot = fan(ExtSorter::new("slots", 8 + layout.size, budget / 2, scratch.path()));
+    let mut vreader = BufReader::with_capacity(SEQ_BUF, File::open(&vpath).ctx(&vpath, "open vertex file")?);
+    let mut vcur = vec![0u8; layout.size];
+    let mut vnext: u64 = 0; // index of the next vertex record to read
+    let mut done = 0u64;
+    let corners = corners.with_merge_mem(budget / 2);
+    let sort_by_vertex = corners.finish(|r| {
+        let vi = u64::from_le_bytes(r[..8].try_into().unwrap());
+        let slot = &r[8..16];
+        // Advance the vertex stream to `vi` (monotone: records come sorted by vertex).
+        while vnext <= vi {
+            vreader.read_exact(&mut vcur).ctx(&vpath, "read vertex file")?;
+            vnext += 1;
+        }
+        by_slot.push_with(|b| {
+            b[..8].copy_from_slice(slot);
+            b[8..].copy_from_slice(&vcur);
+        })?;
+        done += 1;
+        if done % 65536 == 0 {
+            join_progress.set(done);
+        }
+        Ok(())
+    })?;
+    drop(vreader);
+    let _ = std::fs::remove_file(&vpath);
+    join_progress.finish();
+
+    // Phase 4: corners in slot order, three at a time, into the soup.
+    let by_slot = by_slot.with_merge_mem(budget);
+    let write_progress = Progress::items(n_corners, "writing", opts.quiet);
+    let mut soup = SoupWriter::create(output, header.attrs)?;
+    let s = layout.size;
+    let mut tri = vec![0u8; 3 * s];
+    let mut k = 0usize;
+    let mut seen = 0u64;
+    let sort_by_slot = by_slot.finish(|r| {
+        debug_assert_eq!(u64::from_le_bytes(r[..8].try_into().unwrap()), seen);
+        tri[k * s..(k + 1) * s].copy_from_slice(&r[8..]);
+        k += 1;
+        seen += 1;
+        if k == 3 {
+            soup.push_encoded(&tri)?;
+            k = 0;
+        }
+        if seen % 65536 == 0 {
+            write_progress.set(seen);
+        }
+        Ok(())
+    })?;
+    write_progress.finish();
+    debug_assert_eq!(seen, n_corners);
+    let h = soup.commit(body.vertices, body.faces, body.degenerate)?;
+    Ok(SoupReport { header: h, body, input_bytes: 0, external: true, sort_by_vertex, sort_by_slot, seconds: 0.0 })
+}
+
