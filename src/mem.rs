@@ -30,7 +30,7 @@ pub fn parse_size(s: &str) -> Result<u64> {
 }
 
 /// Smallest budget we accept: below this, per-stream buffers dominate.
-pub const MIN_BUDGET: u64 = 1 << 20;
+pub const MIN_BUDGET: u64 = 64 << 10;
 
 #[cfg(test)]
 mod tests {

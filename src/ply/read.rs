@@ -108,6 +108,14 @@ impl Input {
         Ok(self.end - self.pos >= n)
     }
 
+    /// Skips ascii whitespace so that offsets name a record's first token.
+    fn skip_ws(&mut self) -> Result<()> {
+        while self.ensure(1)? && self.buf[self.pos].is_ascii_whitespace() {
+            self.pos += 1;
+        }
+        Ok(())
+    }
+
     /// True when no byte is left.
     fn at_eof(&mut self) -> Result<bool> {
         Ok(!self.ensure(1)?)
@@ -438,6 +446,7 @@ impl BodyReader<'_> {
     fn read_vertices_ascii(&mut self, e: &ElementDef, plan: &VertexPlan, sink: &mut dyn BodySink) -> Result<()> {
         let mut vals = vec![0f64; e.props.len()];
         for rec in 0..e.count {
+            self.input.skip_ws()?;
             let start = self.input.offset();
             for (pi, p) in e.props.iter().enumerate() {
                 match p.ty {
@@ -471,6 +480,9 @@ impl BodyReader<'_> {
         // Fast path: binary face element holding only the index list with a 1-byte count.
         let simple = !ascii && e.props.len() == 1;
         for rec in 0..e.count {
+            if ascii {
+                self.input.skip_ws()?;
+            }
             let start = self.input.offset();
             poly.clear();
             if simple {
