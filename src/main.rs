@@ -68,7 +68,7 @@ fn run(cli: Cli) -> Result<()> {
             let peak = peak_rss();
             if json {
                 println!(
-                    "{{\"faces\":{},\"triangles\":{},\"degenerate\":{},\"polygons\":{},\"vertices\":{},\"input_bytes\":{},\"external\":{},\"seconds\":{:.4},\"mb_per_s\":{:.2},\"mtris_per_s\":{:.3},\"peak_rss_bytes\":{},\"mem_budget_bytes\":{},\"runs\":[{},{}],\"merge_passes\":[{},{}],\"spilled_bytes\":{}}}",
+                    "{{\"faces\":{},\"triangles\":{},\"degenerate\":{},\"polygons\":{},\"vertices\":{},\"input_bytes\":{},\"external\":{},\"seconds\":{:.4},\"mb_per_s\":{:.2},\"mtris_per_s\":{:.3},\"peak_rss_bytes\":{},\"mem_budget_bytes\":{},\"corner_runs\":{},\"corner_merge_passes\":{},\"slot_buckets\":{},\"spilled_bytes\":{}}}",
                     rep.body.faces,
                     rep.header.triangles,
                     rep.header.degenerate,
@@ -82,10 +82,9 @@ fn run(cli: Cli) -> Result<()> {
                     peak.unwrap_or(0),
                     opts.mem,
                     rep.sort_by_vertex.runs,
-                    rep.sort_by_slot.runs,
                     rep.sort_by_vertex.merge_passes,
-                    rep.sort_by_slot.merge_passes,
-                    rep.sort_by_vertex.spilled_bytes + rep.sort_by_slot.spilled_bytes,
+                    rep.slot_buckets,
+                    rep.sort_by_vertex.spilled_bytes + rep.bucket_bytes,
                 );
             } else {
                 println!("{}", rep.summary(peak));
@@ -141,12 +140,21 @@ fn ply_info(input: &std::path::Path, header_only: bool, quiet: bool) -> Result<(
     let len = std::fs::metadata(input).map(|m| m.len()).unwrap_or(0);
     let progress = Progress::bytes(len, "scanning", quiet);
     let mut sink = BboxSink { bbox: Aabb::EMPTY };
+    let t0 = std::time::Instant::now();
     let st = read_body(input, &h, &mut sink, &progress)?;
+    let secs = t0.elapsed().as_secs_f64();
     progress.finish();
     let b = sink.bbox;
     println!("triangles (after fan triangulation): {}", st.triangles);
     println!("degenerate triangles: {}", st.degenerate);
     println!("polygons (>3 corners): {}", st.polygons);
+    println!(
+        "decoded: {} bytes in {:.3} s ({:.1} MB/s, {:.2} M faces/s)",
+        st.bytes,
+        secs,
+        st.bytes as f64 / 1e6 / secs.max(1e-9),
+        st.faces as f64 / 1e6 / secs.max(1e-9)
+    );
     if b.is_empty() {
         println!("bbox: empty");
     } else {

@@ -209,8 +209,8 @@ fn soup_is_exact_for_budgets_from_tiny_to_large() {
         assert!(rep.header.attrs.pos_f64(), "far-from-origin doubles keep double precision");
         if mem == 64 << 10 {
             assert!(rep.sort_by_vertex.runs >= 20, "tiny budget must spill many runs: {:?}", rep.sort_by_vertex);
-            assert!(rep.sort_by_slot.runs >= 20, "{:?}", rep.sort_by_slot);
-            assert!(rep.sort_by_vertex.merge_passes >= 2 && rep.sort_by_slot.merge_passes >= 2);
+            assert!(rep.sort_by_vertex.merge_passes >= 2, "{:?}", rep.sort_by_vertex);
+            assert!(rep.slot_buckets >= 10, "tiny budget must distribute into many slot buckets: {}", rep.slot_buckets);
             seen_multipass = true;
         }
         if !external {

@@ -15,12 +15,15 @@
 //!   2. external-sort the corner records by vertex index ([`crate::extsort`]);
 //!   3. merge them against the vertex file read sequentially (a join): each
 //!      corner becomes (slot, vertex bytes);
-//!   4. external-sort those by slot and write every three consecutive corners
-//!      as one soup triangle.
+//!   4. sort those by slot with a one-pass distribution sort: slots are dense,
+//!      so corners go to bucket files by slot range (each range's vertex
+//!      bytes fit the budget), then each bucket is placed in memory by slot
+//!      and written out as triangles, in order.
 //!
 //! Budget split: phase 1 gives the corner sort the whole budget less I/O
-//! buffers; in phase 3 the first sort's merge buffers and the second sort's
-//! run buffer share it half and half; phase 4's merge has it all.
+//! buffers; in phase 3 the corner merge's read buffers and the bucket
+//! writers' buffers share it half and half; phase 4 places one bucket, at
+//! most the whole budget, at a time.
 
 pub mod format;
 
@@ -62,8 +65,12 @@ pub struct SoupReport {
     pub body: BodyStats,
     pub input_bytes: u64,
     pub external: bool,
+    /// The external sort of corners by vertex index.
     pub sort_by_vertex: SortStats,
-    pub sort_by_slot: SortStats,
+    /// Slot-range bucket files of the distribution pass (0: placed in memory).
+    pub slot_buckets: u64,
+    /// Bytes written to bucket files.
+    pub bucket_bytes: u64,
     pub seconds: f64,
 }
 
@@ -189,7 +196,8 @@ fn build_in_memory(input: &Path, output: &Path, header: &PlyHeader, progress: &P
         input_bytes: 0,
         external: false,
         sort_by_vertex: SortStats::default(),
-        sort_by_slot: SortStats::default(),
+        slot_buckets: 0,
+        bucket_bytes: 0,
         seconds: 0.0,
     })
 }
@@ -263,10 +271,11 @@ fn build_external(
     vfile.into_inner().map_err(|e| e.into_error()).ctx(&vpath, "write vertex file")?;
     progress.finish();
 
-    // Phases 2+3: corners in vertex order, joined with the vertex file.
+    // Phases 2+3: corners in vertex order, joined with the vertex file, then
+    // distributed by slot range.
     let n_corners = body.triangles * 3;
     let join_progress = Progress::items(n_corners, "joining", opts.quiet);
-    let mut by_slot = fan(ExtSorter::new("slots", 8 + layout.size, budget / 2, scratch.path()));
+    let mut buckets = SlotBuckets::new(scratch.path(), n_corners, layout.size, budget, budget / 2)?;
     let mut vreader = BufReader::with_capacity(SEQ_BUF, File::open(&vpath).ctx(&vpath, "open vertex file")?);
     let mut vcur = vec![0u8; layout.size];
     let mut vnext: u64 = 0; // index of the next vertex record to read
@@ -274,16 +283,13 @@ fn build_external(
     let corners = corners.with_merge_mem(budget / 2);
     let sort_by_vertex = corners.finish(|r| {
         let vi = u64::from_le_bytes(r[..8].try_into().unwrap());
-        let slot = &r[8..16];
+        let slot = u64::from_le_bytes(r[8..16].try_into().unwrap());
         // Advance the vertex stream to `vi` (monotone: records come sorted by vertex).
         while vnext <= vi {
             vreader.read_exact(&mut vcur).ctx(&vpath, "read vertex file")?;
             vnext += 1;
         }
-        by_slot.push_with(|b| {
-            b[..8].copy_from_slice(slot);
-            b[8..].copy_from_slice(&vcur);
-        })?;
+        buckets.push(slot, &vcur)?;
         done += 1;
         if done % 65536 == 0 {
             join_progress.set(done);
@@ -294,31 +300,129 @@ fn build_external(
     let _ = std::fs::remove_file(&vpath);
     join_progress.finish();
 
-    // Phase 4: corners in slot order, three at a time, into the soup.
-    let by_slot = by_slot.with_merge_mem(budget);
-    let write_progress = Progress::items(n_corners, "writing", opts.quiet);
+    // Phase 4: each slot range placed in memory, written as triangles in order.
+    let write_progress = Progress::items(body.triangles, "writing", opts.quiet);
     let mut soup = SoupWriter::create(output, header.attrs)?;
-    let s = layout.size;
-    let mut tri = vec![0u8; 3 * s];
-    let mut k = 0usize;
-    let mut seen = 0u64;
-    let sort_by_slot = by_slot.finish(|r| {
-        debug_assert_eq!(u64::from_le_bytes(r[..8].try_into().unwrap()), seen);
-        tri[k * s..(k + 1) * s].copy_from_slice(&r[8..]);
-        k += 1;
-        seen += 1;
-        if k == 3 {
-            soup.push_encoded(&tri)?;
-            k = 0;
-        }
-        if seen % 65536 == 0 {
-            write_progress.set(seen);
+    let mut written = 0u64;
+    let slot_buckets = buckets.len();
+    let bucket_bytes = buckets.finish(|tri| {
+        soup.push_encoded(tri)?;
+        written += 1;
+        if written % 65536 == 0 {
+            write_progress.set(written);
         }
         Ok(())
     })?;
     write_progress.finish();
-    debug_assert_eq!(seen, n_corners);
+    debug_assert_eq!(written, body.triangles);
     let h = soup.commit(body.vertices, body.faces, body.degenerate)?;
-    Ok(SoupReport { header: h, body, input_bytes: 0, external: true, sort_by_vertex, sort_by_slot, seconds: 0.0 })
+    Ok(SoupReport { header: h, body, input_bytes: 0, external: true, sort_by_vertex, slot_buckets, bucket_bytes, seconds: 0.0 })
+}
+
+/// Phase 3–4 of the external path: a one-pass distribution sort by slot.
+///
+/// Slots are dense (0..3·triangles), so instead of a second comparison sort
+/// the joined corners are appended to bucket files, each covering a slot
+/// range whose vertex bytes fit the budget; each bucket is then read back
+/// sequentially, its corners placed at their slot in memory, and written out
+/// in order. When all corners fit in half the budget no file is written.
+struct SlotBuckets {
+    vsize: usize,
+    n_slots: u64,
+    /// Slots per bucket (a multiple of 3, so no triangle straddles two buckets).
+    per: u64,
+    files: Vec<(std::path::PathBuf, BufWriter<File>)>,
+    /// The single in-memory bucket, when everything fits.
+    mem: Option<Vec<u8>>,
+    counts: Vec<u64>,
+    rec: Vec<u8>,
+}
+
+impl SlotBuckets {
+    fn new(dir: &Path, n_slots: u64, vsize: usize, place_mem: usize, write_mem: usize) -> Result<SlotBuckets> {
+        let total = n_slots * vsize as u64;
+        if total <= write_mem as u64 {
+            return Ok(SlotBuckets {
+                vsize,
+                n_slots,
+                per: n_slots.max(3),
+                files: Vec::new(),
+                mem: Some(vec![0u8; total as usize]),
+                counts: vec![0],
+                rec: Vec::new(),
+            });
+        }
+        let per = ((place_mem / vsize) as u64 / 3 * 3).clamp(3, u32::MAX as u64 / 3 * 3);
+        let n = n_slots.div_ceil(per) as usize;
+        let buf = (write_mem / n).clamp(4 << 10, SEQ_BUF);
+        let mut files = Vec::with_capacity(n);
+        for b in 0..n {
+            let path = dir.join(format!("slots-{b:05}.bin"));
+            let f = File::create(&path).ctx(&path, "create bucket file")?;
+            files.push((path, BufWriter::with_capacity(buf, f)));
+        }
+        Ok(SlotBuckets { vsize, n_slots, per, files, mem: None, counts: vec![0; n], rec: vec![0; 4 + vsize] })
+    }
+
+    fn len(&self) -> u64 {
+        self.files.len() as u64
+    }
+
+    #[inline]
+    fn push(&mut self, slot: u64, vertex: &[u8]) -> Result<()> {
+        let s = self.vsize;
+        if let Some(m) = &mut self.mem {
+            m[slot as usize * s..(slot as usize + 1) * s].copy_from_slice(vertex);
+            self.counts[0] += 1;
+            return Ok(());
+        }
+        let b = (slot / self.per) as usize;
+        self.rec[..4].copy_from_slice(&((slot % self.per) as u32).to_le_bytes());
+        self.rec[4..].copy_from_slice(vertex);
+        self.counts[b] += 1;
+        let (path, w) = &mut self.files[b];
+        w.write_all(&self.rec).ctx(path, "write bucket file")
+    }
+
+    /// Emits every triangle (3 corners) in slot order; returns bytes spilled to bucket files.
+    fn finish(self, mut out: impl FnMut(&[u8]) -> Result<()>) -> Result<u64> {
+        let s = self.vsize;
+        if let Some(m) = self.mem {
+            debug_assert_eq!(self.counts[0], self.n_slots);
+            for tri in m.chunks_exact(3 * s) {
+                out(tri)?;
+            }
+            return Ok(0);
+        }
+        let mut spilled = 0;
+        let rec = 4 + s;
+        for (b, (path, w)) in self.files.into_iter().enumerate() {
+            let f = w.into_inner().map_err(|e| e.into_error()).ctx(&path, "write bucket file")?;
+            drop(f);
+            let first = b as u64 * self.per;
+            let n = (self.n_slots - first).min(self.per) as usize;
+            assert_eq!(self.counts[b], n as u64, "bucket {b} misses corners");
+            let mut placed = vec![0u8; n * s];
+            let mut r = BufReader::with_capacity(SEQ_BUF, File::open(&path).ctx(&path, "open bucket file")?);
+            let mut chunk = vec![0u8; (SEQ_BUF / rec).max(1) * rec];
+            let mut left = n * rec;
+            while left > 0 {
+                let want = left.min(chunk.len());
+                r.read_exact(&mut chunk[..want]).ctx(&path, "read bucket file")?;
+                for c in chunk[..want].chunks_exact(rec) {
+                    let i = u32::from_le_bytes(c[..4].try_into().unwrap()) as usize;
+                    placed[i * s..(i + 1) * s].copy_from_slice(&c[4..]);
+                }
+                left -= want;
+            }
+            drop(r);
+            let _ = std::fs::remove_file(&path);
+            spilled += (n * rec) as u64;
+            for tri in placed.chunks_exact(3 * s) {
+                out(tri)?;
+            }
+        }
+        Ok(spilled)
+    }
 }
 
