@@ -68,7 +68,7 @@ fn run(cli: Cli) -> Result<()> {
             let peak = peak_rss();
             if json {
                 println!(
-                    "{{\"faces\":{},\"triangles\":{},\"degenerate\":{},\"polygons\":{},\"vertices\":{},\"input_bytes\":{},\"external\":{},\"seconds\":{:.4},\"mb_per_s\":{:.2},\"mtris_per_s\":{:.3},\"peak_rss_bytes\":{},\"mem_budget_bytes\":{},\"corner_runs\":{},\"corner_merge_passes\":{},\"slot_buckets\":{},\"spilled_bytes\":{}}}",
+                    "{{\"faces\":{},\"triangles\":{},\"degenerate\":{},\"polygons\":{},\"vertices\":{},\"input_bytes\":{},\"external\":{},\"seconds\":{:.4},\"mb_per_s\":{:.2},\"mtris_per_s\":{:.3},\"peak_rss_bytes\":{},\"mem_budget_bytes\":{},\"corner_runs\":{},\"corner_merge_passes\":{},\"slot_buckets\":{},\"spilled_bytes\":{},\"phase_seconds\":[{:.3},{:.3},{:.3}]}}",
                     rep.body.faces,
                     rep.header.triangles,
                     rep.header.degenerate,
@@ -85,6 +85,9 @@ fn run(cli: Cli) -> Result<()> {
                     rep.sort_by_vertex.merge_passes,
                     rep.slot_buckets,
                     rep.sort_by_vertex.spilled_bytes + rep.bucket_bytes,
+                    rep.phase_seconds[0],
+                    rep.phase_seconds[1],
+                    rep.phase_seconds[2],
                 );
             } else {
                 println!("{}", rep.summary(peak));

@@ -425,11 +425,7 @@ impl BodyReader<'_> {
                     }
                     PropType::List(c, s) => {
                         let n = self.read_bin_count(e, rec, c, be)?;
-                        let bytes = n as usize * s.size();
-                        if !self.input.ensure(bytes)? {
-                            return Err(self.truncated(e, rec));
-                        }
-                        self.input.pos += bytes;
+                        self.skip_bytes(e, rec, n.saturating_mul(s.size() as u64))?;
                     }
                 }
             }
@@ -473,99 +469,97 @@ impl BodyReader<'_> {
 
     fn read_faces(&mut self, e: &ElementDef, sink: &mut dyn BodySink) -> Result<()> {
         let idx_prop = face_index_prop(e).expect("checked by header");
-        let nv = self.header.vertex_count();
         let be = self.header.encoding == Encoding::BinaryBe;
         let ascii = self.header.encoding == Encoding::Ascii;
-        let mut poly: Vec<u64> = Vec::with_capacity(16);
-        // Fast path: binary face element holding only the index list with a 1-byte count.
-        let simple = !ascii && e.props.len() == 1;
         for rec in 0..e.count {
             if ascii {
                 self.input.skip_ws()?;
             }
             let start = self.input.offset();
-            poly.clear();
-            if simple {
-                let PropType::List(c, s) = e.props[0].ty else { unreachable!() };
-                let n = self.read_bin_count(e, rec, c, be)?;
-                let bytes = n as usize * s.size();
-                if !self.input.ensure(bytes)? {
-                    self.flush_triangles(sink)?;
-                    return Err(self.truncated(e, rec));
-                }
-                let b = &self.input.buf[self.input.pos..self.input.pos + bytes];
-                for k in 0..n as usize {
-                    let i = bin_i64(b, k * s.size(), s, be);
-                    if i < 0 || i as u64 >= nv {
-                        return Err(self.bad_index(e, rec, start, i, nv));
+            let mut fan = Fan { first: 0, prev: 0, k: 0 };
+            for (pi, p) in e.props.iter().enumerate() {
+                let want = pi == idx_prop;
+                match (p.ty, ascii) {
+                    (PropType::Scalar(s), true) => {
+                        self.ascii_number(e, rec, s, &p.name)?;
                     }
-                    poly.push(i as u64);
-                }
-                self.input.pos += bytes;
-            } else {
-                for (pi, p) in e.props.iter().enumerate() {
-                    let want = pi == idx_prop;
-                    match p.ty {
-                        PropType::Scalar(s) => {
-                            if ascii {
-                                self.ascii_number(e, rec, s, &p.name)?;
-                            } else {
-                                if !self.input.ensure(s.size())? {
-                                    self.flush_triangles(sink)?;
-                                    return Err(self.truncated(e, rec));
-                                }
-                                self.input.pos += s.size();
-                            }
-                        }
-                        PropType::List(c, s) => {
-                            let n = if ascii {
-                                self.ascii_count(e, rec, c, &p.name)?
-                            } else {
-                                self.read_bin_count(e, rec, c, be)?
-                            };
+                    (PropType::Scalar(s), false) => self.skip_bytes(e, rec, s.size() as u64)?,
+                    (PropType::List(c, s), _) => {
+                        let n = if ascii {
+                            self.ascii_count(e, rec, c, &p.name)?
+                        } else {
+                            self.read_bin_count(e, rec, c, be)?
+                        };
+                        if !want {
                             if ascii {
                                 for _ in 0..n {
-                                    let x = self.ascii_number(e, rec, s, &p.name)?;
-                                    if want {
-                                        if x < 0.0 || x >= nv as f64 {
-                                            return Err(self.bad_index(e, rec, start, x as i64, nv));
-                                        }
-                                        poly.push(x as u64);
-                                    }
+                                    self.ascii_number(e, rec, s, &p.name)?;
                                 }
                             } else {
-                                let bytes = n as usize * s.size();
-                                if !self.input.ensure(bytes)? {
-                                    self.flush_triangles(sink)?;
+                                self.skip_bytes(e, rec, n.saturating_mul(s.size() as u64))?;
+                            }
+                            continue;
+                        }
+                        if n < 3 {
+                            return Err(Error::input(
+                                self.loc(&e.name, rec, start),
+                                format!("face with {n} vertex index(es); a face needs at least 3"),
+                            ));
+                        }
+                        if n > 3 {
+                            self.stats.polygons += 1;
+                        }
+                        if ascii {
+                            for _ in 0..n {
+                                let x = self.ascii_number(e, rec, s, &p.name)?;
+                                self.fan_push(&mut fan, x as i64, e, rec, start, sink)?;
+                            }
+                        } else {
+                            // Items are read as they arrive: a declared length never sizes a buffer.
+                            let sz = s.size();
+                            let mut left = n;
+                            while left > 0 {
+                                if !self.input.ensure(sz)? {
                                     return Err(self.truncated(e, rec));
                                 }
-                                if want {
-                                    let b = &self.input.buf[self.input.pos..self.input.pos + bytes];
-                                    for k in 0..n as usize {
-                                        let i = bin_i64(b, k * s.size(), s, be);
-                                        if i < 0 || i as u64 >= nv {
-                                            return Err(self.bad_index(e, rec, start, i, nv));
-                                        }
-                                        poly.push(i as u64);
-                                    }
+                                let k = ((self.input.avail() / sz) as u64).min(left) as usize;
+                                for j in 0..k {
+                                    let i = bin_i64(&self.input.buf, self.input.pos + j * sz, s, be);
+                                    self.fan_push(&mut fan, i, e, rec, start, sink)?;
                                 }
-                                self.input.pos += bytes;
+                                self.input.pos += k * sz;
+                                left -= k as u64;
                             }
                         }
                     }
                 }
             }
-            if poly.len() < 3 {
-                return Err(Error::input(
-                    self.loc(&e.name, rec, start),
-                    format!("face with {} vertex index(es); a face needs at least 3", poly.len()),
-                ));
-            }
-            if poly.len() > 3 {
-                self.stats.polygons += 1;
-            }
-            for k in 1..poly.len() - 1 {
-                let t = [poly[0], poly[k], poly[k + 1]];
+            self.stats.faces += 1;
+        }
+        self.flush_triangles(sink)
+    }
+
+    /// Adds one polygon corner: validates it and emits the fan triangle it closes.
+    #[inline]
+    fn fan_push(
+        &mut self,
+        fan: &mut Fan,
+        i: i64,
+        e: &ElementDef,
+        rec: u64,
+        start: u64,
+        sink: &mut dyn BodySink,
+    ) -> Result<()> {
+        let nv = self.header.vertex_count();
+        if i < 0 || i as u64 >= nv {
+            return Err(self.bad_index(e, rec, start, i, nv));
+        }
+        let i = i as u64;
+        match fan.k {
+            0 => fan.first = i,
+            1 => fan.prev = i,
+            _ => {
+                let t = [fan.first, fan.prev, i];
                 if t[0] == t[1] || t[1] == t[2] || t[0] == t[2] {
                     self.stats.degenerate += 1;
                 } else {
@@ -574,10 +568,25 @@ impl BodyReader<'_> {
                         self.flush_triangles(sink)?;
                     }
                 }
+                fan.prev = i;
             }
-            self.stats.faces += 1;
         }
-        self.flush_triangles(sink)
+        fan.k += 1;
+        Ok(())
+    }
+
+    /// Skips `n` bytes of record `rec`, a buffer at a time.
+    fn skip_bytes(&mut self, e: &ElementDef, rec: u64, n: u64) -> Result<()> {
+        let mut left = n;
+        while left > 0 {
+            if !self.input.ensure(1)? {
+                return Err(self.truncated(e, rec));
+            }
+            let k = (self.input.avail() as u64).min(left) as usize;
+            self.input.pos += k;
+            left -= k as u64;
+        }
+        Ok(())
     }
 
     fn bad_index(&self, e: &ElementDef, rec: u64, start: u64, i: i64, nv: u64) -> Error {
@@ -617,16 +626,20 @@ impl BodyReader<'_> {
     fn skip_element(&mut self, e: &ElementDef) -> Result<()> {
         let ascii = self.header.encoding == Encoding::Ascii;
         let be = self.header.encoding == Encoding::BinaryBe;
+        if e.props.is_empty() {
+            return Ok(()); // records of nothing: no bytes, whatever the count
+        }
         if let (false, Some(size)) = (ascii, e.fixed_size()) {
-            let mut left = e.count.checked_mul(size as u64).unwrap_or(u64::MAX);
-            while left > 0 {
+            let size = size as u64;
+            let total = e.count.saturating_mul(size);
+            let mut done = 0u64;
+            while done < total {
                 if !self.input.ensure(1)? {
-                    let rec = (e.count * size as u64 - left) / size.max(1) as u64;
-                    return Err(self.truncated(e, rec));
+                    return Err(self.truncated(e, done / size));
                 }
-                let n = (self.input.avail() as u64).min(left) as usize;
-                self.input.pos += n;
-                left -= n as u64;
+                let n = (self.input.avail() as u64).min(total - done);
+                self.input.pos += n as usize;
+                done += n;
                 self.tick();
             }
             return Ok(());
@@ -637,12 +650,7 @@ impl BodyReader<'_> {
                     (PropType::Scalar(s), true) => {
                         self.ascii_number(e, rec, s, &p.name)?;
                     }
-                    (PropType::Scalar(s), false) => {
-                        if !self.input.ensure(s.size())? {
-                            return Err(self.truncated(e, rec));
-                        }
-                        self.input.pos += s.size();
-                    }
+                    (PropType::Scalar(s), false) => self.skip_bytes(e, rec, s.size() as u64)?,
                     (PropType::List(c, s), true) => {
                         let n = self.ascii_count(e, rec, c, &p.name)?;
                         for _ in 0..n {
@@ -651,16 +659,7 @@ impl BodyReader<'_> {
                     }
                     (PropType::List(c, s), false) => {
                         let n = self.read_bin_count(e, rec, c, be)?;
-                        let bytes = n.checked_mul(s.size() as u64).unwrap_or(u64::MAX);
-                        let mut left = bytes;
-                        while left > 0 {
-                            if !self.input.ensure(1)? {
-                                return Err(self.truncated(e, rec));
-                            }
-                            let k = (self.input.avail() as u64).min(left) as usize;
-                            self.input.pos += k;
-                            left -= k as u64;
-                        }
+                        self.skip_bytes(e, rec, n.saturating_mul(s.size() as u64))?;
                     }
                 }
             }
@@ -722,6 +721,13 @@ fn assemble_vertex(plan: &VertexPlan, vals: &[f64], e: &ElementDef) -> Vertex {
         v.uv = u.map(|i| vals[i] as f32);
     }
     v
+}
+
+/// Fan triangulation state of the polygon being read: (p0, p_k-1, p_k).
+struct Fan {
+    first: u64,
+    prev: u64,
+    k: u64,
 }
 
 /// Whitespace tokenizer over the buffered input (ascii bodies).

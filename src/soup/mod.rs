@@ -71,6 +71,8 @@ pub struct SoupReport {
     pub slot_buckets: u64,
     /// Bytes written to bucket files.
     pub bucket_bytes: u64,
+    /// Seconds in (read PLY + sort runs, merge + join + distribute, place + write soup).
+    pub phase_seconds: [f64; 3],
     pub seconds: f64,
 }
 
@@ -198,6 +200,7 @@ fn build_in_memory(input: &Path, output: &Path, header: &PlyHeader, progress: &P
         sort_by_vertex: SortStats::default(),
         slot_buckets: 0,
         bucket_bytes: 0,
+        phase_seconds: [0.0; 3],
         seconds: 0.0,
     })
 }
@@ -252,6 +255,7 @@ fn build_external(
         None => s,
     };
 
+    let t0 = Instant::now();
     // Phase 1: one pass over the PLY.
     let vpath = scratch.path().join("vertices.bin");
     let vfile = File::create(&vpath).ctx(&vpath, "create vertex file")?;
@@ -271,6 +275,7 @@ fn build_external(
     vfile.into_inner().map_err(|e| e.into_error()).ctx(&vpath, "write vertex file")?;
     progress.finish();
 
+    let t1 = Instant::now();
     // Phases 2+3: corners in vertex order, joined with the vertex file, then
     // distributed by slot range.
     let n_corners = body.triangles * 3;
@@ -300,6 +305,7 @@ fn build_external(
     let _ = std::fs::remove_file(&vpath);
     join_progress.finish();
 
+    let t2 = Instant::now();
     // Phase 4: each slot range placed in memory, written as triangles in order.
     let write_progress = Progress::items(body.triangles, "writing", opts.quiet);
     let mut soup = SoupWriter::create(output, header.attrs)?;
@@ -316,7 +322,18 @@ fn build_external(
     write_progress.finish();
     debug_assert_eq!(written, body.triangles);
     let h = soup.commit(body.vertices, body.faces, body.degenerate)?;
-    Ok(SoupReport { header: h, body, input_bytes: 0, external: true, sort_by_vertex, slot_buckets, bucket_bytes, seconds: 0.0 })
+    let phase_seconds = [(t1 - t0).as_secs_f64(), (t2 - t1).as_secs_f64(), t2.elapsed().as_secs_f64()];
+    Ok(SoupReport {
+        header: h,
+        body,
+        input_bytes: 0,
+        external: true,
+        sort_by_vertex,
+        slot_buckets,
+        bucket_bytes,
+        phase_seconds,
+        seconds: 0.0,
+    })
 }
 
 /// Phase 3–4 of the external path: a one-pass distribution sort by slot.
