@@ -222,30 +222,23 @@ impl ExtSorter {
     }
 }
 
-/// Sequential reader over one run file.
-struct RunReader {
+/// Sequential reader over one run file, buffering into a slice of the
+/// merge's single arena (one large allocation, returned to the OS when the
+/// merge ends, instead of many heap buffers the allocator would keep).
+struct RunReader<'a> {
     file: File,
     path: PathBuf,
-    buf: Vec<u8>,
+    buf: &'a mut [u8],
     pos: usize,
     end: usize,
     left: u64,
     rec: usize,
 }
 
-impl RunReader {
-    fn open(run: &Run, rec: usize, buf_bytes: usize) -> Result<RunReader> {
+impl<'a> RunReader<'a> {
+    fn open(run: &Run, rec: usize, buf: &'a mut [u8]) -> Result<RunReader<'a>> {
         let file = File::open(&run.path).ctx(&run.path, "open run file")?;
-        let recs_per_buf = (buf_bytes / rec).max(1);
-        Ok(RunReader {
-            file,
-            path: run.path.clone(),
-            buf: vec![0; recs_per_buf * rec],
-            pos: 0,
-            end: 0,
-            left: run.records,
-            rec,
-        })
+        Ok(RunReader { file, path: run.path.clone(), buf, pos: 0, end: 0, left: run.records, rec })
     }
 
     /// The current record, refilling when needed; None when the run is done.
@@ -271,8 +264,10 @@ fn key_of(r: &[u8]) -> u64 {
 /// k-way merge of sorted runs. Ties go to the earlier run, which holds the
 /// earlier-pushed records, so the merge is stable.
 fn merge(runs: &[Run], rec: usize, buf_bytes: usize, mut out: impl FnMut(&[u8]) -> Result<()>) -> Result<()> {
-    let buf_bytes = buf_bytes.max(MIN_RUN_BUF).max(rec);
-    let mut readers = runs.iter().map(|r| RunReader::open(r, rec, buf_bytes)).collect::<Result<Vec<_>>>()?;
+    let per = (buf_bytes.max(MIN_RUN_BUF) / rec).max(1) * rec;
+    let mut arena = vec![0u8; per * runs.len()];
+    let mut readers =
+        runs.iter().zip(arena.chunks_mut(per)).map(|(r, b)| RunReader::open(r, rec, b)).collect::<Result<Vec<_>>>()?;
     let mut heap = BinaryHeap::with_capacity(readers.len());
     for (i, r) in readers.iter_mut().enumerate() {
         if let Some(b) = r.current()? {

@@ -14,7 +14,7 @@
 //! budget), so decoding runs at memory speed. Extra properties and extra
 //! elements are skipped by size.
 
-use super::{color_names, face_index_prop, uv_names, ElementDef, Encoding, PlyHeader, PropType, Scalar};
+use super::{color_names, face_index_prop, uv_names, ElementDef, Encoding, PlyHeader, PropDef, PropType, Scalar};
 use crate::error::{Error, Location, Result};
 use crate::mesh::{AttrSet, Vertex};
 use crate::progress::Progress;
@@ -471,72 +471,141 @@ impl BodyReader<'_> {
         let idx_prop = face_index_prop(e).expect("checked by header");
         let be = self.header.encoding == Encoding::BinaryBe;
         let ascii = self.header.encoding == Encoding::Ascii;
-        for rec in 0..e.count {
-            if ascii {
-                self.input.skip_ws()?;
+        // The layout nearly every binary mesh uses: only `list uchar int|uint`.
+        let fast = match e.props[..] {
+            [PropDef { ty: PropType::List(Scalar::U8, s @ (Scalar::I32 | Scalar::U32)), .. }] if !ascii => Some(s),
+            _ => None,
+        };
+        let mut rec = 0;
+        while rec < e.count {
+            if let Some(s) = fast {
+                let done = self.triangle_records_fast(e.count - rec, s == Scalar::I32, be);
+                rec += done;
+                if self.tris.len() >= BATCH {
+                    self.flush_triangles(sink)?;
+                }
+                if done > 0 {
+                    continue;
+                }
+                if rec == e.count {
+                    break;
+                }
             }
-            let start = self.input.offset();
-            let mut fan = Fan { first: 0, prev: 0, k: 0 };
-            for (pi, p) in e.props.iter().enumerate() {
-                let want = pi == idx_prop;
-                match (p.ty, ascii) {
-                    (PropType::Scalar(s), true) => {
-                        self.ascii_number(e, rec, s, &p.name)?;
-                    }
-                    (PropType::Scalar(s), false) => self.skip_bytes(e, rec, s.size() as u64)?,
-                    (PropType::List(c, s), _) => {
-                        let n = if ascii {
-                            self.ascii_count(e, rec, c, &p.name)?
-                        } else {
-                            self.read_bin_count(e, rec, c, be)?
-                        };
-                        if !want {
-                            if ascii {
-                                for _ in 0..n {
-                                    self.ascii_number(e, rec, s, &p.name)?;
-                                }
-                            } else {
-                                self.skip_bytes(e, rec, n.saturating_mul(s.size() as u64))?;
-                            }
-                            continue;
-                        }
-                        if n < 3 {
-                            return Err(Error::input(
-                                self.loc(&e.name, rec, start),
-                                format!("face with {n} vertex index(es); a face needs at least 3"),
-                            ));
-                        }
-                        if n > 3 {
-                            self.stats.polygons += 1;
-                        }
+            // Anything else (polygons, extra properties, ascii, a buffer
+            // boundary, an error to report): one record the general way.
+            self.read_face_record(e, rec, idx_prop, be, ascii, sink)?;
+            rec += 1;
+        }
+        self.flush_triangles(sink)
+    }
+
+    /// Decodes buffered 13-byte triangle records (`3 i0 i1 i2`) in a tight
+    /// loop; stops at anything unusual and leaves it to the general path.
+    #[inline(never)]
+    fn triangle_records_fast(&mut self, max: u64, signed: bool, be: bool) -> u64 {
+        let nv = self.header.vertex_count();
+        let buf = &self.input.buf[..self.input.end];
+        let mut p = self.input.pos;
+        let mut n = 0u64;
+        let room = BATCH.saturating_sub(self.tris.len()) as u64;
+        let max = max.min(room);
+        let idx = |at: usize| -> u64 {
+            let a: [u8; 4] = buf[at..at + 4].try_into().unwrap();
+            let v = if be { u32::from_be_bytes(a) } else { u32::from_le_bytes(a) };
+            // Negative signed indices become huge and fail the range check.
+            if signed { v as i32 as i64 as u64 } else { v as u64 }
+        };
+        while n < max && p + 13 <= buf.len() && buf[p] == 3 {
+            let t = [idx(p + 1), idx(p + 5), idx(p + 9)];
+            if t[0] >= nv || t[1] >= nv || t[2] >= nv {
+                break;
+            }
+            if t[0] == t[1] || t[1] == t[2] || t[0] == t[2] {
+                self.stats.degenerate += 1;
+            } else {
+                self.tris.push(t);
+            }
+            p += 13;
+            n += 1;
+        }
+        self.input.pos = p;
+        self.stats.faces += n;
+        n
+    }
+
+    fn read_face_record(
+        &mut self,
+        e: &ElementDef,
+        rec: u64,
+        idx_prop: usize,
+        be: bool,
+        ascii: bool,
+        sink: &mut dyn BodySink,
+    ) -> Result<()> {
+        if ascii {
+            self.input.skip_ws()?;
+        }
+        let start = self.input.offset();
+        let mut fan = Fan { first: 0, prev: 0, k: 0 };
+        for (pi, p) in e.props.iter().enumerate() {
+            let want = pi == idx_prop;
+            match (p.ty, ascii) {
+                (PropType::Scalar(s), true) => {
+                    self.ascii_number(e, rec, s, &p.name)?;
+                }
+                (PropType::Scalar(s), false) => self.skip_bytes(e, rec, s.size() as u64)?,
+                (PropType::List(c, s), _) => {
+                    let n = if ascii {
+                        self.ascii_count(e, rec, c, &p.name)?
+                    } else {
+                        self.read_bin_count(e, rec, c, be)?
+                    };
+                    if !want {
                         if ascii {
                             for _ in 0..n {
-                                let x = self.ascii_number(e, rec, s, &p.name)?;
-                                self.fan_push(&mut fan, x as i64, e, rec, start, sink)?;
+                                self.ascii_number(e, rec, s, &p.name)?;
                             }
                         } else {
-                            // Items are read as they arrive: a declared length never sizes a buffer.
-                            let sz = s.size();
-                            let mut left = n;
-                            while left > 0 {
-                                if !self.input.ensure(sz)? {
-                                    return Err(self.truncated(e, rec));
-                                }
-                                let k = ((self.input.avail() / sz) as u64).min(left) as usize;
-                                for j in 0..k {
-                                    let i = bin_i64(&self.input.buf, self.input.pos + j * sz, s, be);
-                                    self.fan_push(&mut fan, i, e, rec, start, sink)?;
-                                }
-                                self.input.pos += k * sz;
-                                left -= k as u64;
+                            self.skip_bytes(e, rec, n.saturating_mul(s.size() as u64))?;
+                        }
+                        continue;
+                    }
+                    if n < 3 {
+                        return Err(Error::input(
+                            self.loc(&e.name, rec, start),
+                            format!("face with {n} vertex index(es); a face needs at least 3"),
+                        ));
+                    }
+                    if n > 3 {
+                        self.stats.polygons += 1;
+                    }
+                    if ascii {
+                        for _ in 0..n {
+                            let x = self.ascii_number(e, rec, s, &p.name)?;
+                            self.fan_push(&mut fan, x as i64, e, rec, start, sink)?;
+                        }
+                    } else {
+                        // Items are read as they arrive: a declared length never sizes a buffer.
+                        let sz = s.size();
+                        let mut left = n;
+                        while left > 0 {
+                            if !self.input.ensure(sz)? {
+                                return Err(self.truncated(e, rec));
                             }
+                            let k = ((self.input.avail() / sz) as u64).min(left) as usize;
+                            for j in 0..k {
+                                let i = bin_i64(&self.input.buf, self.input.pos + j * sz, s, be);
+                                self.fan_push(&mut fan, i, e, rec, start, sink)?;
+                            }
+                            self.input.pos += k * sz;
+                            left -= k as u64;
                         }
                     }
                 }
             }
-            self.stats.faces += 1;
         }
-        self.flush_triangles(sink)
+        self.stats.faces += 1;
+        Ok(())
     }
 
     /// Adds one polygon corner: validates it and emits the fan triangle it closes.

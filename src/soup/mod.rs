@@ -348,11 +348,15 @@ struct SlotBuckets {
     n_slots: u64,
     /// Slots per bucket (a multiple of 3, so no triangle straddles two buckets).
     per: u64,
-    files: Vec<(std::path::PathBuf, BufWriter<File>)>,
+    files: Vec<(std::path::PathBuf, File)>,
+    /// Write buffers of all buckets in one allocation: bucket b owns
+    /// `arena[b * region..(b + 1) * region]`, filled up to `fill[b]`.
+    arena: Vec<u8>,
+    region: usize,
+    fill: Vec<usize>,
     /// The single in-memory bucket, when everything fits.
     mem: Option<Vec<u8>>,
     counts: Vec<u64>,
-    rec: Vec<u8>,
 }
 
 impl SlotBuckets {
@@ -364,21 +368,34 @@ impl SlotBuckets {
                 n_slots,
                 per: n_slots.max(3),
                 files: Vec::new(),
+                arena: Vec::new(),
+                region: 0,
+                fill: Vec::new(),
                 mem: Some(vec![0u8; total as usize]),
                 counts: vec![0],
-                rec: Vec::new(),
             });
         }
         let per = ((place_mem / vsize) as u64 / 3 * 3).clamp(3, u32::MAX as u64 / 3 * 3);
         let n = n_slots.div_ceil(per) as usize;
-        let buf = (write_mem / n).clamp(4 << 10, SEQ_BUF);
+        let rec = 4 + vsize;
+        let region = ((write_mem / n).clamp(4 << 10, SEQ_BUF) / rec).max(1) * rec;
         let mut files = Vec::with_capacity(n);
         for b in 0..n {
             let path = dir.join(format!("slots-{b:05}.bin"));
             let f = File::create(&path).ctx(&path, "create bucket file")?;
-            files.push((path, BufWriter::with_capacity(buf, f)));
+            files.push((path, f));
         }
-        Ok(SlotBuckets { vsize, n_slots, per, files, mem: None, counts: vec![0; n], rec: vec![0; 4 + vsize] })
+        Ok(SlotBuckets {
+            vsize,
+            n_slots,
+            per,
+            files,
+            arena: vec![0u8; region * n],
+            region,
+            fill: vec![0; n],
+            mem: None,
+            counts: vec![0; n],
+        })
     }
 
     fn len(&self) -> u64 {
@@ -394,15 +411,28 @@ impl SlotBuckets {
             return Ok(());
         }
         let b = (slot / self.per) as usize;
-        self.rec[..4].copy_from_slice(&((slot % self.per) as u32).to_le_bytes());
-        self.rec[4..].copy_from_slice(vertex);
         self.counts[b] += 1;
-        let (path, w) = &mut self.files[b];
-        w.write_all(&self.rec).ctx(path, "write bucket file")
+        let rec = 4 + s;
+        if self.fill[b] + rec > self.region {
+            self.flush_bucket(b)?;
+        }
+        let at = b * self.region + self.fill[b];
+        self.arena[at..at + 4].copy_from_slice(&((slot % self.per) as u32).to_le_bytes());
+        self.arena[at + 4..at + rec].copy_from_slice(vertex);
+        self.fill[b] += rec;
+        Ok(())
+    }
+
+    fn flush_bucket(&mut self, b: usize) -> Result<()> {
+        let (path, f) = &mut self.files[b];
+        let start = b * self.region;
+        f.write_all(&self.arena[start..start + self.fill[b]]).ctx(path, "write bucket file")?;
+        self.fill[b] = 0;
+        Ok(())
     }
 
     /// Emits every triangle (3 corners) in slot order; returns bytes spilled to bucket files.
-    fn finish(self, mut out: impl FnMut(&[u8]) -> Result<()>) -> Result<u64> {
+    fn finish(mut self, mut out: impl FnMut(&[u8]) -> Result<()>) -> Result<u64> {
         let s = self.vsize;
         if let Some(m) = self.mem {
             debug_assert_eq!(self.counts[0], self.n_slots);
@@ -413,15 +443,21 @@ impl SlotBuckets {
         }
         let mut spilled = 0;
         let rec = 4 + s;
-        for (b, (path, w)) in self.files.into_iter().enumerate() {
-            let f = w.into_inner().map_err(|e| e.into_error()).ctx(&path, "write bucket file")?;
-            drop(f);
+        // Flush every bucket first: the write buffers must not sit in
+        // memory beside the bucket being placed.
+        for b in 0..self.files.len() {
+            self.flush_bucket(b)?;
+        }
+        self.arena = Vec::new();
+        let paths: Vec<_> = self.files.into_iter().map(|(p, _)| p).collect();
+        for (b, path) in paths.into_iter().enumerate() {
             let first = b as u64 * self.per;
             let n = (self.n_slots - first).min(self.per) as usize;
             assert_eq!(self.counts[b], n as u64, "bucket {b} misses corners");
             let mut placed = vec![0u8; n * s];
             let mut r = BufReader::with_capacity(SEQ_BUF, File::open(&path).ctx(&path, "open bucket file")?);
             let mut chunk = vec![0u8; (SEQ_BUF / rec).max(1) * rec];
+            // `placed` and `chunk` are single large allocations, freed per bucket.
             let mut left = n * rec;
             while left > 0 {
                 let want = left.min(chunk.len());
