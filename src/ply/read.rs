@@ -134,46 +134,40 @@ fn load<const N: usize>(b: &[u8], off: usize) -> [u8; N] {
     b[off..off + N].try_into().unwrap()
 }
 
-#[inline(always)]
-fn bin_f64(b: &[u8], off: usize, ty: Scalar, be: bool) -> f64 {
-    macro_rules! rd {
-        ($t:ty, $n:literal) => {{
-            let a = load::<$n>(b, off);
-            (if be { <$t>::from_be_bytes(a) } else { <$t>::from_le_bytes(a) }) as f64
-        }};
-    }
-    match ty {
-        Scalar::I8 => b[off] as i8 as f64,
-        Scalar::U8 => b[off] as f64,
-        Scalar::I16 => rd!(i16, 2),
-        Scalar::U16 => rd!(u16, 2),
-        Scalar::I32 => rd!(i32, 4),
-        Scalar::U32 => rd!(u32, 4),
-        Scalar::F32 => rd!(f32, 4),
-        Scalar::F64 => rd!(f64, 8),
-    }
+/// Defines a decoder of one binary scalar of any PLY type into `$out`.
+macro_rules! scalar_decoder {
+    ($(#[$doc:meta])* $name:ident -> $out:ty) => {
+        $(#[$doc])*
+        #[inline(always)]
+        fn $name(b: &[u8], off: usize, ty: Scalar, be: bool) -> $out {
+            macro_rules! rd {
+                ($t:ty, $n:literal) => {{
+                    let a = load::<$n>(b, off);
+                    (if be { <$t>::from_be_bytes(a) } else { <$t>::from_le_bytes(a) }) as $out
+                }};
+            }
+            match ty {
+                Scalar::I8 => b[off] as i8 as $out,
+                Scalar::U8 => b[off] as $out,
+                Scalar::I16 => rd!(i16, 2),
+                Scalar::U16 => rd!(u16, 2),
+                Scalar::I32 => rd!(i32, 4),
+                Scalar::U32 => rd!(u32, 4),
+                Scalar::F32 => rd!(f32, 4),
+                Scalar::F64 => rd!(f64, 8),
+            }
+        }
+    };
 }
 
-/// Integer value of a binary scalar (list counts and indices); floats are rejected earlier.
-#[inline(always)]
-fn bin_i64(b: &[u8], off: usize, ty: Scalar, be: bool) -> i64 {
-    macro_rules! rd {
-        ($t:ty, $n:literal) => {{
-            let a = load::<$n>(b, off);
-            (if be { <$t>::from_be_bytes(a) } else { <$t>::from_le_bytes(a) }) as i64
-        }};
-    }
-    match ty {
-        Scalar::I8 => b[off] as i8 as i64,
-        Scalar::U8 => b[off] as i64,
-        Scalar::I16 => rd!(i16, 2),
-        Scalar::U16 => rd!(u16, 2),
-        Scalar::I32 => rd!(i32, 4),
-        Scalar::U32 => rd!(u32, 4),
-        Scalar::F32 => rd!(f32, 4),
-        Scalar::F64 => rd!(f64, 8),
-    }
-}
+scalar_decoder!(
+    /// Value of a binary scalar as f64 (vertex properties).
+    bin_f64 -> f64
+);
+scalar_decoder!(
+    /// Integer value of a binary scalar (list counts and indices); float list types are rejected by the header check.
+    bin_i64 -> i64
+);
 
 /// Maps a color channel of any type to 0..=255.
 #[inline]
@@ -429,14 +423,28 @@ impl BodyReader<'_> {
                     }
                 }
             }
-            let v = assemble_vertex(plan, &vals, e);
-            self.check_vertex(&v, e, rec, start)?;
-            self.verts.push(v);
-            if self.verts.len() == BATCH {
-                self.flush_vertices(sink)?;
-            }
+            self.push_assembled(plan, &vals, e, rec, start, sink)?;
         }
         self.flush_vertices(sink)
+    }
+
+    /// Builds the vertex of one record-by-record decoded record, validates and batches it.
+    fn push_assembled(
+        &mut self,
+        plan: &VertexPlan,
+        vals: &[f64],
+        e: &ElementDef,
+        rec: u64,
+        start: u64,
+        sink: &mut dyn BodySink,
+    ) -> Result<()> {
+        let v = assemble_vertex(plan, vals, e);
+        self.check_vertex(&v, e, rec, start)?;
+        self.verts.push(v);
+        if self.verts.len() == BATCH {
+            self.flush_vertices(sink)?;
+        }
+        Ok(())
     }
 
     fn read_vertices_ascii(&mut self, e: &ElementDef, plan: &VertexPlan, sink: &mut dyn BodySink) -> Result<()> {
@@ -455,12 +463,7 @@ impl BodyReader<'_> {
                     }
                 }
             }
-            let v = assemble_vertex(plan, &vals, e);
-            self.check_vertex(&v, e, rec, start)?;
-            self.verts.push(v);
-            if self.verts.len() == BATCH {
-                self.flush_vertices(sink)?;
-            }
+            self.push_assembled(plan, &vals, e, rec, start, sink)?;
         }
         self.flush_vertices(sink)
     }
