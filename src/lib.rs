@@ -3,7 +3,8 @@
 //!
 //! Data flow, one module per stage:
 //! `ply` (stream PLY) → `soup` (external sort + dereference into a triangle
-//! soup) → octree → simplify/quadric → store → view, plus metro.
+//! soup) → `octree` (disk-backed partition) → simplify/`quadric` → `store`
+//! → view, plus metro.
 //! Shared plumbing: [`mesh`] (attribute model), [`error`], [`io`],
 //! [`progress`], [`extsort`], [`mem`].
 
@@ -13,8 +14,10 @@ pub mod gen;
 pub mod io;
 pub mod mem;
 pub mod mesh;
+pub mod octree;
 pub mod ply;
 pub mod progress;
 pub mod soup;
+pub mod store;
 
 pub use error::{Error, Result};

@@ -226,9 +226,12 @@ impl Aabb {
             self.max[k] = self.max[k].max(p[k]);
         }
     }
+    /// Grows to include `o` (an empty `o` changes nothing).
     pub fn merge(&mut self, o: &Aabb) {
-        self.add(o.min);
-        self.add(o.max);
+        if !o.is_empty() {
+            self.add(o.min);
+            self.add(o.max);
+        }
     }
     pub fn is_empty(&self) -> bool {
         self.min[0] > self.max[0]

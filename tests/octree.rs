@@ -1,0 +1,145 @@
+//! The out-of-core octree equals a straightforward top-down partition, keeps
+//! every triangle exactly once (level 0 round-trips exactly), and does not
+//! depend on the memory budget.
+
+use octolod::gen::{GenOptions, Generator, Shape};
+use octolod::mesh::{AttrSet, Vertex};
+use octolod::octree::{build_octree, OctreeOptions};
+use octolod::ply::write::{write_ply, PlyWriteOptions};
+use octolod::soup::format::SoupReader;
+use octolod::soup::{build_soup, SoupOptions};
+use octolod::store::{Cube, NodeRec, Store, StoreHeader, write_index};
+use std::path::Path;
+
+fn make_soup(dir: &Path, shape: Shape, tris: u64, attrs: u32) -> std::path::PathBuf {
+    let g = Generator::new(&GenOptions { shape, tris, seed: 3, attrs: AttrSet(attrs) });
+    let (v, f) = g.mesh();
+    let ply = dir.join("in.ply");
+    write_ply(&ply, &PlyWriteOptions { attrs: AttrSet(attrs), ..Default::default() }, &v, &f).unwrap();
+    let soup = dir.join("in.soup");
+    build_soup(&ply, &soup, &SoupOptions::default()).unwrap();
+    soup
+}
+
+/// Top-down reference: split while count > limit and depth < max.
+fn reference(keys: &[u64], prefix: u64, d: u8, max: u8, limit: usize, out: &mut Vec<(u64, u8, usize)>) {
+    if keys.is_empty() {
+        return;
+    }
+    if keys.len() <= limit || d == max {
+        out.push((prefix, d, keys.len()));
+        return;
+    }
+    for oct in 0..8u64 {
+        let child = prefix << 3 | oct;
+        let sh = 3 * (max - d - 1) as u32;
+        let sub: Vec<u64> = keys.iter().copied().filter(|k| k >> sh == child).collect();
+        reference(&sub, child, d + 1, max, limit, out);
+    }
+}
+
+fn tri_key(t: &[Vertex; 3]) -> Vec<u64> {
+    t.iter().flat_map(|v| v.pos.iter().map(|x| x.to_bits()).chain(v.normal.iter().map(|x| x.to_bits() as u64))).collect()
+}
+
+fn check(shape: Shape, tris: u64, attrs: u32, limit: u64, max_depth: u8) {
+    let dir = tempfile::tempdir().unwrap();
+    let soup = make_soup(dir.path(), shape, tris, attrs);
+    let (sh, all) = SoupReader::read_all(&soup).unwrap();
+    let mut results = Vec::new();
+    for mem in [64 << 10, 64 << 20] {
+        let out = dir.path().join(format!("store-{mem}"));
+        std::fs::create_dir(&out).unwrap();
+        let (_, cube, nodes, rep) =
+            build_octree(&soup, &out, &OctreeOptions { leaf_tris: limit, max_depth, mem, quiet: true }).unwrap();
+        write_index(&out, &StoreHeader { attrs: sh.attrs, levels: 1, cube, nodes: nodes.len() as u64 }, &nodes).unwrap();
+        if mem == 64 << 10 && all.len() > 1000 {
+            assert!(rep.sort.runs > 1, "tiny budget should spill: {:?}", rep.sort);
+        }
+        results.push((out, cube, nodes, rep));
+    }
+    let (out, cube, nodes, rep) = &results[0];
+    assert_eq!(nodes, &results[1].2, "octree depends on the memory budget");
+    // Structure: pre-order, parents before children, root first.
+    assert_eq!(nodes[0].depth, 0);
+    assert_eq!(nodes[0].parent, u32::MAX);
+    for (i, n) in nodes.iter().enumerate() {
+        for &c in n.children.iter().filter(|&&c| c != u32::MAX) {
+            assert!(c as usize > i);
+            assert_eq!(nodes[c as usize].parent as usize, i);
+            assert_eq!(nodes[c as usize].depth, n.depth + 1);
+            assert_eq!(nodes[c as usize].path >> 3, n.path);
+        }
+    }
+    // Leaves equal the top-down reference partition.
+    let mut keys: Vec<u64> = all
+        .iter()
+        .map(|t| {
+            let c = [0, 1, 2].map(|a| t.iter().map(|v| v.pos[a] / 3.0).sum::<f64>());
+            cube.morton(c)
+        })
+        .collect();
+    keys.sort();
+    let mut want = Vec::new();
+    reference(&keys, 0, 0, max_depth, limit as usize, &mut want);
+    let got: Vec<(u64, u8, usize)> =
+        nodes.iter().filter(|n| n.is_leaf()).map(|n| (n.path, n.depth, n.levels[0].tris as usize)).collect();
+    assert_eq!(got, want, "leaves differ from the top-down partition");
+    assert_eq!(rep.leaves as usize, want.len());
+    // Level 0 round trip: the union of leaf payloads is the soup, as a set;
+    // every centroid lies in its leaf's cell; internal nodes carry counts.
+    let store = Store::open(out).unwrap();
+    let mut got_tris = Vec::new();
+    for (i, n) in store.nodes.iter().enumerate() {
+        if !n.is_leaf() {
+            assert!(n.levels[0].is_empty());
+            assert!(n.subtree_tris > limit, "an internal node must hold more than leaf_tris");
+            continue;
+        }
+        let m = store.read_mesh(i, 0).unwrap();
+        let cell = cube.cell(n.path, n.depth);
+        for t in &m.triangles {
+            let tri = t.map(|k| m.vertices[k as usize]);
+            let c = [0, 1, 2].map(|a| tri.iter().map(|v| v.pos[a] / 3.0).sum::<f64>());
+            for a in 0..3 {
+                let slack = 1e-9 * cube.half;
+                assert!(c[a] >= cell.min[a] - slack && c[a] <= cell.max[a] + slack, "centroid outside its leaf cell");
+                assert!(tri.iter().all(|v| v.pos[a] >= n.content.min[a] && v.pos[a] <= n.content.max[a]));
+            }
+            got_tris.push(tri_key(&tri));
+        }
+    }
+    let mut want_tris: Vec<Vec<u64>> = all.iter().map(tri_key).collect();
+    got_tris.sort();
+    want_tris.sort();
+    assert!(got_tris == want_tris, "level 0 is not exactly the input triangles");
+    assert_eq!(store.nodes[0].subtree_tris, all.len() as u64);
+    let _: &Cube = cube;
+    let _: &Vec<NodeRec> = nodes;
+}
+
+#[test]
+fn sphere_partition_matches_reference_and_round_trips() {
+    check(Shape::Sphere, 40_000, AttrSet::NORMAL, 1000, 12);
+}
+
+#[test]
+fn offset_doubles_round_trip_exactly() {
+    check(Shape::Offset, 20_000, AttrSet::POS_F64, 700, 10);
+}
+
+#[test]
+fn max_depth_caps_splitting_with_overfull_leaves() {
+    // Instances are many small objects: depth 3 forces leaves above the limit.
+    check(Shape::Instances, 30_000, 0, 200, 3);
+}
+
+#[test]
+fn single_triangle_is_a_root_leaf() {
+    check(Shape::Single, 1, 0, 10, 8);
+}
+
+#[test]
+fn duplicate_triangles_stay_duplicated() {
+    check(Shape::Duplicates, 5_000, 0, 64, 21);
+}
