@@ -15,8 +15,11 @@ pub mod io;
 pub mod mem;
 pub mod mesh;
 pub mod octree;
+pub mod pipeline;
 pub mod ply;
 pub mod progress;
+pub mod quadric;
+pub mod simplify;
 pub mod soup;
 pub mod store;
 

@@ -35,6 +35,37 @@ enum Cmd {
         #[arg(long)]
         json: bool,
     },
+    /// Build a store: PLY → soup → octree → bottom-up LODs, under --mem.
+    Build {
+        input: PathBuf,
+        #[arg(short, long)]
+        output: PathBuf,
+        #[command(flatten)]
+        params: BuildParams,
+    },
+    /// Per level: nodes, triangles, bytes, error range, build time.
+    Info { store: PathBuf },
+    /// Write a whole level of a store as one indexed PLY.
+    Extract {
+        store: PathBuf,
+        #[arg(long, default_value_t = 0)]
+        level: u8,
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Do not weld vertices shared between nodes (streams, no level in memory).
+        #[arg(long)]
+        no_weld: bool,
+    },
+    /// Build a store in a temporary directory and extract the level nearest --target-tris.
+    Simplify {
+        input: PathBuf,
+        #[arg(short, long)]
+        output: PathBuf,
+        #[arg(long)]
+        target_tris: u64,
+        #[command(flatten)]
+        params: BuildParams,
+    },
     /// Print a PLY's header, element counts, attribute set and bounding box.
     PlyInfo {
         input: PathBuf,
@@ -42,6 +73,55 @@ enum Cmd {
         #[arg(long)]
         header_only: bool,
     },
+}
+
+#[derive(clap::Args, Clone)]
+struct BuildParams {
+    /// Working-memory budget (e.g. 512M, 2G).
+    #[arg(long, default_value = "512M")]
+    mem: String,
+    /// Split an octree node while it holds more triangles than this.
+    #[arg(long, default_value_t = 16384)]
+    leaf_tris: u64,
+    /// Never split deeper than this (1..=21).
+    #[arg(long, default_value_t = 16)]
+    max_depth: u8,
+    /// Clustering sub-grid per axis inside each node (1: one representative per node).
+    #[arg(long, default_value_t = 8)]
+    cluster_grid: u32,
+    /// Build levels up to this one only (default: up to the root).
+    #[arg(long)]
+    levels: Option<u8>,
+}
+
+impl BuildParams {
+    fn options(&self, quiet: bool) -> Result<octolod::pipeline::BuildOptions> {
+        Ok(octolod::pipeline::BuildOptions {
+            mem: mem::parse_size(&self.mem)?,
+            leaf_tris: self.leaf_tris,
+            max_depth: self.max_depth,
+            cluster_grid: self.cluster_grid,
+            levels: self.levels,
+            quiet,
+        })
+    }
+}
+
+fn print_build(r: &octolod::pipeline::BuildReport) {
+    println!(
+        "build: {} triangles, {} leaves, {} nodes, depth {}, {} levels; soup {:.2} s, octree {:.2} s, simplify {:.2} s, total {:.2} s; {} on disk; peak RSS {}",
+        r.soup.header.triangles,
+        r.octree.leaves,
+        r.octree.nodes,
+        r.octree.deepest,
+        r.levels.len() + 1,
+        r.seconds[0],
+        r.seconds[1],
+        r.seconds[2],
+        r.seconds[3],
+        octolod::progress::mib(r.disk_bytes),
+        peak_rss().map(octolod::progress::mib).unwrap_or_else(|| "n/a".into())
+    );
 }
 
 fn main() -> ExitCode {
@@ -95,6 +175,29 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Cmd::PlyInfo { input, header_only } => ply_info(&input, header_only, cli.quiet),
+        Cmd::Build { input, output, params } => {
+            let r = octolod::pipeline::build_store(&input, &output, &params.options(cli.quiet)?)?;
+            print_build(&r);
+            Ok(())
+        }
+        Cmd::Info { store } => info(&store),
+        Cmd::Extract { store, level, output, no_weld } => {
+            let s = octolod::store::Store::open(&store)?;
+            let (nv, nf) = octolod::pipeline::extract(&s, level, &output, !no_weld)?;
+            println!("extract: level {level}: {nv} vertices, {nf} triangles -> {}", output.display());
+            Ok(())
+        }
+        Cmd::Simplify { input, output, target_tris, params } => {
+            let tmp = octolod::io::scratch_dir(&output)?;
+            let dir = tmp.path().join("store.octolod");
+            let r = octolod::pipeline::build_store(&input, &dir, &params.options(cli.quiet)?)?;
+            print_build(&r);
+            let s = octolod::store::Store::open(&dir)?;
+            let level = octolod::pipeline::nearest_level(&s, target_tris);
+            let (nv, nf) = octolod::pipeline::extract(&s, level, &output, true)?;
+            println!("simplify: level {level} nearest {target_tris}: {nv} vertices, {nf} triangles -> {}", output.display());
+            Ok(())
+        }
     }
 }
 
@@ -112,6 +215,51 @@ impl BodySink for BboxSink {
     fn triangles(&mut self, _batch: &[[u64; 3]]) -> Result<()> {
         Ok(())
     }
+}
+
+fn info(dir: &std::path::Path) -> Result<()> {
+    let s = octolod::store::Store::open(dir)?;
+    let h = &s.header;
+    println!("store: {}", dir.display());
+    println!("attributes: {} (quadric dimension {})", h.attrs.describe(), h.attrs.quadric_dim());
+    println!(
+        "nodes: {}, leaves: {}, deepest: {}",
+        s.nodes.len(),
+        s.nodes.iter().filter(|n| n.is_leaf()).count(),
+        s.nodes.iter().map(|n| n.depth).max().unwrap_or(0)
+    );
+    let manifest = std::fs::read_to_string(dir.join("store.json")).unwrap_or_default();
+    let seconds_of = |level: u8| -> String {
+        let key = format!("{{\"level\": {level},");
+        manifest
+            .lines()
+            .find(|l| l.trim_start().starts_with(&key))
+            .and_then(|l| l.split("\"seconds\": ").nth(1))
+            .map(|x| format!("{} s", x.trim_end_matches(|c| c == '}' || c == ',')))
+            .unwrap_or_else(|| "n/a".into())
+    };
+    println!("{:>5} {:>8} {:>14} {:>14} {:>12} {:>12} {:>10}", "level", "nodes", "triangles", "bytes", "err min", "err max", "time");
+    for level in 0..=octolod::pipeline::top_level(&s) {
+        let (mut nodes, mut bytes, mut tris, mut emin, mut emax) = (0u64, 0u64, 0u64, f64::INFINITY, 0f64);
+        for n in &s.nodes {
+            let slot = if level == 0 { n.orig } else if n.level == level { n.simp } else { continue };
+            if slot.is_empty() {
+                continue;
+            }
+            nodes += 1;
+            bytes += slot.bytes as u64;
+            tris += slot.tris as u64;
+            emin = emin.min(slot.error as f64);
+            emax = emax.max(slot.error as f64);
+        }
+        println!(
+            "{level:>5} {nodes:>8} {tris:>14} {bytes:>14} {:>12.3e} {emax:>12.3e} {:>10}   whole-level view: {} triangles",
+            if nodes == 0 { 0.0 } else { emin },
+            seconds_of(level),
+            octolod::pipeline::level_triangles(&s, level)
+        );
+    }
+    Ok(())
 }
 
 fn ply_info(input: &std::path::Path, header_only: bool, quiet: bool) -> Result<()> {

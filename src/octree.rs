@@ -289,12 +289,14 @@ fn assemble(leaves: &[Leaf], max_depth: u8) -> Vec<NodeRec> {
         children: [NO_NODE; 8],
         content: Aabb::EMPTY,
         subtree_tris: 0,
-        levels: Default::default(),
+        orig: Slot::default(),
+        simp: Slot::default(),
+        level: 0,
     };
     let mut nodes: Vec<NodeRec> = Vec::with_capacity(leaves.len() * 8 / 7 + 1);
     if leaves.len() == 1 && leaves[0].depth == 0 {
         let mut n = new_node(0, 0, NO_NODE);
-        n.levels[0] = leaves[0].slot;
+        n.orig = leaves[0].slot;
         n.content = leaves[0].content;
         n.subtree_tris = leaves[0].slot.tris as u64;
         return vec![n];
@@ -321,7 +323,7 @@ fn assemble(leaves: &[Leaf], max_depth: u8) -> Vec<NodeRec> {
             stack.push(id);
         }
         let id = *stack.last().unwrap() as usize;
-        nodes[id].levels[0] = leaf.slot;
+        nodes[id].orig = leaf.slot;
         nodes[id].content = leaf.content;
         nodes[id].subtree_tris = leaf.slot.tris as u64;
         stack.pop();

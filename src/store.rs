@@ -38,8 +38,6 @@ pub const PAGE: u64 = 4096;
 pub const NO_NODE: u32 = u32::MAX;
 const HEADER: usize = 64;
 const NODE_REC: usize = 256;
-/// Levels a node record has room for (0 = original triangles).
-pub const MAX_LEVELS: usize = 4;
 
 /// Where one level's mesh of a node lives.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -70,9 +68,12 @@ pub struct NodeRec {
     pub content: Aabb,
     /// Original triangles under this node (leaf: its own).
     pub subtree_tris: u64,
-    /// The node's meshes: `levels[0]` original triangles (leaves only),
-    /// `levels[l]` the level-l simplification.
-    pub levels: [Slot; MAX_LEVELS],
+    /// Level-0 mesh: the original triangles (leaves only), in `level-0.pack`.
+    pub orig: Slot,
+    /// The node's simplified mesh, in `level-{level}.pack`; empty when not built.
+    pub simp: Slot,
+    /// Level of `simp`: 1 for leaves, 1 + the highest child level otherwise.
+    pub level: u8,
 }
 
 impl NodeRec {
@@ -278,14 +279,14 @@ pub fn write_index(dir: &Path, h: &StoreHeader, nodes: &[NodeRec]) -> Result<()>
     for n in nodes {
         let at = b.len();
         b.extend_from_slice(&n.path.to_le_bytes());
-        b.extend_from_slice(&[n.depth, 0, 0, 0]);
+        b.extend_from_slice(&[n.depth, n.level, 0, 0]);
         b.extend_from_slice(&n.parent.to_le_bytes());
         for c in n.children {
             b.extend_from_slice(&c.to_le_bytes());
         }
         put_aabb(&mut b, &n.content);
         b.extend_from_slice(&n.subtree_tris.to_le_bytes());
-        for s in &n.levels {
+        for s in [&n.orig, &n.simp] {
             b.extend_from_slice(&s.offset.to_le_bytes());
             b.extend_from_slice(&s.bytes.to_le_bytes());
             b.extend_from_slice(&s.tris.to_le_bytes());
@@ -345,17 +346,13 @@ impl Store {
                 min: [f64_at(o), f64_at(o + 8), f64_at(o + 16)],
                 max: [f64_at(o + 24), f64_at(o + 32), f64_at(o + 40)],
             };
-            let mut levels = [Slot::default(); MAX_LEVELS];
-            for (l, s) in levels.iter_mut().enumerate() {
-                let p = o + 104 + 24 * l;
-                *s = Slot {
-                    offset: u64_at(p),
-                    bytes: u32_at(p + 8),
-                    tris: u32_at(p + 12),
-                    verts: u32_at(p + 16),
-                    error: f32::from_le_bytes(b[p + 20..p + 24].try_into().unwrap()),
-                };
-            }
+            let slot = |p: usize| Slot {
+                offset: u64_at(p),
+                bytes: u32_at(p + 8),
+                tris: u32_at(p + 12),
+                verts: u32_at(p + 16),
+                error: f32::from_le_bytes(b[p + 20..p + 24].try_into().unwrap()),
+            };
             nodes.push(NodeRec {
                 path: u64_at(o),
                 depth: b[o + 8],
@@ -363,7 +360,9 @@ impl Store {
                 children,
                 content: aabb(o + 48),
                 subtree_tris: u64_at(o + 96),
-                levels,
+                orig: slot(o + 104),
+                simp: slot(o + 128),
+                level: b[o + 9],
             });
         }
         Ok(Store { dir: dir.to_path_buf(), layout: VertexLayout::new(attrs), header, nodes })
@@ -373,17 +372,24 @@ impl Store {
         self.dir.join(format!("level-{level}.pack"))
     }
 
-    /// Reads node `id`'s level-`level` mesh with one positioned read.
-    pub fn read_mesh(&self, id: usize, level: usize) -> Result<IndexedMesh> {
-        use std::os::unix::fs::FileExt;
-        let s = self.nodes[id].levels[level];
-        let path = self.pack_path(level);
-        if s.is_empty() {
-            return Ok(IndexedMesh::default());
-        }
-        let f = File::open(&path).ctx(&path, "open pack file")?;
-        let mut b = vec![0u8; s.bytes as usize];
-        f.read_exact_at(&mut b, s.offset).ctx(&path, "read pack file")?;
-        decode_payload(&self.layout, &b, &path, s.offset)
+    /// Reads node `id`'s original (`simplified == false`, leaves) or
+    /// simplified mesh with one positioned read.
+    pub fn read_mesh(&self, id: usize, simplified: bool) -> Result<IndexedMesh> {
+        let n = &self.nodes[id];
+        let (s, level) = if simplified { (n.simp, n.level as usize) } else { (n.orig, 0) };
+        read_slot(&self.dir, &self.layout, level, &s)
     }
+}
+
+/// Reads one payload of `dir`'s level-`level` pack.
+pub fn read_slot(dir: &Path, layout: &VertexLayout, level: usize, s: &Slot) -> Result<IndexedMesh> {
+    use std::os::unix::fs::FileExt;
+    if s.is_empty() {
+        return Ok(IndexedMesh::default());
+    }
+    let path = dir.join(format!("level-{level}.pack"));
+    let f = File::open(&path).ctx(&path, "open pack file")?;
+    let mut b = vec![0u8; s.bytes as usize];
+    f.read_exact_at(&mut b, s.offset).ctx(&path, "read pack file")?;
+    decode_payload(layout, &b, &path, s.offset)
 }

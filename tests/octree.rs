@@ -83,7 +83,7 @@ fn check(shape: Shape, tris: u64, attrs: u32, limit: u64, max_depth: u8) {
     let mut want = Vec::new();
     reference(&keys, 0, 0, max_depth, limit as usize, &mut want);
     let got: Vec<(u64, u8, usize)> =
-        nodes.iter().filter(|n| n.is_leaf()).map(|n| (n.path, n.depth, n.levels[0].tris as usize)).collect();
+        nodes.iter().filter(|n| n.is_leaf()).map(|n| (n.path, n.depth, n.orig.tris as usize)).collect();
     assert_eq!(got, want, "leaves differ from the top-down partition");
     assert_eq!(rep.leaves as usize, want.len());
     // Level 0 round trip: the union of leaf payloads is the soup, as a set;
@@ -92,11 +92,11 @@ fn check(shape: Shape, tris: u64, attrs: u32, limit: u64, max_depth: u8) {
     let mut got_tris = Vec::new();
     for (i, n) in store.nodes.iter().enumerate() {
         if !n.is_leaf() {
-            assert!(n.levels[0].is_empty());
+            assert!(n.orig.is_empty());
             assert!(n.subtree_tris > limit, "an internal node must hold more than leaf_tris");
             continue;
         }
-        let m = store.read_mesh(i, 0).unwrap();
+        let m = store.read_mesh(i, false).unwrap();
         let cell = cube.cell(n.path, n.depth);
         for t in &m.triangles {
             let tri = t.map(|k| m.vertices[k as usize]);
