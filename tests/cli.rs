@@ -76,3 +76,57 @@ fn every_shape_and_flavor_ingests_to_the_generated_triangle_count() {
         }
     }
 }
+
+#[test]
+fn build_info_extract_and_simplify() {
+    let d = tempfile::tempdir().unwrap();
+    let ply = d.path().join("s.ply");
+    assert!(gen(&["--shape", "sphere", "--tris", "20000", "--normals", "--quiet", "-o", ply.to_str().unwrap()]).status.success());
+    let store = d.path().join("s.octolod");
+    let o = octolod(&["build", ply.to_str().unwrap(), "-o", store.to_str().unwrap(), "--mem", "1M", "--leaf-tris", "1000", "--cluster-grid", "4"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let g = Generator::new(&GenOptions { shape: Shape::Sphere, tris: 20000, seed: 1, attrs: AttrSet(AttrSet::NORMAL) });
+    let summary = String::from_utf8_lossy(&o.stdout);
+    assert!(summary.contains(&format!("build: {} triangles", g.face_count())), "{summary}");
+    for f in ["nodes.bin", "store.json", "level-0.pack", "level-1.pack"] {
+        assert!(store.join(f).exists(), "{f} missing");
+    }
+    let info = octolod(&["info", store.to_str().unwrap()]);
+    assert!(info.status.success());
+    let text = String::from_utf8_lossy(&info.stdout);
+    assert!(text.contains("quadric dimension 6"), "{text}");
+    let level_lines: Vec<&str> = text.lines().filter(|l| l.trim_start().chars().next().is_some_and(|c| c.is_ascii_digit())).collect();
+    assert!(level_lines.len() >= 3, "{text}");
+    // Level 0 back out: every input triangle.
+    let l0 = d.path().join("l0.ply");
+    assert!(octolod(&["extract", store.to_str().unwrap(), "--level", "0", "-o", l0.to_str().unwrap()]).status.success());
+    let (_, m, _) = octolod::ply::read::read_all(&l0).unwrap();
+    assert_eq!(m.triangles.len() as u64, g.face_count());
+    // A level that does not exist is a usage error naming the range.
+    let bad = octolod(&["extract", store.to_str().unwrap(), "--level", "40", "-o", d.path().join("x.ply").to_str().unwrap()]);
+    assert!(!bad.status.success());
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("levels 0..="));
+    assert!(!d.path().join("x.ply").exists());
+    // simplify: the level nearest the target.
+    let small = d.path().join("small.ply");
+    let o = octolod(&["simplify", ply.to_str().unwrap(), "-o", small.to_str().unwrap(), "--target-tris", "2000", "--leaf-tris", "1000", "--mem", "1M"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let (_, m, _) = octolod::ply::read::read_all(&small).unwrap();
+    assert!(m.triangles.len() < 10_000 && m.triangles.len() > 200, "{}", m.triangles.len());
+    // Only the outputs are left next to them (no scratch directories).
+    let mut names: Vec<String> = std::fs::read_dir(d.path()).unwrap().map(|e| e.unwrap().file_name().into_string().unwrap()).collect();
+    names.sort();
+    assert_eq!(names, ["l0.ply", "s.octolod", "s.ply", "small.ply"]);
+}
+
+#[test]
+fn failed_build_leaves_no_store() {
+    let d = tempfile::tempdir().unwrap();
+    let ply = d.path().join("t.ply");
+    std::fs::write(&ply, "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n").unwrap();
+    let store = d.path().join("t.octolod");
+    let o = octolod(&["build", ply.to_str().unwrap(), "-o", store.to_str().unwrap()]);
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("vertex index 7 out of range"));
+    assert_eq!(std::fs::read_dir(d.path()).unwrap().count(), 1, "a failed build left files behind");
+}
