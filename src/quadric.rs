@@ -151,9 +151,7 @@ impl QuadricSpace {
     }
     /// Offset of rgb in an embedded point, if the space has colors.
     pub fn color_at(&self) -> Option<usize> {
-        self.attrs
-            .color()
-            .then_some(3 + 2 * self.attrs.uv() as usize + 3 * self.attrs.normal() as usize)
+        self.attrs.color().then_some(3 + 2 * self.attrs.uv() as usize + 3 * self.attrs.normal() as usize)
     }
 
     /// World position → local coordinates.
@@ -850,6 +848,9 @@ struct Eigen {
     vals: [f64; MAX_DIM],
     vecs: Mat,
     /// Sweeps used (for tests).
+    #[cfg_attr(not(test), allow(dead_code))]
+    /// Jacobi sweeps used (read by the convergence tests).
+    #[cfg_attr(not(test), allow(dead_code))]
     sweeps: usize,
 }
 
@@ -1066,7 +1067,12 @@ mod tests {
             (AttrSet(AttrSet::NORMAL | AttrSet::COLOR), 9),
             (AttrSet(AttrSet::UV | AttrSet::NORMAL | AttrSet::COLOR), 11),
         ];
-        let v = Vertex { pos: [1e6 + 0.5, -3.0, 2.25], normal: [0.0, 0.6, 0.8], color: [10, 128, 255, 7], uv: [0.25, 0.75] };
+        let v = Vertex {
+            pos: [1e6 + 0.5, -3.0, 2.25],
+            normal: [0.0, 0.6, 0.8],
+            color: [10, 128, 255, 7],
+            uv: [0.25, 0.75],
+        };
         for (attrs, d) in dims {
             let s = QuadricSpace::new(attrs, AttrWeights { uv: 2.0, normal: 3.0, color: 5.0 }, [1e6, -4.0, 2.0]);
             assert_eq!(s.dim, d);
@@ -1300,14 +1306,21 @@ mod tests {
             [[f64::INFINITY, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
             [[1e300, 0.0, 0.0], [-1e300, 1e300, 0.0], [0.0, -1e300, 1e300]],
         ];
-        for attrs in [AttrSet::POSITION_ONLY, AttrSet(AttrSet::COLOR), AttrSet(AttrSet::UV | AttrSet::NORMAL | AttrSet::COLOR)] {
+        for attrs in
+            [AttrSet::POSITION_ONLY, AttrSet(AttrSet::COLOR), AttrSet(AttrSet::UV | AttrSet::NORMAL | AttrSet::COLOR)]
+        {
             let s = QuadricSpace::new(attrs, AttrWeights::uniform(0.3), [0.0; 3]);
             for (ti, t) in bad.iter().enumerate() {
                 // Attributes differ per corner: collinear positions still count zero.
                 let vs: Vec<Vertex> = t
                     .iter()
                     .enumerate()
-                    .map(|(c, &pos)| Vertex { pos, color: [50 * c as u8, 0, 90, 255], uv: [c as f32, 0.5], normal: [0.0, 0.0, 1.0] })
+                    .map(|(c, &pos)| Vertex {
+                        pos,
+                        color: [50 * c as u8, 0, 90, 255],
+                        uv: [c as f32, 0.5],
+                        normal: [0.0, 0.0, 1.0],
+                    })
                     .collect();
                 let e: Vec<_> = vs.iter().map(|v| s.embed(v)).collect();
                 let q = Quadric::from_triangle(&s, &e[0], &e[1], &e[2]);
@@ -1433,7 +1446,8 @@ mod tests {
 
         // Fuzz: random near-degenerate clusters and boxes, every cut-off.
         let mut rng = Rng(42);
-        let attrsets = [AttrSet::POSITION_ONLY, AttrSet(AttrSet::COLOR), AttrSet(AttrSet::UV | AttrSet::NORMAL | AttrSet::COLOR)];
+        let attrsets =
+            [AttrSet::POSITION_ONLY, AttrSet(AttrSet::COLOR), AttrSet(AttrSet::UV | AttrSet::NORMAL | AttrSet::COLOR)];
         for trial in 0..3000 {
             let attrs = attrsets[trial % 3];
             let s = QuadricSpace::new(attrs, AttrWeights::for_extent(1.0), [0.0; 3]);
@@ -1527,7 +1541,8 @@ mod tests {
         let mut q = m.triangles(&s);
         for v in &m.verts {
             let mut w = *v;
-            w.color = [v.color[0].saturating_add(40), v.color[1].saturating_add(40), v.color[2].saturating_add(40), 255];
+            w.color =
+                [v.color[0].saturating_add(40), v.color[1].saturating_add(40), v.color[2].saturating_add(40), 255];
             q.add_point(&s.embed(&w));
         }
         let sol = q.solve(DEFAULT_REL_TOL, None);
@@ -1585,7 +1600,11 @@ mod tests {
     #[test]
     fn quadrics_add_and_errors_are_nonnegative() {
         let mut rng = Rng(3);
-        for attrs in [AttrSet::POSITION_ONLY, AttrSet(AttrSet::NORMAL | AttrSet::COLOR), AttrSet(AttrSet::UV | AttrSet::NORMAL | AttrSet::COLOR)] {
+        for attrs in [
+            AttrSet::POSITION_ONLY,
+            AttrSet(AttrSet::NORMAL | AttrSet::COLOR),
+            AttrSet(AttrSet::UV | AttrSet::NORMAL | AttrSet::COLOR),
+        ] {
             let s = QuadricSpace::new(attrs, AttrWeights::for_extent(2.0), [0.1, 0.2, 0.3]);
             let tri = |rng: &mut Rng| {
                 [0; 3].map(|_| {
@@ -1649,7 +1668,10 @@ mod tests {
         let mut rng = Rng(5);
         let attrs = AttrSet(AttrSet::UV | AttrSet::COLOR);
         let (o1, o2) = ([1.0, 2.0, 3.0], [1.5, 1.0, 3.25]);
-        let (s1, s2) = (QuadricSpace::new(attrs, AttrWeights::for_extent(1.0), o1), QuadricSpace::new(attrs, AttrWeights::for_extent(1.0), o2));
+        let (s1, s2) = (
+            QuadricSpace::new(attrs, AttrWeights::for_extent(1.0), o1),
+            QuadricSpace::new(attrs, AttrWeights::for_extent(1.0), o2),
+        );
         let mut m = TestMesh::new();
         m.grid(5, 5, |_, _| Vertex {
             pos: add(o1, rng.vec3(-0.5, 0.5)),
@@ -1699,7 +1721,11 @@ mod tests {
             assert!(rank <= terms.min(n));
         }
         // Highly repeated eigenvalues: one 11-d triangle quadric (9 equal).
-        let s = QuadricSpace::new(AttrSet(AttrSet::UV | AttrSet::NORMAL | AttrSet::COLOR), AttrWeights::uniform(0.7), [0.0; 3]);
+        let s = QuadricSpace::new(
+            AttrSet(AttrSet::UV | AttrSet::NORMAL | AttrSet::COLOR),
+            AttrWeights::uniform(0.7),
+            [0.0; 3],
+        );
         for _ in 0..100 {
             let v = [0; 3].map(|_| {
                 s.embed(&Vertex {
@@ -1722,7 +1748,10 @@ mod tests {
     #[test]
     fn bench_from_triangle_and_add() {
         println!("size_of::<Quadric>() = {} bytes", std::mem::size_of::<Quadric>());
-        for (attrs, iters) in [(AttrSet::POSITION_ONLY, 2_000_000usize), (AttrSet(AttrSet::UV | AttrSet::NORMAL | AttrSet::COLOR), 400_000)] {
+        for (attrs, iters) in [
+            (AttrSet::POSITION_ONLY, 2_000_000usize),
+            (AttrSet(AttrSet::UV | AttrSet::NORMAL | AttrSet::COLOR), 400_000),
+        ] {
             let s = QuadricSpace::new(attrs, AttrWeights::for_extent(1.0), [0.0; 3]);
             let mut rng = Rng(1);
             let pts: Vec<[f64; MAX_DIM]> = (0..1024)
