@@ -849,8 +849,6 @@ struct Eigen {
     vecs: Mat,
     /// Sweeps used (for tests).
     #[cfg_attr(not(test), allow(dead_code))]
-    /// Jacobi sweeps used (read by the convergence tests).
-    #[cfg_attr(not(test), allow(dead_code))]
     sweeps: usize,
 }
 
