@@ -121,7 +121,7 @@ pub fn build_octree(soup: &Path, dir: &Path, opts: &OctreeOptions) -> Result<(So
     progress.finish();
     let Cutter { leaves, pack, overfull, .. } = cutter;
     let pack_bytes = pack.finish()?;
-    let nodes = assemble(&leaves, opts.max_depth);
+    let nodes = assemble(&leaves, &cube);
     let report = OctreeReport {
         leaves: leaves.len() as u64,
         nodes: nodes.len() as u64,
@@ -281,12 +281,14 @@ pub fn index_triangles(layout: &VertexLayout, soup: &[u8]) -> (IndexedMesh, Aabb
 }
 
 /// Builds the node records (depth-first pre-order) from the leaves in Morton order.
-fn assemble(leaves: &[Leaf], max_depth: u8) -> Vec<NodeRec> {
+fn assemble(leaves: &[Leaf], cube: &Cube) -> Vec<NodeRec> {
+    let max_depth = cube.depth;
     let new_node = |path: u64, depth: u8, parent: u32| NodeRec {
         path,
         depth,
         parent,
         children: [NO_NODE; 8],
+        cell: cube.cell(path, depth),
         content: Aabb::EMPTY,
         subtree_tris: 0,
         orig: Slot::default(),

@@ -64,6 +64,9 @@ pub struct NodeRec {
     pub depth: u8,
     pub parent: u32,
     pub children: [u32; 8],
+    /// The node's octree cell (derivable from `path`, `depth` and the root
+    /// cube; stored so readers need not recompute it).
+    pub cell: Aabb,
     /// Tight bounds of the original triangles under this node.
     pub content: Aabb,
     /// Original triangles under this node (leaf: its own).
@@ -293,6 +296,7 @@ pub fn write_index(dir: &Path, h: &StoreHeader, nodes: &[NodeRec]) -> Result<()>
             b.extend_from_slice(&s.verts.to_le_bytes());
             b.extend_from_slice(&s.error.to_le_bytes());
         }
+        put_aabb(&mut b, &n.cell);
         debug_assert!(b.len() - at <= NODE_REC);
         b.resize(at + NODE_REC, 0);
     }
@@ -358,6 +362,7 @@ impl Store {
                 depth: b[o + 8],
                 parent: u32_at(o + 12),
                 children,
+                cell: aabb(o + 152),
                 content: aabb(o + 48),
                 subtree_tris: u64_at(o + 96),
                 orig: slot(o + 104),

@@ -98,6 +98,7 @@ fn check(shape: Shape, tris: u64, attrs: u32, limit: u64, max_depth: u8) {
         }
         let m = store.read_mesh(i, false).unwrap();
         let cell = cube.cell(n.path, n.depth);
+        assert_eq!(n.cell, cell, "stored cell bounds");
         for t in &m.triangles {
             let tri = t.map(|k| m.vertices[k as usize]);
             let c = [0, 1, 2].map(|a| tri.iter().map(|v| v.pos[a] / 3.0).sum::<f64>());
