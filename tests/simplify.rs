@@ -263,3 +263,20 @@ fn level_zero_extract_gives_back_the_input_triangles() {
     assert!(a == b, "level 0 differs from the input");
 }
 
+
+#[test]
+fn a_closed_object_inside_one_node_may_collapse_to_an_empty_node() {
+    let d = tempfile::tempdir().unwrap();
+    // One small torus, one leaf (the root), one representative: nothing is left.
+    let (s, orig) = build(d.path(), Shape::Instances, 100, 0, 1000, 1);
+    assert_eq!(s.nodes.len(), 1);
+    assert!(orig.triangles.len() > 40);
+    let root = &s.nodes[0];
+    assert_eq!((root.level, root.simp.tris, root.simp.verts), (1, 0, 0));
+    assert!(!root.simp.is_empty(), "an empty mesh is still a stored payload");
+    assert!(node_mesh(&s, 0, true).triangles.is_empty());
+    let out = d.path().join("empty.ply");
+    assert_eq!(extract(&s, 1, &out, true).unwrap(), (0, 0));
+    let (h, m, _) = octolod::ply::read::read_all(&out).unwrap();
+    assert_eq!((h.face_count(), m.vertices.len()), (0, 0));
+}
