@@ -35,6 +35,11 @@ pub fn parent_dir(p: &Path) -> PathBuf {
     }
 }
 
+fn ensure_parent(dest: &Path) -> Result<()> {
+    let dir = parent_dir(dest);
+    fs::create_dir_all(&dir).ctx(&dir, "create output directory")
+}
+
 /// A file written under a temporary name and renamed to its final name on commit.
 pub struct AtomicFile {
     tmp: PathBuf,
@@ -43,8 +48,10 @@ pub struct AtomicFile {
 }
 
 impl AtomicFile {
+    /// Creates the temp file, and the destination's directory if missing.
     pub fn create(dest: impl AsRef<Path>) -> Result<AtomicFile> {
         let dest = dest.as_ref().to_path_buf();
+        ensure_parent(&dest)?;
         let tmp = temp_sibling(&dest, "partial");
         let f = File::create(&tmp).ctx(&tmp, "create")?;
         Ok(AtomicFile { tmp, dest, writer: Some(BufWriter::with_capacity(SEQ_BUF, f)) })
@@ -96,8 +103,10 @@ pub struct AtomicDir {
 }
 
 impl AtomicDir {
+    /// Creates the temp directory, and the destination's parent if missing.
     pub fn create(dest: impl AsRef<Path>) -> Result<AtomicDir> {
         let dest = dest.as_ref().to_path_buf();
+        ensure_parent(&dest)?;
         let tmp = temp_sibling(&dest, "partial");
         fs::create_dir_all(&tmp).ctx(&tmp, "create directory")?;
         Ok(AtomicDir { tmp, dest, done: false })
@@ -134,6 +143,7 @@ impl Drop for AtomicDir {
 /// A scratch directory for spill files next to `near` (same filesystem as the
 /// output, so large temp data does not land on a small /tmp). Removed on drop.
 pub fn scratch_dir(near: &Path) -> Result<tempfile::TempDir> {
+    ensure_parent(near)?;
     let dir = parent_dir(near);
     tempfile::Builder::new().prefix(".octolod-scratch-").tempdir_in(&dir).ctx(&dir, "create scratch directory")
 }
@@ -157,6 +167,18 @@ mod tests {
         f.commit().unwrap();
         assert_eq!(fs::read(&p).unwrap(), b"whole");
         assert_eq!(fs::read_dir(d.path()).unwrap().count(), 1);
+    }
+
+    #[test]
+    fn outputs_create_their_directory() {
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("a/b/x.bin");
+        let mut f = AtomicFile::create(&p).unwrap();
+        f.write_all(b"1").unwrap();
+        f.commit().unwrap();
+        assert!(p.exists());
+        AtomicDir::create(d.path().join("c/s.octolod")).unwrap().commit().unwrap();
+        assert!(d.path().join("c/s.octolod").is_dir());
     }
 
     #[test]
