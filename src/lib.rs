@@ -14,6 +14,7 @@ pub mod gen;
 pub mod io;
 pub mod mem;
 pub mod mesh;
+pub mod metro;
 pub mod octree;
 pub mod pipeline;
 pub mod ply;

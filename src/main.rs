@@ -66,6 +66,33 @@ enum Cmd {
         #[command(flatten)]
         params: BuildParams,
     },
+    /// Two-sided Metro surface distance between meshes A and B (PLY paths or STORE@L).
+    ///
+    /// Exit status: 0 within every given threshold, 3 when one is exceeded, 1 on errors.
+    Metro {
+        /// Reference mesh: a PLY, or STORE@L for level L of an octolod store.
+        a: String,
+        /// Compared mesh: a PLY, or STORE@L.
+        b: String,
+        /// Samples per direction (default: 10 × the larger face count).
+        #[arg(long)]
+        samples: Option<u64>,
+        /// Seed of the face samples' randomness.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Print one JSON object instead of the table.
+        #[arg(long)]
+        json: bool,
+        /// Fail (exit 3) when the two-sided Hausdorff distance exceeds this (0.01, or 0.1% of A's bbox diagonal).
+        #[arg(long)]
+        max_hausdorff: Option<String>,
+        /// Fail (exit 3) when the RMS distance over both directions exceeds this.
+        #[arg(long)]
+        max_rms: Option<String>,
+        /// Fail (exit 3) when the mean distance over both directions exceeds this.
+        #[arg(long)]
+        max_mean: Option<String>,
+    },
     /// Print a PLY's header, element counts, attribute set and bounding box.
     PlyInfo {
         input: PathBuf,
@@ -175,6 +202,13 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Cmd::PlyInfo { input, header_only } => ply_info(&input, header_only, cli.quiet),
+        Cmd::Metro { a, b, samples, seed, json, max_hausdorff, max_rms, max_mean } => {
+            let args = octolod::metro::CliArgs { a, b, samples, seed, json, max_hausdorff, max_rms, max_mean, quiet: cli.quiet };
+            if !octolod::metro::run_cli(&args)? {
+                std::process::exit(octolod::metro::EXIT_THRESHOLD.into());
+            }
+            Ok(())
+        }
         Cmd::Build { input, output, params } => {
             let r = octolod::pipeline::build_store(&input, &output, &params.options(cli.quiet)?)?;
             print_build(&r);

@@ -1,0 +1,474 @@
+//! `octolod metro` against known answers: identical meshes, a plane against
+//! its offset copy, a sphere against an inscribed icosphere, a store level
+//! against the PLY it was built from; and the command line (JSON, thresholds
+//! and exit codes, determinism).
+
+use octolod::gen::{GenOptions, Generator, Shape};
+use octolod::mesh::{AttrSet, Vertex};
+use octolod::metro::{compare, Mesh, Options};
+use octolod::ply::write::{write_ply, PlyWriteOptions};
+use std::collections::{BTreeMap, HashMap};
+use std::path::Path;
+use std::process::{Command, Output};
+
+// ---------------------------------------------------------------------------
+// Helpers.
+
+fn generated(shape: Shape, tris: u64) -> Mesh {
+    let (v, t) = Generator::new(&GenOptions { shape, tris, seed: 3, attrs: AttrSet::POSITION_ONLY }).mesh();
+    Mesh::from_vertices(&v, t)
+}
+
+/// A subdivided icosahedron with every vertex on the unit sphere.
+fn icosphere(level: u32) -> Mesh {
+    let g = (1.0 + 5f64.sqrt()) / 2.0;
+    let mut pos: Vec<[f64; 3]> = [
+        [-1.0, g, 0.0],
+        [1.0, g, 0.0],
+        [-1.0, -g, 0.0],
+        [1.0, -g, 0.0],
+        [0.0, -1.0, g],
+        [0.0, 1.0, g],
+        [0.0, -1.0, -g],
+        [0.0, 1.0, -g],
+        [g, 0.0, -1.0],
+        [g, 0.0, 1.0],
+        [-g, 0.0, -1.0],
+        [-g, 0.0, 1.0],
+    ]
+    .into_iter()
+    .map(unit)
+    .collect();
+    let mut tris: Vec<[u32; 3]> = vec![
+        [0, 11, 5],
+        [0, 5, 1],
+        [0, 1, 7],
+        [0, 7, 10],
+        [0, 10, 11],
+        [1, 5, 9],
+        [5, 11, 4],
+        [11, 10, 2],
+        [10, 7, 6],
+        [7, 1, 8],
+        [3, 9, 4],
+        [3, 4, 2],
+        [3, 2, 6],
+        [3, 6, 8],
+        [3, 8, 9],
+        [4, 9, 5],
+        [2, 4, 11],
+        [6, 2, 10],
+        [8, 6, 7],
+        [9, 8, 1],
+    ];
+    for _ in 0..level {
+        let mut mid: HashMap<(u32, u32), u32> = HashMap::new();
+        let mut next = Vec::with_capacity(tris.len() * 4);
+        for t in &tris {
+            let mut m = [0u32; 3];
+            for k in 0..3 {
+                let (a, b) = (t[k], t[(k + 1) % 3]);
+                m[k] = *mid.entry((a.min(b), a.max(b))).or_insert_with(|| {
+                    let (p, q) = (pos[a as usize], pos[b as usize]);
+                    pos.push(unit([p[0] + q[0], p[1] + q[1], p[2] + q[2]]));
+                    pos.len() as u32 - 1
+                });
+            }
+            next.extend([[t[0], m[0], m[2]], [t[1], m[1], m[0]], [t[2], m[2], m[1]], [m[0], m[1], m[2]]]);
+        }
+        tris = next;
+    }
+    Mesh::new(pos, tris)
+}
+
+fn unit(p: [f64; 3]) -> [f64; 3] {
+    let l = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+    [p[0] / l, p[1] / l, p[2] / l]
+}
+
+fn opts(samples: Option<u64>) -> Options {
+    Options { samples, seed: 1, quiet: true }
+}
+
+fn write_mesh(path: &Path, m: &Mesh) {
+    let v: Vec<Vertex> = m.positions.iter().map(|&pos| Vertex { pos, ..Vertex::default() }).collect();
+    let o = PlyWriteOptions { attrs: AttrSet::POSITION_ONLY.with(AttrSet::POS_F64, true), ..Default::default() };
+    write_ply(path, &o, &v, &m.triangles).unwrap();
+}
+
+fn octolod(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_octolod")).args(args).output().unwrap()
+}
+
+fn text(b: &[u8]) -> String {
+    String::from_utf8_lossy(b).into_owned()
+}
+
+/// A minimal JSON reader (enough to check the report is one valid object).
+#[derive(Debug, Clone, PartialEq)]
+enum Json {
+    Null,
+    Bool(bool),
+    Num(f64),
+    Str(String),
+    Arr(Vec<Json>),
+    Obj(BTreeMap<String, Json>),
+}
+
+impl Json {
+    fn parse(s: &str) -> Result<Json, String> {
+        let b = s.trim().as_bytes();
+        let mut i = 0;
+        let v = Self::value(b, &mut i)?;
+        if i != b.len() {
+            return Err(format!("trailing bytes at {i}"));
+        }
+        Ok(v)
+    }
+    fn ws(b: &[u8], i: &mut usize) {
+        while *i < b.len() && b[*i].is_ascii_whitespace() {
+            *i += 1;
+        }
+    }
+    fn value(b: &[u8], i: &mut usize) -> Result<Json, String> {
+        Self::ws(b, i);
+        let lit = |i: &mut usize, w: &str, v: Json| {
+            if b[*i..].starts_with(w.as_bytes()) {
+                *i += w.len();
+                Ok(v)
+            } else {
+                Err(format!("bad literal at {i}"))
+            }
+        };
+        match b.get(*i) {
+            Some(b'{') => {
+                *i += 1;
+                let mut m = BTreeMap::new();
+                Self::ws(b, i);
+                if b.get(*i) == Some(&b'}') {
+                    *i += 1;
+                    return Ok(Json::Obj(m));
+                }
+                loop {
+                    Self::ws(b, i);
+                    let Json::Str(k) = Self::value(b, i)? else { return Err(format!("key expected at {i}")) };
+                    Self::ws(b, i);
+                    if b.get(*i) != Some(&b':') {
+                        return Err(format!("':' expected at {i}"));
+                    }
+                    *i += 1;
+                    let v = Self::value(b, i)?;
+                    if m.insert(k.clone(), v).is_some() {
+                        return Err(format!("duplicate key {k}"));
+                    }
+                    Self::ws(b, i);
+                    match b.get(*i) {
+                        Some(b',') => *i += 1,
+                        Some(b'}') => {
+                            *i += 1;
+                            return Ok(Json::Obj(m));
+                        }
+                        _ => return Err(format!("',' or '}}' expected at {i}")),
+                    }
+                }
+            }
+            Some(b'[') => {
+                *i += 1;
+                let mut v = Vec::new();
+                Self::ws(b, i);
+                if b.get(*i) == Some(&b']') {
+                    *i += 1;
+                    return Ok(Json::Arr(v));
+                }
+                loop {
+                    v.push(Self::value(b, i)?);
+                    Self::ws(b, i);
+                    match b.get(*i) {
+                        Some(b',') => *i += 1,
+                        Some(b']') => {
+                            *i += 1;
+                            return Ok(Json::Arr(v));
+                        }
+                        _ => return Err(format!("',' or ']' expected at {i}")),
+                    }
+                }
+            }
+            Some(b'"') => {
+                *i += 1;
+                let mut s = String::new();
+                while let Some(&c) = b.get(*i) {
+                    *i += 1;
+                    match c {
+                        b'"' => return Ok(Json::Str(s)),
+                        b'\\' => {
+                            let e = *b.get(*i).ok_or("eof in escape")?;
+                            *i += 1;
+                            match e {
+                                b'"' | b'\\' | b'/' => s.push(e as char),
+                                b'n' => s.push('\n'),
+                                b't' => s.push('\t'),
+                                b'r' => s.push('\r'),
+                                b'u' => {
+                                    let h = std::str::from_utf8(&b[*i..*i + 4]).map_err(|e| e.to_string())?;
+                                    s.push(char::from_u32(u32::from_str_radix(h, 16).map_err(|e| e.to_string())?).unwrap_or('?'));
+                                    *i += 4;
+                                }
+                                _ => return Err(format!("bad escape at {i}")),
+                            }
+                        }
+                        c if c < 0x20 => return Err("control character in string".into()),
+                        c => s.push(c as char),
+                    }
+                }
+                Err("unterminated string".into())
+            }
+            Some(b't') => lit(i, "true", Json::Bool(true)),
+            Some(b'f') => lit(i, "false", Json::Bool(false)),
+            Some(b'n') => lit(i, "null", Json::Null),
+            Some(c) if *c == b'-' || c.is_ascii_digit() => {
+                let s0 = *i;
+                while *i < b.len() && (b[*i].is_ascii_digit() || b"+-.eE".contains(&b[*i])) {
+                    *i += 1;
+                }
+                let t = std::str::from_utf8(&b[s0..*i]).unwrap();
+                t.parse::<f64>().map(Json::Num).map_err(|_| format!("bad number '{t}'"))
+            }
+            _ => Err(format!("unexpected byte at {i}")),
+        }
+    }
+    fn get(&self, path: &str) -> &Json {
+        let mut v = self;
+        for k in path.split('.') {
+            v = match v {
+                Json::Obj(m) => m.get(k).unwrap_or_else(|| panic!("no '{k}' in {path}")),
+                _ => panic!("'{path}': not an object at '{k}'"),
+            };
+        }
+        v
+    }
+    fn num(&self, path: &str) -> f64 {
+        match self.get(path) {
+            Json::Num(x) => *x,
+            o => panic!("{path} is {o:?}, not a number"),
+        }
+    }
+}
+
+// ---------------------------------------------------------------------------
+// Known answers in the library.
+
+#[test]
+fn identical_meshes_are_at_distance_zero() {
+    for m in [generated(Shape::Sphere, 3000), generated(Shape::Terrain, 2000), icosphere(2)] {
+        let r = compare(&m, &m, &opts(None)).unwrap();
+        let diag = r.diagonal;
+        assert!(diag > 0.0);
+        assert_eq!(r.samples_target, 10 * m.triangles.len() as u64);
+        for d in [&r.a_to_b, &r.b_to_a, &r.combined] {
+            assert!(d.samples + 2 >= r.samples_target && d.face_samples > 0 && d.edge_samples > 0 && d.vertex_samples > 0, "{d:?}");
+            assert!(d.max / diag < 1e-12 && d.mean / diag < 1e-12 && d.rms / diag < 1e-12, "{d:?}");
+        }
+    }
+}
+
+#[test]
+fn plane_against_its_offset_copy_is_at_the_offset() {
+    let a = generated(Shape::Plane, 2000);
+    assert!(a.positions.iter().all(|p| p[2] == 0.0));
+    let d = 0.0123;
+    let mut b = a.clone();
+    for p in &mut b.positions {
+        p[2] += d;
+    }
+    // Shift A's triangulation relative to B's too: B with a coarser grid of
+    // the same extent gives the same answer (every nearest point is still
+    // straight above or below).
+    let b_coarse = {
+        let mut m = generated(Shape::Plane, 200);
+        for p in &mut m.positions {
+            p[2] += d;
+        }
+        m
+    };
+    for b in [&b, &b_coarse] {
+        let r = compare(&a, b, &opts(None)).unwrap();
+        for x in [&r.a_to_b, &r.b_to_a, &r.combined] {
+            for (name, v) in [("max", x.max), ("mean", x.mean), ("rms", x.rms)] {
+                assert!((v - d).abs() <= 1e-9 * d, "{name} = {v}, want {d}");
+            }
+        }
+        assert!((r.diagonal - 2f64.sqrt()).abs() < 1e-12, "A's diagonal is sqrt 2: {}", r.diagonal);
+        assert!((r.union_diagonal - (2.0 + d * d).sqrt()).abs() < 1e-12);
+    }
+}
+
+#[test]
+fn dense_sphere_against_inscribed_icosphere_matches_the_analytic_maximum() {
+    let sphere = icosphere(5); // 20480 faces, vertices on the unit sphere
+    let poly = icosphere(1); // 80 faces, inscribed
+    // The sphere's farthest point from the polyhedron lies straight above the
+    // foot of the face plane closest to the centre: 1 - min inradius.
+    let h_min = poly
+        .triangles
+        .iter()
+        .map(|t| {
+            let [a, b, c] = t.map(|i| poly.positions[i as usize]);
+            let (u, v) = ([b[0] - a[0], b[1] - a[1], b[2] - a[2]], [c[0] - a[0], c[1] - a[1], c[2] - a[2]]);
+            let n = unit([u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]]);
+            (n[0] * a[0] + n[1] * a[1] + n[2] * a[2]).abs()
+        })
+        .fold(f64::INFINITY, f64::min);
+    let analytic = 1.0 - h_min;
+    assert!(analytic > 0.04 && analytic < 0.1, "{analytic}");
+    let r = compare(&sphere, &poly, &opts(Some(100_000))).unwrap();
+    let ab = r.a_to_b.max;
+    assert!((ab - analytic).abs() <= 0.01 * analytic, "A->B max {ab} vs analytic {analytic}");
+    // Polyhedron -> sphere: the face foot is as far from the (slightly
+    // inscribed) dense sphere.
+    let ba = r.b_to_a.max;
+    assert!((ba - analytic).abs() <= 0.01 * analytic, "B->A max {ba} vs analytic {analytic}");
+    assert_eq!(r.combined.max, ab.max(ba));
+    // The mean lies well inside (0, max).
+    assert!(r.a_to_b.mean > 0.1 * analytic && r.a_to_b.mean < 0.7 * analytic, "{}", r.a_to_b.mean);
+}
+
+// ---------------------------------------------------------------------------
+// The command line.
+
+#[test]
+fn thresholds_set_the_exit_code_and_json_has_the_fields() {
+    let d = tempfile::tempdir().unwrap();
+    let (a, b) = (d.path().join("a.ply"), d.path().join("b.ply"));
+    write_mesh(&a, &icosphere(3));
+    write_mesh(&b, &icosphere(2));
+    let (a, b) = (a.to_str().unwrap(), b.to_str().unwrap());
+
+    let o = octolod(&["metro", a, b, "--json", "--max-hausdorff", "1%"]);
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o.stderr));
+    let j = Json::parse(&text(&o.stdout)).unwrap_or_else(|e| panic!("{e}: {}", text(&o.stdout)));
+    for k in ["a_to_b", "b_to_a", "combined"] {
+        for f in ["max", "mean", "rms", "max_rel", "mean_rel", "rms_rel", "samples", "vertex_samples", "edge_samples", "face_samples"] {
+            let _ = j.num(&format!("{k}.{f}"));
+        }
+        assert_eq!(j.num(&format!("{k}.max_rel")), j.num(&format!("{k}.max")) / j.num("diagonal"));
+    }
+    for k in ["a", "b"] {
+        let _ = (j.num(&format!("{k}.faces")), j.num(&format!("{k}.vertices")), j.num(&format!("{k}.diagonal")));
+        assert!(matches!(j.get(&format!("{k}.bbox.min")), Json::Arr(v) if v.len() == 3));
+    }
+    assert_eq!(j.num("a.faces"), 1280.0);
+    assert_eq!(j.num("b.faces"), 320.0);
+    assert_eq!(j.num("samples_target"), 12800.0);
+    assert_eq!(j.get("diagonal_of"), &Json::Str("a".into()));
+    assert_eq!(j.get("pass"), &Json::Bool(true));
+    let h = j.num("hausdorff");
+    assert_eq!(h, j.num("combined.max"));
+    assert_eq!(h, j.num("a_to_b.max").max(j.num("b_to_a.max")));
+    let diag = j.num("diagonal");
+    assert!((diag - 2.0 * 3f64.sqrt()).abs() < 1e-3, "{diag}");
+    // A 1 % limit passes, so the distance is below 3.46e-2; but it is not tiny.
+    assert!(h > 1e-3 && h < 0.01 * diag, "{h}");
+    assert!(text(&o.stderr).is_empty(), "{}", text(&o.stderr));
+    let Json::Arr(th) = j.get("thresholds") else { panic!() };
+    assert_eq!(th.len(), 1);
+    assert_eq!(th[0].get("exceeded"), &Json::Bool(false));
+    assert!((th[0].num("limit") - 0.01 * diag).abs() < 1e-15);
+
+    // An absolute limit below the distance fails with exit 3, naming it.
+    let o = octolod(&["metro", a, b, "--max-hausdorff", "0.0001"]);
+    assert_eq!(o.status.code(), Some(3), "{}", text(&o.stderr));
+    assert!(text(&o.stderr).contains("--max-hausdorff"), "{}", text(&o.stderr));
+    assert!(text(&o.stdout).contains("A -> B") && text(&o.stdout).contains("B -> A"), "{}", text(&o.stdout));
+    // Percentages: just above and just below the measured relative figure.
+    let pct = 100.0 * h / diag;
+    let above = format!("{}%", pct * 1.01);
+    let below = format!("{}%", pct * 0.99);
+    assert_eq!(octolod(&["metro", a, b, "--max-hausdorff", &above]).status.code(), Some(0));
+    let o = octolod(&["metro", a, b, "--max-hausdorff", &below, "--json"]);
+    assert_eq!(o.status.code(), Some(3));
+    let j = Json::parse(&text(&o.stdout)).unwrap();
+    assert_eq!(j.get("pass"), &Json::Bool(false));
+    // RMS and mean limits, only the exceeded one reported.
+    let (rms, mean) = (j.num("combined.rms"), j.num("combined.mean"));
+    let o = octolod(&["metro", a, b, "--max-rms", &format!("{}", rms * 0.9), "--max-mean", &format!("{}", mean * 1.1)]);
+    assert_eq!(o.status.code(), Some(3));
+    let e = text(&o.stderr);
+    assert!(e.contains("--max-rms") && !e.contains("--max-mean"), "{e}");
+    let o = octolod(&["metro", a, b, "--max-rms", &format!("{}", rms * 1.1), "--max-mean", &format!("{}", mean * 1.1)]);
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o.stderr));
+
+    // Bad thresholds and arguments are usage errors: exit 1.
+    for bad in [["--max-hausdorff", "abc"], ["--max-rms", "1%%"], ["--max-mean", "nan"], ["--samples", "0"]] {
+        let o = octolod(&["metro", a, b, bad[0], bad[1]]);
+        assert_eq!(o.status.code(), Some(1), "{bad:?}: {}", text(&o.stderr));
+        assert!(text(&o.stdout).is_empty());
+    }
+    let o = octolod(&["metro", a, d.path().join("missing.ply").to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(1));
+}
+
+#[test]
+fn same_seed_same_json_and_the_seed_matters() {
+    let d = tempfile::tempdir().unwrap();
+    let (a, b) = (d.path().join("a.ply"), d.path().join("b.ply"));
+    write_mesh(&a, &generated(Shape::Sphere, 4000));
+    write_mesh(&b, &icosphere(3));
+    let (a, b) = (a.to_str().unwrap(), b.to_str().unwrap());
+    let run = |seed: &str| {
+        let o = octolod(&["metro", a, b, "--json", "--seed", seed, "--samples", "30000"]);
+        assert!(o.status.success(), "{}", text(&o.stderr));
+        text(&o.stdout)
+    };
+    let (x, y, z) = (run("7"), run("7"), run("8"));
+    assert_eq!(x, y);
+    assert_ne!(x, z);
+    let j = Json::parse(&x).unwrap();
+    assert_eq!(j.num("seed"), 7.0);
+    assert!((j.num("a_to_b.samples") - 30000.0).abs() <= 1.0);
+}
+
+#[test]
+fn store_level_against_the_ply_it_was_built_from() {
+    let d = tempfile::tempdir().unwrap();
+    let ply = d.path().join("s.ply");
+    let m = generated(Shape::Sphere, 6000);
+    write_mesh(&ply, &m);
+    let store = d.path().join("s.octolod");
+    octolod::pipeline::build_store(
+        &ply,
+        &store,
+        &octolod::pipeline::BuildOptions { mem: 4 << 20, leaf_tris: 500, ..Default::default() },
+    )
+    .unwrap();
+    let (p, s) = (ply.to_str().unwrap(), store.to_str().unwrap());
+
+    // Level 0 is the input, bit-exact: distance 0 both ways.
+    let o = octolod(&["metro", p, &format!("{s}@0"), "--json"]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let j = Json::parse(&text(&o.stdout)).unwrap();
+    assert_eq!(j.num("a.faces"), j.num("b.faces"));
+    assert_eq!(j.num("a.vertices"), j.num("b.vertices"), "store vertices are welded back");
+    assert!(j.num("hausdorff_rel") < 1e-12, "{}", j.num("hausdorff_rel"));
+    assert_eq!(j.get("b.source"), &Json::Str(format!("{s}@0")));
+
+    // A simplified level: a real, bounded distance, and the same answer
+    // through the library.
+    let top = octolod::pipeline::top_level(&octolod::store::Store::open(&store).unwrap());
+    assert!(top >= 2);
+    let o = octolod(&["metro", &format!("{s}@1"), p, "--json"]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let j = Json::parse(&text(&o.stdout)).unwrap();
+    let h = j.num("hausdorff_rel");
+    assert!(h > 1e-5 && h < 0.05, "{h}");
+    let lvl = octolod::metro::load_store_level(&store, 1).unwrap();
+    let lib = compare(&lvl, &octolod::metro::load_ply(&ply).unwrap(), &opts(None)).unwrap();
+    assert_eq!(lib.combined.max, j.num("hausdorff"));
+
+    // A level that does not exist, and a bare store directory: usage errors.
+    let o = octolod(&["metro", p, &format!("{s}@{}", top + 1)]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(text(&o.stderr).contains("does not exist"), "{}", text(&o.stderr));
+    let o = octolod(&["metro", p, s]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(text(&o.stderr).contains("@L"), "{}", text(&o.stderr));
+}
