@@ -34,7 +34,7 @@ def meshlab(a, b, samples):
     ms.load_new_mesh(b)
     r = ms.get_hausdorff_distance(
         sampledmesh=0, targetmesh=1, samplevert=True, sampleedge=True, sampleface=True,
-        samplenum=samples, maxdist=pymeshlab.PercentageValue(200.0))
+        samplenum=samples, maxdist=pymeshlab.PercentageValue(100.0))
     return {"max": r["max"], "mean": r["mean"], "rms": r["RMS"], "samples": r["n_samples"]}
 
 
