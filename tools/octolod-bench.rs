@@ -1571,7 +1571,7 @@ fn report_md(b: &Bench, inputs: &[InputInfo], rows: &[Row], builds: &[(usize, St
         (Some(bin), Some(which)) => {
             let _ = writeln!(
                 w,
-                "Error: `{} metro INPUT OUTPUT --json{}` ({} samples per direction asked; {} taken, as metro always samples every vertex), figures from {which}, divided by the input's bounding-box diagonal.\n",
+                "Error: `{} metro INPUT OUTPUT --json{}` ({} samples per direction asked, {} taken: metro takes every vertex even when fewer are asked), figures from {which}, divided by the input's bounding-box diagonal.\n",
                 bin.display(),
                 b.args.samples.map_or(String::new(), |n| format!(" --samples {n}")),
                 samples.map_or("metro's default".into(), |n| thousands(n as u64)),
