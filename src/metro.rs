@@ -251,21 +251,13 @@ pub fn load_ply(path: &Path) -> Result<Mesh> {
 /// Level `level` of the store at `dir`: the whole-level cut's node meshes,
 /// concatenated in memory, bit-identical positions welded.
 pub fn load_store_level(dir: &Path, level: u8) -> Result<Mesh> {
-    use crate::store::read_slot;
     let store = crate::store::Store::open(dir)?;
-    let top = crate::pipeline::top_level(&store);
-    if level > top {
-        return Err(Error::Usage(format!("the store has levels 0..={top}; level {level} does not exist")));
-    }
+    crate::pipeline::check_level(&store, level)?;
     let mut mesh = Mesh::default();
     let mut weld: HashMap<[u64; 3], u32> = HashMap::new();
     for i in crate::simplify::level_cut(&store.nodes, level) {
         let n = &store.nodes[i];
-        let m = if level == 0 || n.simp.is_empty() {
-            read_slot(&store.dir, &store.layout, 0, &n.orig)?
-        } else {
-            read_slot(&store.dir, &store.layout, n.level as usize, &n.simp)?
-        };
+        let m = crate::pipeline::read_level_mesh(&store, i, level)?;
         let ids: Vec<u32> = m
             .vertices
             .iter()

@@ -12,7 +12,7 @@ use crate::octree::{build_octree, OctreeOptions, OctreeReport};
 use crate::ply::write::{PlyWriteOptions, PlyWriter};
 use crate::simplify::{build_levels, level_cut, weld_union, LevelReport, SimplifyOptions};
 use crate::soup::{build_soup, SoupOptions, SoupReport};
-use crate::store::{read_slot, write_index, IndexedMesh, Store, StoreHeader};
+use crate::store::{read_slot, write_index, IndexedMesh, NodeRec, Slot, Store, StoreHeader};
 use std::io::Write;
 use std::path::Path;
 use std::time::Instant;
@@ -124,15 +124,35 @@ fn write_manifest(dir: &Path, input: &Path, o: &BuildOptions, h: &StoreHeader, r
     f.write_all(s.as_bytes()).ctx(&path, "write")
 }
 
+/// The mesh node `n` contributes to a whole-level view at `level`: its
+/// original triangles for level 0 (and when it has no simplified mesh),
+/// else its simplified mesh. Returns (pack level, slot).
+pub fn level_slot(n: &NodeRec, level: u8) -> (usize, Slot) {
+    if level == 0 || n.simp.is_empty() {
+        (0, n.orig)
+    } else {
+        (n.level as usize, n.simp)
+    }
+}
+
+/// Reads node `i`'s mesh for a whole-level view at `level` (see [`level_slot`]).
+pub fn read_level_mesh(store: &Store, i: usize, level: u8) -> Result<IndexedMesh> {
+    let (pack, slot) = level_slot(&store.nodes[i], level);
+    read_slot(&store.dir, &store.layout, pack, &slot)
+}
+
+/// A usage error unless the store has `level`.
+pub fn check_level(store: &Store, level: u8) -> Result<()> {
+    let top = top_level(store);
+    if level > top {
+        return Err(Error::Usage(format!("the store has levels 0..={top}; level {level} does not exist")));
+    }
+    Ok(())
+}
+
 /// Triangles a whole-level view at `level` would draw.
 pub fn level_triangles(store: &Store, level: u8) -> u64 {
-    level_cut(&store.nodes, level)
-        .iter()
-        .map(|&i| {
-            let n = &store.nodes[i];
-            if level == 0 || n.simp.is_empty() { n.orig.tris as u64 } else { n.simp.tris as u64 }
-        })
-        .sum()
+    level_cut(&store.nodes, level).iter().map(|&i| level_slot(&store.nodes[i], level).1.tris as u64).sum()
 }
 
 /// The highest level present in the store.
@@ -145,19 +165,9 @@ pub fn top_level(store: &Store) -> u8 {
 /// (bit-identical vertices become one) unless `weld` is false, which
 /// streams node by node without holding the level in memory.
 pub fn extract(store: &Store, level: u8, out: &Path, weld: bool) -> Result<(u64, u64)> {
-    let top = top_level(store);
-    if level > top {
-        return Err(Error::Usage(format!("the store has levels 0..={top}; level {level} does not exist")));
-    }
+    check_level(store, level)?;
     let cut = level_cut(&store.nodes, level);
-    let read = |i: usize| -> Result<IndexedMesh> {
-        let n = &store.nodes[i];
-        if level == 0 || n.simp.is_empty() {
-            read_slot(&store.dir, &store.layout, 0, &n.orig)
-        } else {
-            read_slot(&store.dir, &store.layout, n.level as usize, &n.simp)
-        }
-    };
+    let read = |i: usize| read_level_mesh(store, i, level);
     let opts = PlyWriteOptions {
         attrs: store.header.attrs,
         index_type: crate::ply::Scalar::U32,
@@ -178,10 +188,7 @@ pub fn extract(store: &Store, level: u8, out: &Path, weld: bool) -> Result<(u64,
         w.finish().ctx(out, "write")?;
         (m.vertices.len() as u64, m.triangles.len() as u64)
     } else {
-        let slot = |i: usize| {
-            let n = &store.nodes[i];
-            if level == 0 || n.simp.is_empty() { n.orig } else { n.simp }
-        };
+        let slot = |i: usize| level_slot(&store.nodes[i], level).1;
         let nv: u64 = cut.iter().map(|&i| slot(i).verts as u64).sum();
         let nf: u64 = cut.iter().map(|&i| slot(i).tris as u64).sum();
         let mut w = PlyWriter::new(file.writer(), &opts, nv, nf).ctx(out, "write")?;
