@@ -7,7 +7,7 @@ use octolod::mesh::{AttrSet, Vertex, VertexLayout};
 use octolod::pipeline::{build_store, extract, BuildOptions};
 use octolod::ply::write::{write_ply, PlyWriteOptions};
 use octolod::simplify::weld_union;
-use octolod::store::{read_slot, IndexedMesh, Store, NO_NODE};
+use octolod::store::{IndexedMesh, Store, NO_NODE};
 use std::collections::HashMap;
 use std::path::Path;
 
@@ -28,12 +28,7 @@ fn build(dir: &Path, shape: Shape, tris: u64, attrs: u32, leaf: u64, grid: u32) 
 }
 
 fn node_mesh(s: &Store, i: usize, simplified: bool) -> IndexedMesh {
-    let n = &s.nodes[i];
-    if simplified {
-        read_slot(&s.dir, &s.layout, n.level as usize, &n.simp).unwrap()
-    } else {
-        read_slot(&s.dir, &s.layout, 0, &n.orig).unwrap()
-    }
+    s.read_mesh(i, simplified).unwrap()
 }
 
 /// Edges used an odd number of times, as pairs of encoded vertices.

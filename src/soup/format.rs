@@ -122,8 +122,8 @@ impl SoupWriter {
             self.header.bbox.add(self.layout.position(&rec[c * s..]));
         }
         self.header.triangles += 1;
-        let dest = self.out.dest().to_path_buf();
-        self.out.write_all(&rec[..3 * s]).ctx(dest, "write")
+        // The path is only needed for the error: no allocation per triangle.
+        self.out.write_all(&rec[..3 * s]).map_err(|e| Error::io(self.out.dest(), "write", e))
     }
 
     pub fn push(&mut self, tri: &[Vertex; 3]) -> Result<()> {
