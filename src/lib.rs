@@ -23,5 +23,6 @@ pub mod quadric;
 pub mod simplify;
 pub mod soup;
 pub mod store;
+pub mod view;
 
 pub use error::{Error, Result};

@@ -1,0 +1,243 @@
+//! `octolod render`: offscreen frames along a camera path.
+//!
+//! Takes: a store, a camera path (JSON, see [`CameraPath`]) or a default
+//! orbit, an image size and the viewer settings. Gives: an output
+//! directory with one PNG per frame, `stats.csv` and `stats.json` (the
+//! per-frame statistics of the window's overlay plus a summary), and with
+//! `--full-res` a reference render of the same path from every leaf at
+//! full resolution (`reference/`) with per-frame PSNR and the fraction of
+//! differing pixels. `--brute-force` draws everything at level 0 instead of
+//! the budgeted cut (the baseline). The directory appears only when
+//! complete (written under a temporary name, then renamed).
+//!
+//! Frames are rendered exactly as the window renders them: one call of
+//! [`Viewer::frame`] per frame, which never waits for a load, so the first
+//! frames show the pinned coarse levels and later ones refine as loads
+//! land. `--settle` keeps rendering the last pose until nothing is pending.
+
+use super::camera::{Camera, CameraPath};
+use super::gpu::{DrawParams, GpuMesh, Renderer};
+use super::viewer::{load_all_originals, FrameStats, ViewOptions, Viewer};
+use crate::error::{IoContext, Result};
+use crate::io::AtomicDir;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Settings of one render run.
+#[derive(Clone, Debug)]
+pub struct RenderOptions {
+    pub store: PathBuf,
+    pub camera_path: Option<PathBuf>,
+    /// Frames of the default orbit when no path is given.
+    pub orbit_frames: usize,
+    pub out: PathBuf,
+    pub width: u32,
+    pub height: u32,
+    pub view: ViewOptions,
+    pub full_res: bool,
+    pub brute_force: bool,
+    /// Extra frames at the last pose, at most, until loading settles.
+    pub settle: usize,
+    pub wireframe: bool,
+    /// Pixels whose channels differ by more than this count as different.
+    pub diff_tolerance: u8,
+    pub quiet: bool,
+}
+
+/// One rendered frame: its statistics and, with `--full-res`, the comparison.
+#[derive(Clone, Debug)]
+pub struct FrameRecord {
+    pub stats: FrameStats,
+    pub psnr_db: Option<f64>,
+    pub diff_fraction: Option<f64>,
+    pub background_fraction: f64,
+}
+
+/// What a run produced.
+#[derive(Clone, Debug)]
+pub struct RenderReport {
+    pub frames: Vec<FrameRecord>,
+    pub out: PathBuf,
+}
+
+pub const CLEAR: [f64; 4] = [0.05, 0.06, 0.08, 1.0];
+
+/// The clear colour as the RGBA8 value it renders to.
+pub fn clear_rgba8(srgb_target: bool) -> [u8; 4] {
+    let enc = |c: f64| {
+        let v = if srgb_target {
+            if c <= 0.0031308 {
+                12.92 * c
+            } else {
+                1.055 * c.powf(1.0 / 2.4) - 0.055
+            }
+        } else {
+            c
+        };
+        (v.clamp(0.0, 1.0) * 255.0).round() as u8
+    };
+    [enc(CLEAR[0]), enc(CLEAR[1]), enc(CLEAR[2]), 255]
+}
+
+pub fn draw_params(cam: &Camera, origin: glam::DVec3, w: u32, h: u32, wireframe: bool) -> DrawParams {
+    DrawParams {
+        view_proj: cam.view_proj(origin, w as f64 / h.max(1) as f64),
+        eye: cam.eye_rel(origin),
+        light_dir: (cam.forward() * 0.8 - cam.cam_up() * 0.4 + cam.right() * 0.3).normalize().as_vec3(),
+        wireframe,
+        clear: CLEAR,
+    }
+}
+
+/// Renders the path; see the module doc.
+pub fn render(o: &RenderOptions) -> Result<RenderReport> {
+    let out = AtomicDir::create(&o.out)?;
+    let mut renderer = Renderer::headless(o.width, o.height)?;
+    let mut viewer: Viewer<GpuMesh> = Viewer::open(&o.store, o.view.clone())?;
+    let bounds = viewer.bounds();
+    let origin = viewer.origin();
+    let path = match &o.camera_path {
+        Some(p) => CameraPath::load(p, &bounds)?,
+        None => CameraPath::orbit(&bounds, o.orbit_frames.max(1), 0),
+    };
+    let reference = if o.full_res || o.brute_force {
+        let (meshes, _tris) = load_all_originals(&viewer.store, &mut |m| renderer.upload(m))?;
+        Some(meshes)
+    } else {
+        None
+    };
+    if o.full_res {
+        std::fs::create_dir_all(out.path().join("reference")).ctx(out.path(), "create directory")?;
+    }
+    let clear8 = clear_rgba8(true);
+    let progress = crate::progress::Progress::items((path.poses.len() + o.settle) as u64, "rendering", o.quiet);
+    let mut frames = Vec::new();
+    let mut i = 0usize;
+    loop {
+        let last_pose = i + 1 >= path.poses.len();
+        if i >= path.poses.len() + o.settle {
+            break;
+        }
+        let mut cam = path.camera(i);
+        cam.fit_clip(&bounds);
+        let (mut stats, meshes): (FrameStats, Vec<&GpuMesh>) = if o.brute_force {
+            let r = reference.as_ref().unwrap();
+            let bytes: u64 = r.iter().map(super::GpuBytes::gpu_bytes).sum();
+            let tris = viewer.store.nodes.iter().filter(|n| n.is_leaf()).map(|n| n.orig.tris as u64).sum();
+            let s = FrameStats {
+                frame: i as u64 + 1,
+                triangles: tris,
+                nodes: r.len() as u32,
+                nodes_per_level: vec![r.len() as u32],
+                resident_bytes: bytes,
+                peak_resident_bytes: bytes,
+                budget_bytes: o.view.ram,
+                hit_rate: 1.0,
+                settled: true,
+                ..FrameStats::default()
+            };
+            (s, r.iter().collect())
+        } else {
+            let s = viewer.frame(&cam, (o.width, o.height), &mut |m| renderer.upload(m));
+            (s, viewer.draw_list())
+        };
+        let p = draw_params(&cam, origin, o.width, o.height, o.wireframe);
+        let t = Instant::now();
+        let img = renderer.render_offscreen(&p, &meshes)?;
+        stats.draw_ms = t.elapsed().as_secs_f64() * 1e3;
+        let name = format!("frame-{:05}.png", i);
+        super::image::write_png(&out.path().join(&name), o.width, o.height, &img)?;
+        let mut rec = FrameRecord {
+            background_fraction: super::image::background_fraction(&img, o.width, o.height, clear8),
+            stats,
+            psnr_db: None,
+            diff_fraction: None,
+        };
+        if o.full_res {
+            let all: Vec<&GpuMesh> = reference.as_ref().unwrap().iter().collect();
+            let ref_img = renderer.render_offscreen(&p, &all)?;
+            super::image::write_png(&out.path().join("reference").join(&name), o.width, o.height, &ref_img)?;
+            let d = super::image::compare(&img, &ref_img, o.width, o.height, o.diff_tolerance);
+            rec.psnr_db = Some(d.psnr_db);
+            rec.diff_fraction = Some(d.differing_fraction);
+        }
+        let settled = rec.stats.settled;
+        frames.push(rec);
+        progress.inc(1);
+        i += 1;
+        if last_pose && i >= path.poses.len() && (settled || o.brute_force) {
+            break;
+        }
+    }
+    progress.finish();
+    write_stats(out.path(), &frames, o)?;
+    out.commit()?;
+    Ok(RenderReport { frames, out: o.out.clone() })
+}
+
+fn num(x: Option<f64>) -> String {
+    match x {
+        Some(v) if v.is_finite() => format!("{v:.4}"),
+        Some(v) if v > 0.0 => "inf".into(),
+        _ => String::new(),
+    }
+}
+
+fn json_num(x: Option<f64>) -> String {
+    match x {
+        Some(v) if v.is_finite() => format!("{v:.5}"),
+        Some(v) if v > 0.0 => "\"inf\"".into(),
+        _ => "null".into(),
+    }
+}
+
+fn write_stats(dir: &Path, frames: &[FrameRecord], o: &RenderOptions) -> Result<()> {
+    let csv = dir.join("stats.csv");
+    let mut f = std::io::BufWriter::new(std::fs::File::create(&csv).ctx(&csv, "create")?);
+    writeln!(f, "{},background_fraction,psnr_db,diff_fraction", FrameStats::CSV_HEADER).ctx(&csv, "write")?;
+    for r in frames {
+        writeln!(f, "{},{:.6},{},{}", r.stats.csv(), r.background_fraction, num(r.psnr_db), num(r.diff_fraction)).ctx(&csv, "write")?;
+    }
+    f.flush().ctx(&csv, "write")?;
+    let js = dir.join("stats.json");
+    let max_res = frames.iter().map(|r| r.stats.resident_bytes).max().unwrap_or(0);
+    let max_sel = frames.iter().map(|r| r.stats.select_ms).fold(0.0, f64::max);
+    let last = frames.last();
+    let body: Vec<String> = frames
+        .iter()
+        .map(|r| {
+            let s = r.stats.json();
+            format!(
+                "{},\"background_fraction\":{:.6},\"psnr_db\":{},\"diff_fraction\":{}}}",
+                &s[..s.len() - 1],
+                r.background_fraction,
+                json_num(r.psnr_db),
+                json_num(r.diff_fraction)
+            )
+        })
+        .collect();
+    let text = format!(
+        "{{\n\"store\":{:?},\"width\":{},\"height\":{},\"mode\":\"{}\",\"budget_bytes\":{},\"frames_rendered\":{},\"max_resident_bytes\":{},\"max_select_ms\":{:.4},\"final_settled\":{},\"final_psnr_db\":{},\"final_diff_fraction\":{},\n\"frames\":[\n{}\n]}}\n",
+        o.store.display().to_string(),
+        o.width,
+        o.height,
+        if o.brute_force { "brute-force" } else { "budgeted" },
+        o.view.ram,
+        frames.len(),
+        max_res,
+        max_sel,
+        last.map(|r| r.stats.settled).unwrap_or(false),
+        json_num(last.and_then(|r| r.psnr_db)),
+        json_num(last.and_then(|r| r.diff_fraction)),
+        body.join(",\n")
+    );
+    std::fs::write(&js, text).ctx(&js, "write")
+}
+
+/// A default camera for a store: frame-all from a diagonal.
+pub fn default_camera(bounds: &crate::mesh::Aabb) -> Camera {
+    let mut c = Camera::frame_all(bounds, glam::DVec3::Z, 50.0);
+    c.fit_clip(bounds);
+    c
+}

@@ -1,0 +1,124 @@
+//! The out-of-core viewer: selection, paging, rendering.
+//!
+//! Takes: an octolod store (`nodes.bin` in memory, node payloads read on
+//! demand). Gives: a frame-by-frame cut of the octree drawn with wgpu, in a
+//! window (`octolod view`) or offscreen (`octolod render`), never holding more
+//! than the RAM budget and never waiting on disk during a frame.
+//!
+//! * [`camera`] — camera, frustum and projected-error maths (f64, rendered
+//!   relative to the store's centre so far-from-origin data stays exact);
+//! * [`select`] — per-frame best-first cut selection with hysteresis;
+//! * [`cache`] — the budgeted node cache and its background I/O threads;
+//! * [`viewer`] — one frame's CPU work (poll, upload, select, request) and statistics;
+//! * [`gpu`] — the wgpu renderer (offscreen and window surface);
+//! * [`image`] — PNG output and image comparison (PSNR, differing pixels);
+//! * [`headless`] — `octolod render`: camera paths, statistics, reference renders;
+//! * [`window`] — `octolod view`: the interactive window.
+
+pub mod cache;
+pub mod camera;
+pub mod gpu;
+pub mod headless;
+pub mod image;
+pub mod overlay;
+pub mod select;
+pub mod viewer;
+pub mod window;
+
+pub use viewer::{FrameStats, ViewOptions, Viewer};
+
+use crate::mesh::AttrSet;
+use crate::store::IndexedMesh;
+
+/// One vertex as the GPU sees it: position relative to the store's origin
+/// (f32), unit normal, RGBA8 color. 28 bytes.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct GpuVertex {
+    pub pos: [f32; 3],
+    pub normal: [f32; 3],
+    pub color: [u8; 4],
+}
+
+/// A node's mesh ready for upload.
+#[derive(Clone, Debug, Default)]
+pub struct DrawMesh {
+    pub vertices: Vec<GpuVertex>,
+    pub indices: Vec<u32>,
+}
+
+/// Color used when the store has no vertex colors.
+pub const DEFAULT_COLOR: [u8; 4] = [200, 200, 205, 255];
+
+impl DrawMesh {
+    /// Bytes this mesh occupies (CPU copy, or its GPU buffers once uploaded).
+    pub fn bytes(&self) -> u64 {
+        (self.vertices.len() * std::mem::size_of::<GpuVertex>() + self.indices.len() * 4) as u64
+    }
+    pub fn triangles(&self) -> usize {
+        self.indices.len() / 3
+    }
+}
+
+/// Converts a decoded payload to GPU form. Positions become f32 relative to
+/// `origin` (the same subtraction for every node, so vertices shared by
+/// neighbouring nodes stay bit-identical and the surface stays watertight).
+/// Normals are the input's when it has them, else area-weighted vertex
+/// normals of this mesh; colors the input's, else [`DEFAULT_COLOR`].
+pub fn draw_mesh(m: &IndexedMesh, attrs: AttrSet, origin: [f64; 3]) -> DrawMesh {
+    let mut vertices: Vec<GpuVertex> = m
+        .vertices
+        .iter()
+        .map(|v| GpuVertex {
+            pos: [0, 1, 2].map(|k| (v.pos[k] - origin[k]) as f32),
+            normal: if attrs.normal() { v.normal } else { [0.0; 3] },
+            color: if attrs.color() { v.color } else { DEFAULT_COLOR },
+        })
+        .collect();
+    if !attrs.normal() {
+        let mut acc = vec![[0f64; 3]; vertices.len()];
+        for t in &m.triangles {
+            let p = t.map(|i| m.vertices[i as usize].pos);
+            let e1 = [0, 1, 2].map(|k| p[1][k] - p[0][k]);
+            let e2 = [0, 1, 2].map(|k| p[2][k] - p[0][k]);
+            let n = [e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2], e1[0] * e2[1] - e1[1] * e2[0]];
+            if n.iter().all(|x| x.is_finite()) {
+                for &i in t {
+                    for k in 0..3 {
+                        acc[i as usize][k] += n[k];
+                    }
+                }
+            }
+        }
+        for (v, a) in vertices.iter_mut().zip(&acc) {
+            v.normal = normalize(*a);
+        }
+    } else {
+        for v in &mut vertices {
+            v.normal = normalize(v.normal.map(|x| x as f64));
+        }
+    }
+    let indices = m.triangles.iter().flat_map(|t| t.iter().copied()).collect();
+    DrawMesh { vertices, indices }
+}
+
+fn normalize(a: [f64; 3]) -> [f32; 3] {
+    let l = (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt();
+    if l > 0.0 && l.is_finite() {
+        a.map(|x| (x / l) as f32)
+    } else {
+        [0.0, 0.0, 1.0]
+    }
+}
+
+/// Something resident on the GPU (or standing in for it in tests) whose
+/// bytes count against the RAM budget.
+pub trait GpuBytes {
+    fn gpu_bytes(&self) -> u64;
+}
+
+impl GpuBytes for DrawMesh {
+    fn gpu_bytes(&self) -> u64 {
+        self.bytes()
+    }
+}

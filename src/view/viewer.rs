@@ -1,0 +1,369 @@
+//! The viewer core shared by the window and the headless renderer.
+//!
+//! Takes: a store, a RAM budget and selection options. Gives, per frame:
+//! the units to draw (resident on the GPU), and [`FrameStats`]. One frame
+//! is: collect finished loads → upload a bounded number of bytes → select
+//! the cut → issue loads in priority order (evicting LRU units outside the
+//! cut). No step waits on disk.
+
+use super::cache::Cache;
+use super::camera::{dvec, Camera};
+use super::select::{Hierarchy, SelectOptions, Selection, Selector, Unit};
+use super::{DrawMesh, GpuBytes};
+use crate::error::{Error, Result};
+use crate::store::Store;
+use std::path::Path;
+use std::time::{Duration, Instant};
+
+/// Viewer settings.
+#[derive(Clone, Debug)]
+pub struct ViewOptions {
+    /// Hard limit for node data: CPU copies + GPU buffers + in-flight loads
+    /// + the node index held in memory.
+    pub ram: u64,
+    pub select: SelectOptions,
+    pub io_threads: usize,
+    /// Artificial delay per read (testing slow disks).
+    pub io_delay: Duration,
+    /// Upload at most this many bytes per frame (spreads upload cost).
+    pub upload_per_frame: u64,
+    /// Pin (load at start, never evict) top levels up to this share of the budget.
+    pub pin_share: f64,
+}
+
+impl Default for ViewOptions {
+    fn default() -> Self {
+        ViewOptions {
+            ram: 512 << 20,
+            select: SelectOptions::default(),
+            io_threads: 2,
+            io_delay: Duration::ZERO,
+            upload_per_frame: 64 << 20,
+            pin_share: 0.125,
+        }
+    }
+}
+
+/// Statistics of one frame.
+#[derive(Clone, Debug, Default)]
+pub struct FrameStats {
+    pub frame: u64,
+    pub select_ms: f64,
+    pub upload_ms: f64,
+    /// Filled by the caller after drawing.
+    pub draw_ms: f64,
+    pub triangles: u64,
+    pub nodes: u32,
+    /// Units drawn per level (index = level; 0 = original triangles).
+    pub nodes_per_level: Vec<u32>,
+    pub resident_bytes: u64,
+    pub peak_resident_bytes: u64,
+    pub budget_bytes: u64,
+    /// Loads in flight plus wanted loads not issued yet.
+    pub pending_loads: u32,
+    pub loads_done: u64,
+    pub evictions: u64,
+    /// Share of needed units that were ready (cumulative).
+    pub hit_rate: f64,
+    /// Largest projected error left in the cut (pixels).
+    pub max_error_px: f64,
+    /// Nothing wanted is missing: the cut is what the camera asks for.
+    pub settled: bool,
+}
+
+impl FrameStats {
+    pub const CSV_HEADER: &'static str = "frame,select_ms,upload_ms,draw_ms,triangles,nodes,nodes_per_level,resident_mb,peak_resident_mb,budget_mb,pending_loads,loads_done,evictions,hit_rate,max_error_px,settled";
+
+    pub fn csv(&self) -> String {
+        let lv: Vec<String> = self.nodes_per_level.iter().map(|n| n.to_string()).collect();
+        format!(
+            "{},{:.3},{:.3},{:.3},{},{},{},{:.3},{:.3},{:.3},{},{},{},{:.4},{:.3},{}",
+            self.frame,
+            self.select_ms,
+            self.upload_ms,
+            self.draw_ms,
+            self.triangles,
+            self.nodes,
+            lv.join(" "),
+            mb(self.resident_bytes),
+            mb(self.peak_resident_bytes),
+            mb(self.budget_bytes),
+            self.pending_loads,
+            self.loads_done,
+            self.evictions,
+            self.hit_rate,
+            self.max_error_px,
+            self.settled
+        )
+    }
+
+    pub fn json(&self) -> String {
+        let lv: Vec<String> = self.nodes_per_level.iter().map(|n| n.to_string()).collect();
+        format!(
+            "{{\"frame\":{},\"select_ms\":{:.4},\"upload_ms\":{:.4},\"draw_ms\":{:.4},\"triangles\":{},\"nodes\":{},\"nodes_per_level\":[{}],\"resident_bytes\":{},\"peak_resident_bytes\":{},\"budget_bytes\":{},\"pending_loads\":{},\"loads_done\":{},\"evictions\":{},\"hit_rate\":{:.5},\"max_error_px\":{},\"settled\":{}}}",
+            self.frame,
+            self.select_ms,
+            self.upload_ms,
+            self.draw_ms,
+            self.triangles,
+            self.nodes,
+            lv.join(","),
+            self.resident_bytes,
+            self.peak_resident_bytes,
+            self.budget_bytes,
+            self.pending_loads,
+            self.loads_done,
+            self.evictions,
+            self.hit_rate,
+            if self.max_error_px.is_finite() { format!("{:.4}", self.max_error_px) } else { "null".into() },
+            self.settled
+        )
+    }
+
+    /// Lines for the statistics overlay.
+    pub fn overlay_lines(&self, fps: f64) -> Vec<String> {
+        let lv: Vec<String> = self.nodes_per_level.iter().enumerate().filter(|(_, &n)| n > 0).map(|(l, n)| format!("L{l}:{n}")).collect();
+        vec![
+            format!("{fps:6.1} fps  select {:.2} ms  upload {:.2} ms  draw {:.2} ms", self.select_ms, self.upload_ms, self.draw_ms),
+            format!("{} triangles in {} nodes  [{}]", group(self.triangles), self.nodes, lv.join(" ")),
+            format!("resident {:.1} / {:.1} MB  peak {:.1} MB", mb(self.resident_bytes), mb(self.budget_bytes), mb(self.peak_resident_bytes)),
+            format!(
+                "pending {}  loaded {}  evicted {}  hit rate {:.1}%  max error {:.2} px{}",
+                self.pending_loads,
+                self.loads_done,
+                self.evictions,
+                100.0 * self.hit_rate,
+                self.max_error_px,
+                if self.settled { "" } else { "  (loading)" }
+            ),
+        ]
+    }
+}
+
+fn mb(b: u64) -> f64 {
+    b as f64 / (1u64 << 20) as f64
+}
+
+fn group(n: u64) -> String {
+    let s = n.to_string();
+    let mut out = String::new();
+    for (i, c) in s.chars().enumerate() {
+        if i > 0 && (s.len() - i) % 3 == 0 {
+            out.push(',');
+        }
+        out.push(c);
+    }
+    out
+}
+
+/// The out-of-core viewer state.
+pub struct Viewer<M> {
+    pub store: Store,
+    pub hierarchy: Hierarchy,
+    pub cache: Cache<M>,
+    pub selector: Selector,
+    pub opts: ViewOptions,
+    /// Vertices are uploaded relative to this point (the root cube centre).
+    pub origin: [f64; 3],
+    /// Bytes of the in-memory index counted against the budget.
+    pub index_bytes: u64,
+    frame: u64,
+    last: Selection,
+}
+
+impl<M: GpuBytes> Viewer<M> {
+    /// Opens a store, starts the I/O threads and loads the pinned top
+    /// levels (the only synchronous reads, before the first frame).
+    pub fn open(dir: &Path, opts: ViewOptions) -> Result<Viewer<M>> {
+        let store = Store::open(dir)?;
+        if store.nodes.is_empty() || store.nodes[0].subtree_tris == 0 {
+            return Err(Error::Usage(format!("{}: the store holds no triangles", dir.display())));
+        }
+        let hierarchy = Hierarchy::new(&store);
+        let origin = store.header.cube.center;
+        let index_bytes = (store.nodes.len() * std::mem::size_of::<crate::store::NodeRec>()
+            + hierarchy.units.len() * (std::mem::size_of::<super::select::UnitInfo>() + 16)
+            + hierarchy.child_list.len() * 4) as u64;
+        if opts.ram <= index_bytes {
+            return Err(Error::Usage(format!(
+                "--ram {} does not even hold the node index ({}): raise it",
+                crate::progress::mib(opts.ram),
+                crate::progress::mib(index_bytes)
+            )));
+        }
+        let budget = opts.ram - index_bytes;
+        let mut cache = Cache::new(dir, store.header.attrs, origin, budget, opts.io_threads, opts.io_delay);
+        // Pin whole top tiers of the hierarchy while they fit the share.
+        let mut pinned: Vec<Unit> = hierarchy.roots.clone();
+        let mut tier = hierarchy.roots.clone();
+        let share = (budget as f64 * opts.pin_share) as u64;
+        let mut bytes: u64 = pinned.iter().map(|&u| hierarchy.draw_bytes(u)).sum();
+        loop {
+            let next: Vec<Unit> = tier.iter().flat_map(|&u| hierarchy.children(u).to_vec()).collect();
+            let nb: u64 = next.iter().map(|&u| hierarchy.draw_bytes(u)).sum();
+            if next.is_empty() || bytes + nb > share {
+                break;
+            }
+            bytes += nb;
+            pinned.extend(&next);
+            tier = next;
+        }
+        cache.pin(&hierarchy, dir, store.header.attrs, origin, &pinned)?;
+        Ok(Viewer {
+            store,
+            hierarchy,
+            cache,
+            selector: Selector::new(opts.select.clone()),
+            opts,
+            origin,
+            index_bytes,
+            frame: 0,
+            last: Selection::default(),
+        })
+    }
+
+    pub fn origin(&self) -> glam::DVec3 {
+        dvec(self.origin)
+    }
+
+    /// Tight bounds of the whole model.
+    pub fn bounds(&self) -> crate::mesh::Aabb {
+        self.hierarchy.bounds
+    }
+
+    /// Runs one frame's CPU work; the draw list is then [`Viewer::draw_list`].
+    pub fn frame(&mut self, cam: &Camera, viewport: (u32, u32), upload: &mut dyn FnMut(&DrawMesh) -> M) -> FrameStats {
+        self.frame += 1;
+        let t0 = Instant::now();
+        self.cache.poll();
+        self.cache.upload(self.opts.upload_per_frame, upload);
+        let t1 = Instant::now();
+        let cache = &self.cache;
+        let sel = self.selector.select(&self.hierarchy, cam, viewport, &|u| cache.is_ready(u));
+        self.cache.touch(&sel.visited, self.frame);
+        let needed = sel.visited.len() as u64;
+        let missing = sel.wanted.len() as u64;
+        self.cache.counters.hits += needed;
+        self.cache.counters.misses += missing;
+        let left = self.cache.request(&self.hierarchy, &sel.wanted, self.frame, true);
+        // Prefetch only into free memory.
+        self.cache.request(&self.hierarchy, &sel.prefetch, self.frame, false);
+        let t2 = Instant::now();
+        let mut per_level = vec![0u32; self.store.header.levels.max(1) as usize + 1];
+        for &u in &sel.cut {
+            let l = self.hierarchy.units[&u].level as usize;
+            if l >= per_level.len() {
+                per_level.resize(l + 1, 0);
+            }
+            per_level[l] += 1;
+        }
+        let c = self.cache.counters;
+        let stats = FrameStats {
+            frame: self.frame,
+            select_ms: (t2 - t1).as_secs_f64() * 1e3,
+            upload_ms: (t1 - t0).as_secs_f64() * 1e3,
+            draw_ms: 0.0,
+            triangles: sel.triangles,
+            nodes: sel.cut.len() as u32,
+            nodes_per_level: per_level,
+            resident_bytes: self.cache.resident() + self.index_bytes,
+            peak_resident_bytes: self.cache.peak() + self.index_bytes,
+            budget_bytes: self.opts.ram,
+            pending_loads: (self.cache.in_flight() + left) as u32,
+            loads_done: c.loads_done,
+            evictions: c.evictions,
+            hit_rate: if c.hits + c.misses == 0 { 1.0 } else { c.hits as f64 / (c.hits + c.misses) as f64 },
+            max_error_px: sel.max_error_px,
+            settled: sel.wanted.is_empty() && self.cache.awaiting_upload() == 0,
+        };
+        self.last = sel;
+        stats
+    }
+
+    /// What the last frame draws (all resident on the GPU).
+    pub fn draw_list(&self) -> Vec<&M> {
+        self.last.cut.iter().filter_map(|&u| self.cache.gpu(u)).collect()
+    }
+
+    /// Units of the last frame's cut.
+    pub fn cut(&self) -> &[Unit] {
+        &self.last.cut
+    }
+
+    /// Blocks until in-flight loads finish (tests, reference renders).
+    pub fn wait_for_loads(&mut self) {
+        self.cache.drain();
+    }
+}
+
+/// Brute force: every original triangle loaded and uploaded at once,
+/// ignoring the budget (the baseline and the full-resolution reference).
+pub fn load_all_originals<M>(store: &Store, upload: &mut dyn FnMut(&DrawMesh) -> M) -> Result<(Vec<M>, u64)> {
+    let origin = store.header.cube.center;
+    let mut out = Vec::new();
+    let mut tris = 0u64;
+    for (i, n) in store.nodes.iter().enumerate() {
+        if n.is_leaf() && !n.orig.is_empty() {
+            let m = store.read_mesh(i, false)?;
+            let d = super::draw_mesh(&m, store.header.attrs, origin);
+            tris += d.triangles() as u64;
+            out.push(upload(&d));
+        }
+    }
+    Ok((out, tris))
+}
+
+/// Command-line settings shared by `octolod view` and `octolod render`.
+#[derive(clap::Args, Clone, Debug)]
+pub struct ViewArgs {
+    /// Hard memory limit for node data (index, CPU copies, GPU buffers, in-flight loads).
+    #[arg(long, default_value = "512M")]
+    pub ram: String,
+    /// Refine nodes whose projected error exceeds this many pixels.
+    #[arg(long, default_value_t = 1.0)]
+    pub max_error_px: f64,
+    /// Most triangles drawn per frame.
+    #[arg(long, default_value_t = 20_000_000)]
+    pub tri_budget: u64,
+    /// Distance-only LOD (the original design): refine while the eye is
+    /// nearer than F × the node's cell diagonal, instead of projected error.
+    #[arg(long, value_name = "F")]
+    pub distance_lod: Option<f64>,
+    /// Background I/O threads.
+    #[arg(long, default_value_t = 2)]
+    pub io_threads: usize,
+    /// Upload at most this much per frame (e.g. 64M).
+    #[arg(long, default_value = "64M")]
+    pub upload_per_frame: String,
+    /// Simulate a slow disk: sleep this many milliseconds per node read.
+    #[arg(long, default_value_t = 0)]
+    pub io_delay_ms: u64,
+}
+
+impl ViewArgs {
+    pub fn options(&self) -> Result<ViewOptions> {
+        let ram = crate::mem::parse_size(&self.ram)?;
+        let upload = crate::mem::parse_size(&self.upload_per_frame)?;
+        if !(self.max_error_px > 0.0 && self.max_error_px.is_finite()) {
+            return Err(Error::Usage("--max-error-px must be a positive number".into()));
+        }
+        if let Some(f) = self.distance_lod {
+            if !(f > 0.0 && f.is_finite()) {
+                return Err(Error::Usage("--distance-lod must be a positive number".into()));
+            }
+        }
+        Ok(ViewOptions {
+            ram,
+            select: SelectOptions {
+                max_error_px: self.max_error_px,
+                tri_budget: self.tri_budget.max(1),
+                distance_lod: self.distance_lod,
+                ..SelectOptions::default()
+            },
+            io_threads: self.io_threads.max(1),
+            io_delay: Duration::from_millis(self.io_delay_ms),
+            upload_per_frame: upload.max(1),
+            ..ViewOptions::default()
+        })
+    }
+}
