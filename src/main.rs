@@ -93,6 +93,41 @@ enum Cmd {
         #[arg(long)]
         max_mean: Option<String>,
     },
+    /// Render frames offscreen along a camera path (PNG + per-frame statistics).
+    ///
+    /// Works without a display (e.g. Mesa lavapipe). With --full-res, also
+    /// renders the path from every leaf at full resolution and reports PSNR
+    /// and the fraction of differing pixels per frame.
+    Render {
+        store: PathBuf,
+        /// Camera path JSON (default: an orbit of --frames frames).
+        #[arg(long)]
+        camera_path: Option<PathBuf>,
+        #[arg(long, default_value_t = 60)]
+        frames: usize,
+        #[arg(long)]
+        out: PathBuf,
+        #[arg(long, default_value_t = 960)]
+        width: u32,
+        #[arg(long, default_value_t = 540)]
+        height: u32,
+        #[command(flatten)]
+        view: octolod::view::viewer::ViewArgs,
+        /// Also render a full-resolution reference and compare.
+        #[arg(long)]
+        full_res: bool,
+        /// Draw everything at level 0 (the baseline) instead of the budgeted cut.
+        #[arg(long)]
+        brute_force: bool,
+        /// After the path, keep rendering its last pose until loading settles (at most N frames).
+        #[arg(long, default_value_t = 600)]
+        settle: usize,
+        #[arg(long)]
+        wireframe: bool,
+        /// Channel difference above which a pixel counts as different.
+        #[arg(long, default_value_t = 16)]
+        diff_tolerance: u8,
+    },
     /// Print a PLY's header, element counts, attribute set and bounding box.
     PlyInfo {
         input: PathBuf,
@@ -199,6 +234,44 @@ fn run(cli: Cli) -> Result<()> {
             } else {
                 println!("{}", rep.summary(peak));
             }
+            Ok(())
+        }
+        Cmd::Render { store, camera_path, frames, out, width, height, view, full_res, brute_force, settle, wireframe, diff_tolerance } => {
+            if width == 0 || height == 0 || width > 16384 || height > 16384 {
+                return Err(octolod::Error::Usage("--width/--height must be within 1..16384".into()));
+            }
+            let o = octolod::view::headless::RenderOptions {
+                store,
+                camera_path,
+                orbit_frames: frames,
+                out,
+                width,
+                height,
+                view: view.options()?,
+                full_res,
+                brute_force,
+                settle,
+                wireframe,
+                diff_tolerance,
+                quiet: cli.quiet,
+            };
+            let r = octolod::view::headless::render(&o)?;
+            let max_res = r.frames.iter().map(|f| f.stats.resident_bytes).max().unwrap_or(0);
+            let max_sel = r.frames.iter().map(|f| f.stats.select_ms).fold(0.0, f64::max);
+            let last = r.frames.last().unwrap();
+            let cmp = match (last.psnr_db, last.diff_fraction) {
+                (Some(p), Some(d)) => format!(", last frame vs full-res: PSNR {p:.1} dB, {:.3}% pixels differ", 100.0 * d),
+                _ => String::new(),
+            };
+            println!(
+                "render: {} frames -> {}; peak resident {} of {}; select <= {max_sel:.2} ms; last frame {} triangles{}{cmp}",
+                r.frames.len(),
+                r.out.display(),
+                octolod::progress::mib(max_res),
+                octolod::progress::mib(o.view.ram),
+                last.stats.triangles,
+                if last.stats.settled { " (settled)" } else { " (still loading)" }
+            );
             Ok(())
         }
         Cmd::PlyInfo { input, header_only } => ply_info(&input, header_only, cli.quiet),

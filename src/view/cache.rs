@@ -157,7 +157,7 @@ impl<M: GpuBytes> Cache<M> {
             peak: 0,
             io: IoPool::new(dir, attrs, origin, io_threads, io_delay),
             in_flight: 0,
-            max_in_flight: 2 * io_threads.max(1) + 2,
+            max_in_flight: 8 * io_threads.max(1) + 8,
             vertex_size: std::mem::size_of::<crate::mesh::Vertex>() as u64,
             counters: CacheCounters::default(),
             errors: Vec::new(),

@@ -84,7 +84,8 @@ pub fn draw_params(cam: &Camera, origin: glam::DVec3, w: u32, h: u32, wireframe:
     DrawParams {
         view_proj: cam.view_proj(origin, w as f64 / h.max(1) as f64),
         eye: cam.eye_rel(origin),
-        light_dir: (cam.forward() * 0.8 - cam.cam_up() * 0.4 + cam.right() * 0.3).normalize().as_vec3(),
+        // Towards the light: over the viewer's right shoulder.
+        light_dir: (-cam.forward() * 0.8 + cam.cam_up() * 0.5 + cam.right() * 0.35).normalize().as_vec3(),
         wireframe,
         clear: CLEAR,
     }
