@@ -76,49 +76,29 @@ impl Hierarchy {
             if n.subtree_tris == 0 {
                 continue;
             }
-            let cell_diag = n.cell.diagonal();
+            let info = |orig: bool, first_child: u32, child_count: u32| {
+                let (slot, level) = if orig { (n.orig, 0) } else { (n.simp, n.level) };
+                UnitInfo {
+                    node: i as u32,
+                    pack: level,
+                    level,
+                    slot,
+                    error: slot.error as f64,
+                    bounds: n.content,
+                    cell_diag: n.cell.diagonal(),
+                    first_child,
+                    child_count,
+                }
+            };
             if !n.simp.is_empty() {
-                let kids: Vec<Unit> = if n.is_leaf() {
-                    if n.orig.is_empty() {
-                        vec![]
-                    } else {
-                        vec![unit_of(i, true)]
-                    }
-                } else {
-                    n.children.iter().filter(|&&c| c != crate::store::NO_NODE).flat_map(|&c| reps(nodes, c as usize)).collect()
-                };
+                // A leaf refines to its own originals, an inner node to its children.
+                let kids: Vec<Unit> = if n.is_leaf() { leaf_original(n, i) } else { child_reps(nodes, n) };
                 let first_child = h.child_list.len() as u32;
                 h.child_list.extend(&kids);
-                h.units.insert(
-                    unit_of(i, false),
-                    UnitInfo {
-                        node: i as u32,
-                        pack: n.level,
-                        level: n.level,
-                        slot: n.simp,
-                        error: n.simp.error as f64,
-                        bounds: n.content,
-                        cell_diag,
-                        first_child,
-                        child_count: kids.len() as u32,
-                    },
-                );
+                h.units.insert(unit_of(i, false), info(false, first_child, kids.len() as u32));
             }
             if n.is_leaf() && !n.orig.is_empty() {
-                h.units.insert(
-                    unit_of(i, true),
-                    UnitInfo {
-                        node: i as u32,
-                        pack: 0,
-                        level: 0,
-                        slot: n.orig,
-                        error: 0.0,
-                        bounds: n.content,
-                        cell_diag,
-                        first_child: 0,
-                        child_count: 0,
-                    },
-                );
+                h.units.insert(unit_of(i, true), info(true, 0, 0));
             }
         }
         h
@@ -152,14 +132,22 @@ fn reps(nodes: &[NodeRec], i: usize) -> Vec<Unit> {
     } else if !n.simp.is_empty() {
         vec![unit_of(i, false)]
     } else if n.is_leaf() {
-        if n.orig.is_empty() {
-            vec![]
-        } else {
-            vec![unit_of(i, true)]
-        }
+        leaf_original(n, i)
     } else {
-        n.children.iter().filter(|&&c| c != crate::store::NO_NODE).flat_map(|&c| reps(nodes, c as usize)).collect()
+        child_reps(nodes, n)
     }
+}
+
+fn leaf_original(n: &NodeRec, i: usize) -> Vec<Unit> {
+    if n.orig.is_empty() {
+        vec![]
+    } else {
+        vec![unit_of(i, true)]
+    }
+}
+
+fn child_reps(nodes: &[NodeRec], n: &NodeRec) -> Vec<Unit> {
+    n.children.iter().filter(|&&c| c != crate::store::NO_NODE).flat_map(|&c| reps(nodes, c as usize)).collect()
 }
 
 /// Selection parameters.
