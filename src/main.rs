@@ -128,6 +128,18 @@ enum Cmd {
         #[arg(long, default_value_t = 16)]
         diff_tolerance: u8,
     },
+    /// Open an interactive window on a store (needs a display; `render` works without).
+    ///
+    /// Examine (1): drag orbits, right/shift-drag pans, wheel dollies. Fly (2), walk (3):
+    /// WASD, Q/E down/up, drag looks, shift faster. Tab cycles modes; R reset, F frame all,
+    /// Z wireframe, +/- field of view, F1/H overlay, V vsync, U up axis, Esc quit.
+    View {
+        store: PathBuf,
+        #[command(flatten)]
+        view: octolod::view::viewer::ViewArgs,
+        #[command(flatten)]
+        window: octolod::view::window::WindowArgs,
+    },
     /// Print a PLY's header, element counts, attribute set and bounding box.
     PlyInfo {
         input: PathBuf,
@@ -274,6 +286,7 @@ fn run(cli: Cli) -> Result<()> {
             );
             Ok(())
         }
+        Cmd::View { store, view, window } => octolod::view::window::run_window(window.options(store, view.options()?, cli.quiet)?),
         Cmd::PlyInfo { input, header_only } => ply_info(&input, header_only, cli.quiet),
         Cmd::Metro { a, b, samples, seed, json, max_hausdorff, max_rms, max_mean } => {
             let args = octolod::metro::CliArgs { a, b, samples, seed, json, max_hausdorff, max_rms, max_mean, quiet: cli.quiet };
