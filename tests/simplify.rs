@@ -301,3 +301,32 @@ fn a_closed_object_inside_one_node_may_collapse_to_an_empty_node() {
     let (h, m, _) = octolod::ply::read::read_all(&out).unwrap();
     assert_eq!((h.face_count(), m.vertices.len()), (0, 0));
 }
+
+/// A leaf's stored error is its measured geometric error: at least the
+/// distance of every original vertex to the simplified surface (and of every
+/// simplified vertex to the original), yet far below the cell size — the
+/// error a viewer can turn into pixels, not a loose bound.
+#[test]
+fn leaf_error_is_the_measured_surface_deviation() {
+    use octolod::metro::{Bvh, Mesh};
+    let dir = tempfile::tempdir().unwrap();
+    let (s, _) = build(dir.path(), Shape::Sphere, 60_000, 0, 2048, 8);
+    let mut checked = 0;
+    for (i, n) in s.nodes.iter().enumerate() {
+        if !n.is_leaf() || n.simp.tris == 0 {
+            continue;
+        }
+        let (o, m) = (node_mesh(&s, i, false), node_mesh(&s, i, true));
+        let (a, b) = (Mesh::from_vertices(&o.vertices, o.triangles.clone()), Mesh::from_vertices(&m.vertices, m.triangles.clone()));
+        let (ta, tb) = (Bvh::new(&a), Bvh::new(&b));
+        let d1 = a.referenced_vertices().iter().map(|&v| tb.closest(o.vertices[v as usize].pos).unwrap().dist2).fold(0.0, f64::max);
+        let d2 = m.vertices.iter().map(|v| ta.closest(v.pos).unwrap().dist2).fold(0.0, f64::max);
+        let d = d1.max(d2).sqrt();
+        let e = n.simp.error as f64;
+        assert!(e >= d * (1.0 - 1e-6), "node {i}: stored {e} below measured {d}");
+        assert!(e <= d * (1.0 + 1e-6) + 1e-12, "node {i}: stored {e} above measured {d}");
+        assert!(e < 0.05 * n.cell.diagonal(), "node {i}: error {e} is not small against the cell {}", n.cell.diagonal());
+        checked += 1;
+    }
+    assert!(checked > 10);
+}
