@@ -437,7 +437,8 @@ impl App {
 
     fn redraw(&mut self, event_loop: &ActiveEventLoop) {
         let now = Instant::now();
-        let dt = (now - self.last_frame).as_secs_f64().min(0.1);
+        // Real-time motion even at low frame rates, without leaps after a stall.
+        let dt = (now - self.last_frame).as_secs_f64().min(0.5);
         self.last_frame = now;
         self.nav.integrate(dt);
         let cam = self.nav.camera();
