@@ -211,6 +211,7 @@ impl<M: GpuBytes> Cache<M> {
             let job = Job { unit: u, pack: i.pack, offset: i.slot.offset, bytes: i.slot.bytes };
             let m = load(dir, &mut files, attrs, origin, &job)?;
             self.counters.read_bytes += i.slot.bytes as u64;
+            self.counters.loads_done += 1;
             let b = m.bytes();
             self.charge(b, 0);
             self.entries.insert(u, Entry { state: State::Cpu(m), charged: b, last_used: 0, pinned: true });

@@ -73,7 +73,9 @@ impl Camera {
 
     /// A camera that shows all of `b` in a 1:1 viewport.
     pub fn frame_all(b: &Aabb, up: DVec3, fov_y_deg: f64) -> Camera {
-        let mut c = Camera::look_at(DVec3::ZERO, DVec3::ONE, up, fov_y_deg);
+        // Equal eye and target: look_at picks the default, slightly
+        // downward diagonal for this up axis.
+        let mut c = Camera::look_at(DVec3::ZERO, DVec3::ZERO, up, fov_y_deg);
         c.reframe(b);
         c
     }
@@ -472,6 +474,11 @@ mod tests {
         c.walk(DVec3::new(1.0, 0.0, 3.0));
         assert!(c.eye.is_finite() && c.target.is_finite());
         assert!(c.forward().dot(c.up).abs() < 0.999);
+        // frame_all looks down at the model, whatever the up axis.
+        for up in [DVec3::Z, DVec3::Y, -DVec3::Y, DVec3::X] {
+            let c = Camera::frame_all(&b, up, 50.0);
+            assert!(c.forward().dot(up) < -0.2, "up {up}: forward {}", c.forward());
+        }
     }
 
     #[test]
