@@ -92,6 +92,9 @@ enum Cmd {
         /// Fail (exit 3) when the mean distance over both directions exceeds this.
         #[arg(long)]
         max_mean: Option<String>,
+        /// Memory budget (default 1G): pages STORE@L operands' nodes in and out; given, PLYs (held whole) must fit it too.
+        #[arg(long)]
+        mem: Option<String>,
     },
     /// Render frames offscreen along a camera path (PNG + per-frame statistics).
     ///
@@ -288,8 +291,8 @@ fn run(cli: Cli) -> Result<()> {
         }
         Cmd::View { store, view, window } => octolod::view::window::run_window(window.options(store, view.options()?, cli.quiet)?),
         Cmd::PlyInfo { input, header_only } => ply_info(&input, header_only, cli.quiet),
-        Cmd::Metro { a, b, samples, seed, json, max_hausdorff, max_rms, max_mean } => {
-            let args = octolod::metro::CliArgs { a, b, samples, seed, json, max_hausdorff, max_rms, max_mean, quiet: cli.quiet };
+        Cmd::Metro { a, b, samples, seed, json, max_hausdorff, max_rms, max_mean, mem } => {
+            let args = octolod::metro::CliArgs { a, b, samples, seed, json, max_hausdorff, max_rms, max_mean, mem, quiet: cli.quiet };
             if !octolod::metro::run_cli(&args)? {
                 std::process::exit(octolod::metro::EXIT_THRESHOLD.into());
             }

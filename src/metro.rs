@@ -2,11 +2,11 @@
 //! Cignoni, Rocchini and Scopigno, "Metro: measuring error on simplified
 //! surfaces" (1998), as implemented by vcglib's `metro`.
 //!
-//! Takes: two meshes `A` and `B`, each a PLY path or `STORE@L` (level `L` of
-//! an octolod store: the level's whole-level cut, node meshes read one by one
-//! and concatenated in memory with bit-identical positions welded, so it
-//! samples like the PLY `octolod extract` would write), a sample budget and a
-//! seed. Gives: per direction (`A -> B`: samples on A, distance to the closest
+//! Takes: two meshes `A` and `B`, each a PLY path (held in memory whole) or
+//! `STORE@L` (level `L` of an octolod store, paged: see "Paging" below; it
+//! measures as the level's whole-level cut with bit-identical positions
+//! welded, the mesh `octolod extract` writes), a sample budget, a seed and a
+//! memory budget (`--mem`). Gives: per direction (`A -> B`: samples on A, distance to the closest
 //! point of B; `B -> A` the other way) and combined, the maximum (Hausdorff),
 //! mean and RMS distance and the sample counts, each absolute and relative to
 //! **the bounding-box diagonal of A** (A is meant to be the reference, e.g.
@@ -16,15 +16,14 @@
 //! mean and RMS over all samples of both directions together (so with the
 //! default budget, equal sample counts, the combined mean is the average of
 //! the two directional means). Bounding boxes, areas, vertex and face counts
-//! of both meshes come with it. A `STORE@L` mesh is held in memory whole; a
-//! paged, out-of-core variant (sampling node by node and querying a BVH of
-//! the other mesh's node bounds, loading nodes on demand) is future work.
+//! of both meshes come with it.
 //!
 //! Sampling (per direction, of the source mesh S, total budget `N`, by
 //! default `10 * max(faces of A, faces of B)` like Metro, `--samples`
 //! overrides): as in vcglib's `Sampling::Hausdorff`,
 //! 1. every vertex referenced by a triangle (unreferenced ones are not part
-//!    of the surface), `V` samples — all of them even when `V >= N`;
+//!    of the surface), `V` samples — all of them even when `V >= N` — in the
+//!    order of first reference (face by face, corner by corner);
 //! 2. with `R = N - V` left, every unique edge gets samples at equally spaced
 //!    interior points, `sqrt(R / area(S))` per unit length exactly like
 //!    Metro (the spacing the face samples will have), which at the default
@@ -34,7 +33,8 @@
 //!    per face, where Metro's edges would take the whole budget and leave
 //!    the face interiors (where a simplification's error peaks) unsampled.
 //!    Length-proportional, fractions carried from edge to edge in edge
-//!    order, which is the sorted (low, high) vertex-index order;
+//!    order: the order of first occurrence (face `f`'s corner `k` meets edge
+//!    `(t[k], t[k+1])`), each edge directed as first met;
 //! 3. what is left after the edges, `R - E`, goes to the faces (Metro's
 //!    `Hausdorff()` subtracts the vertex samples a second time here, giving
 //!    the faces `R - E - V`; octolod keeps the total at `N` as `--samples`
@@ -64,18 +64,68 @@
 //! corners) are the union of their three edges as segments, so no input
 //! produces NaN.
 //!
-//! Determinism: samples are processed in fixed chunks of [`CHUNK`] samples
-//! (vertex chunks, then edge chunks, then face chunks) in parallel with
-//! rayon; each chunk sums sequentially, and the chunk partial sums are
-//! combined in chunk order, so every figure is bit-identical for a given
-//! seed whatever the thread count. The JSON report holds no timings, so it
-//! can be diffed.
+//! Determinism: samples are summed in fixed jobs of [`CHUNK`] samples
+//! (vertex jobs, then edge jobs, then face jobs, each starting at a multiple
+//! of `CHUNK` within its kind), generated and queried a batch of jobs at a
+//! time in parallel with rayon; each job sums sequentially, and the job
+//! partial sums are combined in job order, so every figure is bit-identical
+//! for a given seed whatever the thread count, batch size or memory budget.
+//! The JSON report holds no timings, so it can be diffed; its `paging`
+//! object (present only with a store operand) holds cache counters and peak
+//! RSS, which depend on scheduling.
+//!
+//! Paging (a `STORE@L` operand): the level is never loaded whole. Opening
+//! it reads `nodes.bin` (kept in memory, ~300 bytes a node) and the cut's
+//! node meshes once, in parallel, for their exact bounds (the nodes'
+//! `content` boxes bound the original triangles, not a simplified mesh,
+//! whose cluster representatives may leave them). The cut's nodes are the
+//! level's *parts*; a hierarchy over their bounds is the top level of its
+//! index. A part is read with one positioned read when needed and kept in
+//! one LRU page cache shared by both operands, under a byte budget: as a
+//! query target, its triangles' BVH (built on load); as a sample source,
+//! its mesh welded in first-reference order with its edges and sorted
+//! lookups. Resident bytes are the heap bytes of live entries (cached, or
+//! evicted but still held by a query) plus a reservation, for each load in
+//! flight, of the load's estimated peak (payload, decoded vertices, weld
+//! map, the structure being built), an upper bound swapped for the real
+//! size once built; the cache evicts unheld entries, least recently used
+//! first, before a reservation would exceed its budget.
+//! * Queries against a paged level come a batch at a time (up to 1 M
+//!   samples), sorted along a Morton curve of the target's box, in pieces
+//!   of consecutive queries per worker. A worker keeps the part of its last
+//!   answer (its *home*) and searches it first, which bounds the rest: a
+//!   best-first walk of the box tree by box distance, searching a part
+//!   (loading it if needed) only while its box is nearer than the best so
+//!   far. Each answer is the minimum over the same triangles as in memory,
+//!   so the distances equal the in-memory ones (bit for bit but for a
+//!   near-tie pruned differently by the two hierarchies).
+//! * Sampling a paged level gives the samples the welded level would give
+//!   in memory, in the same order: parts in cut order (the in-memory
+//!   concatenation order), in each its vertices and edges in first-
+//!   reference and first-occurrence order, skipping those an earlier part
+//!   already has (bit-identical positions; only earlier parts whose bounds
+//!   meet this part's are asked), then its faces, with the carried
+//!   fractions running across parts and faces numbered globally. That takes
+//!   three passes over the parts: vertices (which also totals the area and
+//!   the owned edges' length the densities need), edges, faces.
+//! * Budget: `--mem` (default [`DEFAULT_MEM`]) covers the batch buffers
+//!   (48 bytes a sample) and the cache; given explicitly, also each PLY
+//!   operand's estimated in-memory size ([`ply_estimate`]), and a PLY that
+//!   does not fit is refused (build a store of it; its level 0 is the exact
+//!   input). The cache must hold what one direction holds at once: a paged
+//!   source's current part and one earlier part, and two parts per query
+//!   worker (its home and one other); the number of workers is cut to fit,
+//!   and a budget below one worker's worth is a usage error naming the
+//!   minimum. Fixed overheads (the store indexes, thread stacks) come on
+//!   top; the report gives the cache's peak and the process's peak RSS.
 //!
 //! Complexity: building each BVH is O(F log F) time and O(F) memory (about
 //! 100 bytes a triangle with the reordered copy of its corners); sampling is
 //! O(N) plus an O(F) prefix pass and an O(E log E) edge sort; each query is
 //! O(log F) expected on reasonable meshes (worst case O(F)), so a direction
-//! costs O(N log F) and runs on all cores.
+//! costs O(N log F) and runs on all cores. Paged, memory is O(budget +
+//! nodes) and each part is read once per pass and per role while the cache
+//! holds the working set, more often below it (the report counts loads).
 //!
 //! Thresholds (`--max-hausdorff`, `--max-rms`, `--max-mean`) are checked
 //! against the combined figures, absolute (`0.01`) or as a percentage of A's
@@ -85,11 +135,15 @@
 use crate::error::{Error, Location, Result};
 use crate::mesh::{Aabb, Vertex};
 use crate::progress::Progress;
+use crate::store::{IndexedMesh, Slot, Store};
 use rayon::prelude::*;
-use std::collections::HashMap;
+use std::collections::{BTreeMap, BinaryHeap, HashMap};
 use std::fmt;
 use std::io::Write;
+use std::mem::size_of;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
+use std::sync::{Arc, Condvar, Mutex};
 use std::time::Instant;
 
 /// Exit status of `octolod metro` when a threshold is exceeded (1 is an error).
@@ -165,6 +219,20 @@ impl Mesh {
     /// Total triangle area.
     pub fn area(&self) -> f64 {
         (0..self.triangles.len()).map(|t| tri_area(self.corners(t))).sum()
+    }
+    /// Vertices referenced by a triangle, in the order of first reference
+    /// (face by face, corner by corner).
+    pub fn first_reference_vertices(&self) -> Vec<u32> {
+        let mut seen = vec![false; self.positions.len()];
+        let mut out = Vec::new();
+        for t in &self.triangles {
+            for &i in t {
+                if !std::mem::replace(&mut seen[i as usize], true) {
+                    out.push(i);
+                }
+            }
+        }
+        out
     }
     /// Vertices referenced by at least one triangle.
     pub fn referenced_vertices(&self) -> Vec<u32> {
@@ -479,17 +547,42 @@ pub struct Bvh {
 
 impl Bvh {
     pub fn new(mesh: &Mesh) -> Bvh {
-        let mut items: Vec<(P3, u32)> = (0..mesh.triangles.len())
-            .into_par_iter()
-            .map(|t| {
-                let c = mesh.corners(t);
-                ([0, 1, 2].map(|k| (c[0][k] + c[1][k] + c[2][k]) / 3.0), t as u32)
-            })
-            .collect();
-        let nodes = if items.is_empty() { Vec::new() } else { build(mesh, &mut items, 0) };
-        let tris: Vec<[P3; 3]> = items.par_iter().map(|&(_, t)| mesh.corners(t as usize)).collect();
-        let kinds = tris.par_iter().map(|c| TriKind::of(c[0], c[1], c[2])).collect();
-        Bvh { nodes, tris, kinds, ids: items.iter().map(|&(_, t)| t).collect() }
+        Self::build(mesh, true)
+    }
+    /// `parallel: false` builds on the calling thread only: the page cache
+    /// builds node indexes inside worker threads that must not pick up other
+    /// work (and other cache entries) while they wait.
+    fn build(mesh: &Mesh, parallel: bool) -> Bvh {
+        let centroid = |t: usize| {
+            let c = mesh.corners(t);
+            ([0, 1, 2].map(|k| (c[0][k] + c[1][k] + c[2][k]) / 3.0), t as u32)
+        };
+        let n = mesh.triangles.len();
+        let mut items: Vec<(P3, u32)> =
+            if parallel { (0..n).into_par_iter().map(centroid).collect() } else { (0..n).map(centroid).collect() };
+        let nodes = if items.is_empty() {
+            Vec::new()
+        } else if parallel {
+            build(mesh, &mut items, 0)
+        } else {
+            let mut out = Vec::with_capacity(n / 2 + 1);
+            build_seq(mesh, &mut items, 0, &mut out);
+            out
+        };
+        let corners = |&(_, t): &(P3, u32)| mesh.corners(t as usize);
+        let kind = |c: &[P3; 3]| TriKind::of(c[0], c[1], c[2]);
+        let (tris, kinds): (Vec<[P3; 3]>, Vec<TriKind>) = if parallel {
+            let tris: Vec<[P3; 3]> = items.par_iter().map(corners).collect();
+            let kinds = tris.par_iter().map(kind).collect();
+            (tris, kinds)
+        } else {
+            let tris: Vec<[P3; 3]> = items.iter().map(corners).collect();
+            let kinds = tris.iter().map(kind).collect();
+            (tris, kinds)
+        };
+        let mut bvh = Bvh { nodes, tris, kinds, ids: items.iter().map(|&(_, t)| t).collect() };
+        bvh.nodes.shrink_to_fit();
+        bvh
     }
     pub fn len(&self) -> usize {
         self.tris.len()
@@ -500,6 +593,21 @@ impl Bvh {
     /// Number of BVH nodes.
     pub fn node_count(&self) -> usize {
         self.nodes.len()
+    }
+    /// Heap bytes held.
+    pub fn bytes(&self) -> u64 {
+        (self.nodes.capacity() * size_of::<Node>()
+            + self.tris.capacity() * size_of::<[P3; 3]>()
+            + self.kinds.capacity() * size_of::<TriKind>()
+            + self.ids.capacity() * size_of::<u32>()) as u64
+    }
+    /// An upper bound of [`Bvh::bytes`] plus the build's temporaries for `f`
+    /// triangles: leaves hold 2 to 4 triangles (median splits of more than
+    /// 4), so there are at most `f` nodes.
+    fn bytes_bound(f: u64) -> u64 {
+        let node = size_of::<Node>() as u64;
+        node * f.max(1) + (size_of::<[P3; 3]>() + size_of::<TriKind>() + size_of::<u32>()) as u64 * f
+            + size_of::<(P3, u32)>() as u64 * f
     }
     /// The exact closest point of the mesh to `p` (None for an empty mesh).
     pub fn closest(&self, p: P3) -> Option<Closest> {
@@ -517,11 +625,30 @@ impl Bvh {
     /// (squared distance, triangle slot, point); `hint` is a slot to try
     /// first (u32::MAX for none). Requires a non-empty BVH.
     fn nearest(&self, p: P3, hint: u32) -> (f64, u32, P3) {
-        let (mut best2, mut best, mut bq) = (f64::INFINITY, u32::MAX, p);
+        self.nearest_within(p, hint, f64::INFINITY).unwrap_or_else(|| {
+            // Only possible with non-finite coordinates; answer something.
+            let q = self.tri_closest(0, p);
+            (dist2(p, q), 0, q)
+        })
+    }
+    /// The closest point if its squared distance is below `bound2`:
+    /// (squared distance, triangle slot, point). The answer is the minimum
+    /// over the triangles of their computed squared distances whatever the
+    /// hint or bound, so indexes over different groupings of the same
+    /// triangles agree.
+    fn nearest_within(&self, p: P3, hint: u32, bound2: f64) -> Option<(f64, u32, P3)> {
+        let (mut best2, mut best, mut bq) = (bound2, u32::MAX, p);
+        if self.nodes.is_empty() {
+            return None;
+        }
         if hint != u32::MAX {
-            bq = self.tri_closest(hint, p);
-            best2 = dist2(p, bq);
-            best = hint;
+            let q = self.tri_closest(hint, p);
+            let d = dist2(p, q);
+            if d < best2 {
+                best2 = d;
+                best = hint;
+                bq = q;
+            }
         }
         let mut stack = [(0u32, 0f64); 64];
         let mut sp = 0usize;
@@ -563,14 +690,85 @@ impl Bvh {
             sp -= 1;
             (node, nd) = stack[sp];
         }
-        if best == u32::MAX {
-            // Only possible with non-finite coordinates; answer something.
-            best = 0;
-            bq = self.tri_closest(0, p);
-            best2 = dist2(p, bq);
-        }
-        (best2, best, bq)
+        (best != u32::MAX).then_some((best2, best, bq))
     }
+}
+
+/// A hierarchy over boxes, one box a leaf: the top level of a paged mesh,
+/// over its parts' exact bounds.
+struct BoxTree {
+    nodes: Vec<Node>,
+    /// Leaf `start` indexes this; the values are part indices.
+    items: Vec<u32>,
+}
+
+impl BoxTree {
+    /// Over the non-empty `boxes`.
+    fn new(boxes: &[Aabb]) -> BoxTree {
+        let mut items: Vec<(P3, u32)> =
+            boxes.iter().enumerate().filter(|(_, b)| !b.is_empty()).map(|(i, b)| (b.center(), i as u32)).collect();
+        let mut nodes = Vec::with_capacity(2 * items.len());
+        if !items.is_empty() {
+            box_build(boxes, &mut items, 0, &mut nodes);
+        }
+        BoxTree { nodes, items: items.iter().map(|&(_, i)| i).collect() }
+    }
+    /// Calls `f` with every part whose box meets `b` (closed boxes).
+    fn overlapping(&self, b: &Aabb, mut f: impl FnMut(usize)) {
+        if self.nodes.is_empty() {
+            return;
+        }
+        let mut stack = vec![0u32];
+        while let Some(i) = stack.pop() {
+            let n = &self.nodes[i as usize];
+            if !(0..3).all(|k| n.min[k] <= b.max[k] && b.min[k] <= n.max[k]) {
+                continue;
+            }
+            if n.count > 0 {
+                f(self.items[n.start as usize] as usize);
+            } else {
+                stack.push(n.start);
+                stack.push(i + 1);
+            }
+        }
+    }
+}
+
+fn box_build(boxes: &[Aabb], items: &mut [(P3, u32)], offset: usize, out: &mut Vec<Node>) {
+    let (mut b, mut cb) = (Aabb::EMPTY, Aabb::EMPTY);
+    for &(c, i) in items.iter() {
+        b.merge(&boxes[i as usize]);
+        cb.add(c);
+    }
+    if items.len() == 1 {
+        out.push(Node { min: b.min, max: b.max, start: offset as u32, count: 1 });
+        return;
+    }
+    let me = out.len();
+    out.push(Node { min: b.min, max: b.max, start: 0, count: 0 });
+    let axis = longest_axis(&cb);
+    let mid = items.len() / 2;
+    items.select_nth_unstable_by(mid, |x, y| x.0[axis].total_cmp(&y.0[axis]).then(x.1.cmp(&y.1)));
+    let (l, r) = items.split_at_mut(mid);
+    box_build(boxes, l, offset, out);
+    out[me].start = out.len() as u32;
+    box_build(boxes, r, offset + mid, out);
+}
+
+fn longest_axis(cb: &Aabb) -> usize {
+    let ext = [0, 1, 2].map(|k| cb.max[k] - cb.min[k]);
+    if ext[0] >= ext[1] && ext[0] >= ext[2] {
+        0
+    } else if ext[1] >= ext[2] {
+        1
+    } else {
+        2
+    }
+}
+
+#[inline]
+fn inside(b: &Aabb, p: P3) -> bool {
+    (0..3).all(|k| b.min[k] <= p[k] && p[k] <= b.max[k])
 }
 
 fn bounds(mesh: &Mesh, items: &[(P3, u32)]) -> (Aabb, Aabb) {
@@ -622,14 +820,7 @@ fn build_seq(mesh: &Mesh, items: &mut [(P3, u32)], offset: usize, out: &mut Vec<
 /// of the centroid bounds (ties broken by triangle index: deterministic).
 fn split(mesh: &Mesh, items: &mut [(P3, u32)]) -> (Aabb, usize) {
     let (b, cb) = bounds(mesh, items);
-    let ext = [0, 1, 2].map(|k| cb.max[k] - cb.min[k]);
-    let axis = if ext[0] >= ext[1] && ext[0] >= ext[2] {
-        0
-    } else if ext[1] >= ext[2] {
-        1
-    } else {
-        2
-    };
+    let axis = longest_axis(&cb);
     let mid = items.len() / 2;
     items.select_nth_unstable_by(mid, |x, y| x.0[axis].total_cmp(&y.0[axis]).then(x.1.cmp(&y.1)));
     (b, mid)
@@ -706,9 +897,122 @@ fn face_sample(c: &[P3; 3], i: u64, n: u64, offset: f64, rng: &mut Rng) -> P3 {
     add(c[0], add(scale(sub(c[1], c[0]), u), scale(sub(c[2], c[0]), v)))
 }
 
-/// The sample plan of one direction: which points, in which order.
+/// Metro's edge density, in samples per unit length, for `left` samples
+/// after the vertices, area `area` and total edge length `total_len`: the
+/// spacing of `left` face samples, `sqrt(left / area)`, with the
+/// [`EDGE_SHARE_MAX`] cap; everything along the edges when there is no area.
+fn edge_density(left: u64, area: f64, total_len: f64) -> f64 {
+    if left == 0 {
+        0.0
+    } else if area > 0.0 {
+        // Metro's density; the cap only binds at tiny budgets.
+        (left as f64 / area).sqrt().min(EDGE_SHARE_MAX * left as f64 / total_len)
+    } else if total_len > 0.0 {
+        left as f64 / total_len
+    } else {
+        0.0
+    }
+}
+
+/// Face samples per unit area for `left` samples after vertices and edges.
+fn face_density(left: u64, area: f64) -> f64 {
+    if left > 0 && area > 0.0 {
+        left as f64 / area
+    } else {
+        0.0
+    }
+}
+
+/// Metro's carried fractions, one element at a time: adds `x * density` to
+/// the running `acc` and returns how many samples the element gets
+/// (`floor(acc)` minus those handed out so far, `prev`).
+#[inline]
+fn carry(acc: &mut f64, prev: &mut u64, x: f64, density: f64) -> u64 {
+    *acc += x * density;
+    let c = (acc.floor() as u64).max(*prev);
+    let n = c - *prev;
+    *prev = c;
+    n
+}
+
+/// `prefix[i+1]` = samples on elements `..=i` by [`carry`].
+fn carry_prefix(w: &[f64], density: f64, prefix: &mut [u64]) {
+    let (mut acc, mut prev) = (0.0f64, 0u64);
+    prefix[0] = 0;
+    for (i, &x) in w.iter().enumerate() {
+        carry(&mut acc, &mut prev, x, density);
+        prefix[i + 1] = prev;
+    }
+}
+
+#[inline]
+fn seg_len(a: P3, b: P3) -> f64 {
+    dist2(a, b).sqrt()
+}
+
+/// Sample `i` of the `n` equally spaced interior points of edge `ab`.
+#[inline]
+fn edge_point(a: P3, b: P3, i: u64, n: u64) -> P3 {
+    add(a, scale(sub(b, a), (i + 1) as f64 / (n + 1) as f64))
+}
+
+/// The per-face seed and stratification offset of face `fi` (global index).
+#[inline]
+fn face_seed(seed: u64, fi: u64) -> (u64, f64) {
+    let fseed = seed ^ mix64(fi.wrapping_mul(GOLDEN) ^ 0xFACE);
+    (fseed, Rng::new(fseed).f64())
+}
+
+/// Sample `i` of a face's `n` stratified samples.
+#[inline]
+fn face_point(c: &[P3; 3], fseed: u64, offset: f64, i: u64, n: u64) -> P3 {
+    let mut rng = Rng::new(fseed.wrapping_add(mix64(i + 1)));
+    face_sample(c, i, n, offset, &mut rng)
+}
+
+/// The distinct edges of `triangles` in the order of first occurrence
+/// (face by face, corner `k` giving edge `(t[k], t[k+1])`), each directed as
+/// first met.
+fn first_occurrence_edges(triangles: &[[u32; 3]], parallel: bool) -> Vec<[u32; 2]> {
+    let occ = |(f, t): (usize, &[u32; 3])| {
+        let t = *t;
+        (0..3).map(move |k| {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            (((a.min(b) as u64) << 32) | a.max(b) as u64, 3 * f as u64 + k as u64)
+        })
+    };
+    let mut keys: Vec<(u64, u64)> = if parallel {
+        triangles.par_iter().enumerate().flat_map_iter(occ).collect()
+    } else {
+        triangles.iter().enumerate().flat_map(occ).collect()
+    };
+    if parallel {
+        keys.par_sort_unstable();
+    } else {
+        keys.sort_unstable();
+    }
+    keys.dedup_by_key(|k| k.0);
+    let mut first: Vec<u64> = keys.iter().map(|k| k.1).collect();
+    drop(keys);
+    if parallel {
+        first.par_sort_unstable();
+    } else {
+        first.sort_unstable();
+    }
+    first
+        .iter()
+        .map(|&o| {
+            let (t, k) = (&triangles[(o / 3) as usize], (o % 3) as usize);
+            [t[k], t[(k + 1) % 3]]
+        })
+        .collect()
+}
+
+/// The sample plan of an in-memory mesh: which points, in which order.
 struct Plan {
+    /// Referenced vertices in the order of first reference.
     verts: Vec<u32>,
+    /// See [`first_occurrence_edges`].
     edges: Vec<[u32; 2]>,
     /// `edge_prefix[e]` = samples on edges before `e` (len E + 1).
     edge_prefix: Vec<u64>,
@@ -718,58 +1022,25 @@ struct Plan {
 
 impl Plan {
     fn new(src: &Mesh, target: u64, seed: u64) -> Plan {
-        let verts = src.referenced_vertices();
+        let verts = src.first_reference_vertices();
+        let edges = first_occurrence_edges(&src.triangles, true);
         let areas: Vec<f64> = (0..src.triangles.len()).into_par_iter().map(|t| tri_area(src.corners(t))).collect();
-        let area: f64 = areas.iter().sum();
-        let mut keys: Vec<u64> = src
-            .triangles
-            .par_iter()
-            .flat_map_iter(|t| {
-                (0..3).map(move |k| {
-                    let (a, b) = (t[k], t[(k + 1) % 3]);
-                    ((a.min(b) as u64) << 32) | a.max(b) as u64
-                })
-            })
-            .collect();
-        keys.par_sort_unstable();
-        keys.dedup();
-        let edges: Vec<[u32; 2]> = keys.iter().map(|&k| [(k >> 32) as u32, k as u32]).collect();
-        drop(keys);
-        let mut left = target.saturating_sub(verts.len() as u64);
+        let area = areas.iter().fold(0.0, |s, &a| s + a);
+        let left = target.saturating_sub(verts.len() as u64);
         let mut edge_prefix = vec![0u64; edges.len() + 1];
         let mut face_prefix = vec![0u64; areas.len() + 1];
         if left > 0 {
-            let lens: Vec<f64> =
-                edges.par_iter().map(|e| dist2(src.positions[e[0] as usize], src.positions[e[1] as usize]).sqrt()).collect();
-            let total: f64 = lens.iter().sum();
-            let per_len = if area > 0.0 {
-                // Metro's density; the cap only binds at tiny budgets.
-                (left as f64 / area).sqrt().min(EDGE_SHARE_MAX * left as f64 / total)
-            } else if total > 0.0 {
-                left as f64 / total
-            } else {
-                0.0
-            };
-            carry_prefix(&lens, per_len, &mut edge_prefix);
-            left = left.saturating_sub(edge_prefix[edges.len()]);
-            if left > 0 && area > 0.0 {
-                carry_prefix(&areas, left as f64 / area, &mut face_prefix);
-            }
+            let pos = &src.positions;
+            let lens: Vec<f64> = edges.par_iter().map(|e| seg_len(pos[e[0] as usize], pos[e[1] as usize])).collect();
+            let total = lens.iter().fold(0.0, |s, &l| s + l);
+            carry_prefix(&lens, edge_density(left, area, total), &mut edge_prefix);
+            let left = left.saturating_sub(edge_prefix[edges.len()]);
+            carry_prefix(&areas, face_density(left, area), &mut face_prefix);
         }
         Plan { verts, edges, edge_prefix, face_prefix, seed }
     }
     fn counts(&self) -> (u64, u64, u64) {
         (self.verts.len() as u64, *self.edge_prefix.last().unwrap(), *self.face_prefix.last().unwrap())
-    }
-}
-
-/// `prefix[i+1] = floor(density * sum(w[..=i]))`: Metro's carried fractions.
-fn carry_prefix(w: &[f64], density: f64, prefix: &mut [u64]) {
-    let mut acc = 0.0f64;
-    prefix[0] = 0;
-    for (i, &x) in w.iter().enumerate() {
-        acc += x * density;
-        prefix[i + 1] = (acc.floor() as u64).max(prefix[i]);
     }
 }
 
@@ -834,44 +1105,1024 @@ impl Acc {
     }
 }
 
-#[derive(Clone, Copy)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Kind {
     Vertex,
     Edge,
     Face,
 }
 
-/// One-sided distances from `src`'s samples to the mesh `target` indexes:
-/// about `samples` samples (see the module documentation), from `seed`.
-pub fn one_sided(src: &Mesh, target: &Bvh, samples: u64, seed: u64, progress: &Progress) -> Result<Distances> {
-    if target.is_empty() {
-        return Err(Error::Usage("metro: the target mesh has no triangles".into()));
+/// A run of consecutive samples of one kind, the unit of summation: it
+/// starts at a multiple of [`CHUNK`] within its kind and holds at most
+/// `CHUNK` samples, so the partial sums, added in job order, do not depend
+/// on threads, batches or paging.
+#[derive(Clone, Copy, Debug)]
+struct Job {
+    /// Index of the first sample within its kind (a multiple of CHUNK).
+    start: u64,
+    len: usize,
+    /// Offset of the first sample in the batch.
+    at: usize,
+}
+
+/// Produces the samples of one direction in order, a batch of whole jobs at a time.
+trait Gen {
+    /// Appends whole jobs to `points`/`jobs` (at least one if any is left,
+    /// no more than `max` samples unless a single job is larger). False when
+    /// nothing was left.
+    fn fill(&mut self, points: &mut Vec<P3>, jobs: &mut Vec<Job>, max: usize) -> Result<bool>;
+    /// (vertex, edge, face) samples, final once `fill` returned false.
+    fn counts(&self) -> (u64, u64, u64);
+}
+
+/// The samples of an in-memory mesh, from its [`Plan`], generated in parallel.
+struct MemGen<'a> {
+    src: &'a Mesh,
+    plan: Plan,
+    /// (kind, first, end) of every job, in order.
+    jobs: Vec<(Kind, u64, u64)>,
+    next: usize,
+}
+
+impl<'a> MemGen<'a> {
+    fn new(src: &'a Mesh, target: u64, seed: u64) -> MemGen<'a> {
+        let plan = Plan::new(src, target, seed);
+        let (nv, ne, nf) = plan.counts();
+        let mut jobs = Vec::new();
+        for (kind, n) in [(Kind::Vertex, nv), (Kind::Edge, ne), (Kind::Face, nf)] {
+            let mut s = 0;
+            while s < n {
+                jobs.push((kind, s, (s + CHUNK).min(n)));
+                s += CHUNK;
+            }
+        }
+        MemGen { src, plan, jobs, next: 0 }
     }
-    if src.triangles.is_empty() {
-        return Err(Error::Usage("metro: the source mesh has no triangles".into()));
+}
+
+impl Gen for MemGen<'_> {
+    fn fill(&mut self, points: &mut Vec<P3>, jobs: &mut Vec<Job>, max: usize) -> Result<bool> {
+        let first = self.next;
+        let base = points.len();
+        let mut end = base;
+        while self.next < self.jobs.len() {
+            let (_, s, e) = self.jobs[self.next];
+            let len = (e - s) as usize;
+            if self.next > first && end + len > max {
+                break;
+            }
+            jobs.push(Job { start: s, len, at: end });
+            end += len;
+            self.next += 1;
+        }
+        if self.next == first {
+            return Ok(false);
+        }
+        points.resize(end, [0.0; 3]);
+        let mut rest = &mut points[base..];
+        let mut work = Vec::with_capacity(self.next - first);
+        for &(kind, s, e) in &self.jobs[first..self.next] {
+            let (head, tail) = rest.split_at_mut((e - s) as usize);
+            work.push((kind, s, e, head));
+            rest = tail;
+        }
+        let (src, plan) = (self.src, &self.plan);
+        work.into_par_iter().for_each(|(kind, s, e, out)| gen_job(src, plan, kind, s, e, out));
+        Ok(true)
     }
-    src.check_indices().map_err(|m| Error::Usage(format!("metro: source mesh: {m}")))?;
-    let plan = Plan::new(src, samples, seed);
-    let (nv, ne, nf) = plan.counts();
-    let mut jobs: Vec<(Kind, u64, u64)> = Vec::new();
-    for (kind, n) in [(Kind::Vertex, nv), (Kind::Edge, ne), (Kind::Face, nf)] {
-        let mut s = 0;
-        while s < n {
-            jobs.push((kind, s, (s + CHUNK).min(n)));
-            s += CHUNK;
+    fn counts(&self) -> (u64, u64, u64) {
+        self.plan.counts()
+    }
+}
+
+/// Samples `[s, e)` of one kind into `out`.
+fn gen_job(src: &Mesh, plan: &Plan, kind: Kind, s: u64, e: u64, out: &mut [P3]) {
+    let mut k = 0usize;
+    let mut put = |p: P3| {
+        out[k] = p;
+        k += 1;
+    };
+    match kind {
+        Kind::Vertex => {
+            for &v in &plan.verts[s as usize..e as usize] {
+                put(src.positions[v as usize]);
+            }
+        }
+        Kind::Edge => {
+            let mut ei = plan.edge_prefix.partition_point(|&x| x <= s) - 1;
+            let mut g = s;
+            while g < e {
+                let (lo, hi) = (plan.edge_prefix[ei], plan.edge_prefix[ei + 1]);
+                let n = hi - lo;
+                if n > 0 {
+                    let [a, b] = plan.edges[ei].map(|i| src.positions[i as usize]);
+                    for i in (g - lo)..(n.min(e - lo)) {
+                        put(edge_point(a, b, i, n));
+                    }
+                }
+                g = hi.max(g);
+                ei += 1;
+            }
+        }
+        Kind::Face => {
+            let mut fi = plan.face_prefix.partition_point(|&x| x <= s) - 1;
+            let mut g = s;
+            while g < e {
+                let (lo, hi) = (plan.face_prefix[fi], plan.face_prefix[fi + 1]);
+                let n = hi - lo;
+                if n > 0 {
+                    let c = src.corners(fi);
+                    let (fseed, offset) = face_seed(plan.seed, fi as u64);
+                    for i in (g - lo)..(n.min(e - lo)) {
+                        put(face_point(&c, fseed, offset, i, n));
+                    }
+                }
+                g = hi.max(g);
+                fi += 1;
+            }
         }
     }
-    let parts: Vec<Acc> = jobs.into_par_iter().map(|(kind, s, e)| run_job(src, target, &plan, kind, s, e, progress)).collect();
+    debug_assert_eq!(k, out.len());
+}
+
+// ---------------------------------------------------------------------------
+// Paging: a store level as parts (its cut's nodes), node meshes on demand.
+
+/// Default `--mem`.
+pub const DEFAULT_MEM: u64 = 1 << 30;
+/// Samples at most per batch (queried together, sorted along a Morton curve
+/// when the target is paged).
+const BATCH_MAX: usize = 1 << 20;
+/// Bytes a batch costs per sample: the point, its distance, its sort key.
+const BATCH_BYTES_PER_SAMPLE: u64 = 48;
+/// Queries per unit of parallel work against a paged target.
+const PIECE: usize = 1024;
+
+/// Bytes of live cache entries and reservations, and their peak.
+#[derive(Debug, Default)]
+struct Acct {
+    resident: AtomicU64,
+    peak: AtomicU64,
+}
+
+impl Acct {
+    fn add(&self, n: u64) {
+        let r = self.resident.fetch_add(n, Relaxed) + n;
+        self.peak.fetch_max(r, Relaxed);
+    }
+    fn sub(&self, n: u64) {
+        self.resident.fetch_sub(n, Relaxed);
+    }
+    fn resident(&self) -> u64 {
+        self.resident.load(Relaxed)
+    }
+}
+
+/// What a part holds when it serves as a sample source: its mesh welded in
+/// first-reference order, its edges, and lookups for the ownership test.
+struct SrcPart {
+    /// Distinct referenced positions, in the order of first reference.
+    positions: Vec<P3>,
+    triangles: Vec<[u32; 3]>,
+    /// See [`first_occurrence_edges`].
+    edges: Vec<[u32; 2]>,
+    /// Position bits → index, sorted.
+    sorted: Vec<([u64; 3], u32)>,
+    /// `low << 32 | high` of every edge, sorted.
+    edge_keys: Vec<u64>,
+}
+
+impl SrcPart {
+    fn build(m: &IndexedMesh) -> SrcPart {
+        let (positions, triangles) = weld_first_reference(m);
+        let edges = first_occurrence_edges(&triangles, false);
+        let mut sorted: Vec<([u64; 3], u32)> =
+            positions.iter().enumerate().map(|(i, p)| (p.map(f64::to_bits), i as u32)).collect();
+        sorted.sort_unstable();
+        let mut edge_keys: Vec<u64> =
+            edges.iter().map(|e| ((e[0].min(e[1]) as u64) << 32) | e[0].max(e[1]) as u64).collect();
+        edge_keys.sort_unstable();
+        SrcPart { positions, triangles, edges, sorted, edge_keys }
+    }
+    fn find(&self, p: P3) -> Option<u32> {
+        let bits = p.map(f64::to_bits);
+        self.sorted.binary_search_by(|x| x.0.cmp(&bits)).ok().map(|k| self.sorted[k].1)
+    }
+    fn has_edge(&self, p: P3, q: P3) -> bool {
+        match (self.find(p), self.find(q)) {
+            (Some(a), Some(b)) => self.edge_keys.binary_search(&(((a.min(b) as u64) << 32) | a.max(b) as u64)).is_ok(),
+            _ => false,
+        }
+    }
+    fn bytes(&self) -> u64 {
+        (self.positions.capacity() * size_of::<P3>()
+            + self.triangles.capacity() * size_of::<[u32; 3]>()
+            + self.edges.capacity() * size_of::<[u32; 2]>()
+            + self.sorted.capacity() * size_of::<([u64; 3], u32)>()
+            + self.edge_keys.capacity() * size_of::<u64>()) as u64
+    }
+}
+
+/// A node mesh with bit-identical positions merged and unreferenced ones
+/// dropped, vertices numbered in the order of first reference (the weld
+/// [`load_store_level`] does across the whole level, node by node).
+fn weld_first_reference(m: &IndexedMesh) -> (Vec<P3>, Vec<[u32; 3]>) {
+    let mut ids: HashMap<[u64; 3], u32> = HashMap::with_capacity(m.vertices.len());
+    let mut positions = Vec::with_capacity(m.vertices.len());
+    let mut triangles = Vec::with_capacity(m.triangles.len());
+    for t in &m.triangles {
+        triangles.push(t.map(|v| {
+            let p = m.vertices[v as usize].pos;
+            let next = positions.len() as u32;
+            *ids.entry(p.map(f64::to_bits)).or_insert_with(|| {
+                positions.push(p);
+                next
+            })
+        }));
+    }
+    positions.shrink_to_fit();
+    (positions, triangles)
+}
+
+enum Payload {
+    Src(SrcPart),
+    Tgt(Bvh),
+}
+
+impl Payload {
+    fn bytes(&self) -> u64 {
+        match self {
+            Payload::Src(s) => s.bytes(),
+            Payload::Tgt(b) => b.bytes(),
+        }
+    }
+}
+
+/// A cache entry; its bytes count as resident until the last holder drops it.
+struct Entry {
+    payload: Payload,
+    bytes: u64,
+    acct: Arc<Acct>,
+}
+
+impl Entry {
+    fn src(&self) -> &SrcPart {
+        match &self.payload {
+            Payload::Src(s) => s,
+            Payload::Tgt(_) => unreachable!("a query index where a sample source was expected"),
+        }
+    }
+    fn bvh(&self) -> &Bvh {
+        match &self.payload {
+            Payload::Tgt(b) => b,
+            Payload::Src(_) => unreachable!("a sample source where a query index was expected"),
+        }
+    }
+}
+
+impl Drop for Entry {
+    fn drop(&mut self) {
+        self.acct.sub(self.bytes);
+    }
+}
+
+enum CacheSlot {
+    Loading,
+    Ready(Arc<Entry>, u64),
+}
+
+#[derive(Default)]
+struct CacheState {
+    map: HashMap<u64, CacheSlot>,
+    /// Last-use tick → key.
+    lru: BTreeMap<u64, u64>,
+    tick: u64,
+}
+
+/// The page cache shared by the paged operands: node meshes and their
+/// indexes, least recently used first out, under a byte budget. Resident
+/// bytes are the heap bytes of live entries (cached or still held by a
+/// query) plus reservations for loads in flight (the estimated peak of a
+/// load: payload, decoded vertices, weld map, the structure being built),
+/// swapped for the entry's real size once built.
+pub struct Cache {
+    budget: u64,
+    acct: Arc<Acct>,
+    state: Mutex<CacheState>,
+    ready: Condvar,
+    loads: AtomicU64,
+    hits: AtomicU64,
+    evictions: AtomicU64,
+    overcommits: AtomicU64,
+    bytes_read: AtomicU64,
+    scan_bytes: AtomicU64,
+}
+
+/// Holds `bytes` of the budget until dropped.
+struct Reservation<'a>(&'a Cache, u64);
+
+impl Drop for Reservation<'_> {
+    fn drop(&mut self) {
+        self.0.acct.sub(self.1);
+    }
+}
+
+impl Cache {
+    fn new(budget: u64) -> Cache {
+        Cache {
+            budget,
+            acct: Arc::new(Acct::default()),
+            state: Mutex::new(CacheState::default()),
+            ready: Condvar::new(),
+            loads: AtomicU64::new(0),
+            hits: AtomicU64::new(0),
+            evictions: AtomicU64::new(0),
+            overcommits: AtomicU64::new(0),
+            bytes_read: AtomicU64::new(0),
+            scan_bytes: AtomicU64::new(0),
+        }
+    }
+
+    /// Evicts least recently used entries nobody holds until `need` more
+    /// bytes fit (or nothing more can go: counted as an overcommit).
+    fn make_room(&self, st: &mut CacheState, need: u64) {
+        while self.acct.resident() + need > self.budget {
+            let victim = st
+                .lru
+                .iter()
+                .find(|(_, k)| matches!(st.map.get(k), Some(CacheSlot::Ready(e, _)) if Arc::strong_count(e) == 1))
+                .map(|(&t, &k)| (t, k));
+            let Some((t, k)) = victim else {
+                self.overcommits.fetch_add(1, Relaxed);
+                return;
+            };
+            st.lru.remove(&t);
+            st.map.remove(&k);
+            self.evictions.fetch_add(1, Relaxed);
+        }
+    }
+
+    fn reserve(&self, bytes: u64) -> Reservation<'_> {
+        let mut st = self.state.lock().unwrap();
+        self.make_room(&mut st, bytes);
+        self.acct.add(bytes);
+        Reservation(self, bytes)
+    }
+
+    /// The entry for `key`, loading it with `load` (which returns the
+    /// payload and the bytes it read) under a reservation of `estimate`
+    /// bytes if absent. Concurrent requests for the same key wait for one load.
+    fn get(&self, key: u64, estimate: u64, load: impl FnOnce() -> Result<(Payload, u64)>) -> Result<Arc<Entry>> {
+        let mut st = self.state.lock().unwrap();
+        loop {
+            match st.map.get(&key) {
+                Some(CacheSlot::Ready(e, t)) => {
+                    let (e, t) = (e.clone(), *t);
+                    st.tick += 1;
+                    let now = st.tick;
+                    st.lru.remove(&t);
+                    st.lru.insert(now, key);
+                    st.map.insert(key, CacheSlot::Ready(e.clone(), now));
+                    self.hits.fetch_add(1, Relaxed);
+                    return Ok(e);
+                }
+                Some(CacheSlot::Loading) => st = self.ready.wait(st).unwrap(),
+                None => break,
+            }
+        }
+        self.make_room(&mut st, estimate);
+        self.acct.add(estimate);
+        st.map.insert(key, CacheSlot::Loading);
+        drop(st);
+        let loaded = load();
+        let mut st = self.state.lock().unwrap();
+        st.map.remove(&key);
+        let out = match loaded {
+            Ok((payload, read)) => {
+                let bytes = payload.bytes();
+                if bytes > estimate {
+                    self.acct.add(bytes - estimate);
+                } else {
+                    self.acct.sub(estimate - bytes);
+                }
+                let e = Arc::new(Entry { payload, bytes, acct: self.acct.clone() });
+                st.tick += 1;
+                let now = st.tick;
+                st.lru.insert(now, key);
+                st.map.insert(key, CacheSlot::Ready(e.clone(), now));
+                self.loads.fetch_add(1, Relaxed);
+                self.bytes_read.fetch_add(read, Relaxed);
+                Ok(e)
+            }
+            Err(err) => {
+                self.acct.sub(estimate);
+                Err(err)
+            }
+        };
+        drop(st);
+        self.ready.notify_all();
+        out
+    }
+}
+
+const ROLE_SRC: u64 = 0;
+const ROLE_TGT: u64 = 1;
+
+/// Upper bounds of the bytes a part costs in the cache, from its slot.
+#[derive(Clone, Copy, Debug, Default)]
+struct PartCost {
+    /// Reading and decoding: the payload buffer and the decoded mesh.
+    load: u64,
+    /// As a sample source (load, weld map and the built [`SrcPart`]).
+    src: u64,
+    /// As a query index (load, the mesh and the built [`Bvh`]).
+    tgt: u64,
+}
+
+impl PartCost {
+    fn of(s: &Slot) -> PartCost {
+        let (v, f) = (s.verts as u64, s.tris as u64);
+        let load = s.bytes as u64 + v * size_of::<Vertex>() as u64 + f * size_of::<[u32; 3]>() as u64;
+        // Weld map (hashbrown: ≤ 2 buckets of 33 bytes per entry), positions,
+        // triangles, edges (≤ 3f), their sort temporaries, sorted lookups.
+        let src = load + 80 * v + 24 * v + 12 * f + 8 * 3 * f + 16 * 3 * f + 8 * 3 * f + 32 * v;
+        let tgt = load + 24 * v + 12 * f + Bvh::bytes_bound(f);
+        PartCost { load, src, tgt }
+    }
+}
+
+/// A level of an octolod store opened for paging: the cut's nodes are its
+/// parts, each read with one positioned read when needed.
+pub struct PagedLevel {
+    name: String,
+    store: Store,
+    level: u8,
+    /// Which operand (cache keys).
+    op: u64,
+    /// Store node of each part, in cut order (= the in-memory level's order).
+    nodes: Vec<usize>,
+    costs: Vec<PartCost>,
+    /// Exact bounds of each part's triangles (from the opening scan).
+    boxes: Vec<Aabb>,
+    /// Triangles before each part (len parts + 1).
+    face_base: Vec<u64>,
+    tree: BoxTree,
+    bbox: Aabb,
+}
+
+impl PagedLevel {
+    /// Opens `dir`'s level `level` and scans its parts once (in parallel,
+    /// each read under a reservation) for their exact bounds.
+    fn open(dir: &Path, level: u8, name: String, op: u64, cache: &Cache, threads: usize, quiet: bool) -> Result<PagedLevel> {
+        let store = Store::open(dir)?;
+        crate::pipeline::check_level(&store, level)?;
+        let nodes = crate::simplify::level_cut(&store.nodes, level);
+        let slots: Vec<Slot> = nodes.iter().map(|&i| crate::pipeline::level_slot(&store.nodes[i], level).1).collect();
+        let costs: Vec<PartCost> = slots.iter().map(PartCost::of).collect();
+        let max_load = costs.iter().map(|c| c.load).max().unwrap_or(0).max(1);
+        let t = threads.min((cache.budget / max_load).max(1) as usize).max(1);
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(t)
+            .build()
+            .map_err(|e| Error::Usage(format!("metro: cannot start {t} threads: {e}")))?;
+        let progress = Progress::items(nodes.len() as u64, &format!("scan {name}"), quiet);
+        let scanned: Vec<(Aabb, u64)> = pool.install(|| {
+            (0..nodes.len())
+                .into_par_iter()
+                .map(|k| {
+                    let _r = cache.reserve(costs[k].load);
+                    let m = crate::pipeline::read_level_mesh(&store, nodes[k], level)?;
+                    cache.scan_bytes.fetch_add(slots[k].bytes as u64, Relaxed);
+                    let mut b = Aabb::EMPTY;
+                    for t in &m.triangles {
+                        for &i in t {
+                            b.add(m.vertices[i as usize].pos);
+                        }
+                    }
+                    progress.inc(1);
+                    Ok((b, m.triangles.len() as u64))
+                })
+                .collect::<Result<Vec<_>>>()
+        })?;
+        progress.finish();
+        let boxes: Vec<Aabb> = scanned.iter().map(|x| x.0).collect();
+        let mut face_base = Vec::with_capacity(nodes.len() + 1);
+        face_base.push(0u64);
+        for x in &scanned {
+            face_base.push(face_base.last().unwrap() + x.1);
+        }
+        let mut bbox = Aabb::EMPTY;
+        for b in &boxes {
+            bbox.merge(b);
+        }
+        let tree = BoxTree::new(&boxes);
+        Ok(PagedLevel { name, store, level, op, nodes, costs, boxes, face_base, tree, bbox })
+    }
+
+    pub fn parts(&self) -> usize {
+        self.nodes.len()
+    }
+    pub fn faces(&self) -> u64 {
+        *self.face_base.last().unwrap()
+    }
+    fn max_src(&self) -> u64 {
+        self.costs.iter().map(|c| c.src).max().unwrap_or(0)
+    }
+    fn max_tgt(&self) -> u64 {
+        self.costs.iter().map(|c| c.tgt).max().unwrap_or(0)
+    }
+    fn key(&self, role: u64, part: usize) -> u64 {
+        (self.op << 40) | (role << 32) | part as u64
+    }
+    fn read(&self, part: usize) -> Result<(IndexedMesh, u64)> {
+        let m = crate::pipeline::read_level_mesh(&self.store, self.nodes[part], self.level)?;
+        Ok((m, crate::pipeline::level_slot(&self.store.nodes[self.nodes[part]], self.level).1.bytes as u64))
+    }
+    fn get_src(&self, cache: &Cache, part: usize) -> Result<Arc<Entry>> {
+        cache.get(self.key(ROLE_SRC, part), self.costs[part].src, || {
+            let (m, read) = self.read(part)?;
+            Ok((Payload::Src(SrcPart::build(&m)), read))
+        })
+    }
+    fn get_tgt(&self, cache: &Cache, part: usize) -> Result<Arc<Entry>> {
+        cache.get(self.key(ROLE_TGT, part), self.costs[part].tgt, || {
+            let (m, read) = self.read(part)?;
+            let mesh = Mesh { positions: m.vertices.iter().map(|v| v.pos).collect(), triangles: m.triangles };
+            Ok((Payload::Tgt(Bvh::build(&mesh, false)), read))
+        })
+    }
+
+    /// Part `n` as a sample source, with which of its vertices (`want_v`)
+    /// and edges (`want_e`) it owns: those no earlier part has (by bit-
+    /// identical positions), so each vertex and edge of the welded level is
+    /// sampled once, by the first part that has it, as in memory. Only
+    /// earlier parts whose box meets part `n`'s can share anything with it.
+    fn owned(&self, cache: &Cache, n: usize, want_v: bool, want_e: bool) -> Result<(Arc<Entry>, Vec<bool>, Vec<bool>)> {
+        let e = self.get_src(cache, n)?;
+        let s = e.src();
+        let mut vown = vec![true; if want_v { s.positions.len() } else { 0 }];
+        let mut eown = vec![true; if want_e { s.edges.len() } else { 0 }];
+        let mut cands = Vec::new();
+        self.tree.overlapping(&self.boxes[n], |m| {
+            if m < n {
+                cands.push(m)
+            }
+        });
+        cands.sort_unstable();
+        let mut within = vec![false; s.positions.len()];
+        for m in cands {
+            let bm = &self.boxes[m];
+            let mut any = false;
+            for (w, &p) in within.iter_mut().zip(&s.positions) {
+                *w = inside(bm, p);
+                any |= *w;
+            }
+            if !any {
+                continue;
+            }
+            let em = self.get_src(cache, m)?;
+            let sm = em.src();
+            for (i, own) in vown.iter_mut().enumerate() {
+                if *own && within[i] && sm.find(s.positions[i]).is_some() {
+                    *own = false;
+                }
+            }
+            for (k, own) in eown.iter_mut().enumerate() {
+                let [a, b] = s.edges[k];
+                if *own && within[a as usize] && within[b as usize] && sm.has_edge(s.positions[a as usize], s.positions[b as usize]) {
+                    *own = false;
+                }
+            }
+        }
+        Ok((e, vown, eown))
+    }
+}
+
+/// The samples of a paged level, part by part: the same points in the same
+/// order as [`Plan`] gives for the welded level in memory (parts in cut
+/// order; in each, its owned vertices and edges in first-reference and
+/// first-occurrence order, then its faces), with Metro's carried fractions
+/// running across parts. Three passes over the parts: vertices (which also
+/// totals the area and the owned edges' length, needed for the densities),
+/// edges, faces.
+struct PagedGen<'a> {
+    lvl: &'a PagedLevel,
+    cache: &'a Cache,
+    target: u64,
+    seed: u64,
+    kind: Kind,
+    done: bool,
+    /// Index of the next sample within its kind.
+    idx: u64,
+    part: usize,
+    cur: Option<Arc<Entry>>,
+    /// The current part's owned vertices or edges.
+    list: Vec<u32>,
+    /// Next element of the current part (list entry or face).
+    li: usize,
+    /// (next, count) of the current edge's or face's samples.
+    sub: (u64, u64),
+    elem: [P3; 3],
+    fseed: u64,
+    foffset: f64,
+    nv: u64,
+    area: f64,
+    len_total: f64,
+    per_len: f64,
+    fdens: f64,
+    acc: f64,
+    prev: u64,
+    ne: u64,
+    nf: u64,
+}
+
+enum Step {
+    Open,
+    Close,
+    Point(P3),
+    Edge(P3, P3),
+    Face([P3; 3]),
+}
+
+impl<'a> PagedGen<'a> {
+    fn new(lvl: &'a PagedLevel, cache: &'a Cache, target: u64, seed: u64) -> PagedGen<'a> {
+        PagedGen {
+            lvl,
+            cache,
+            target,
+            seed,
+            kind: Kind::Vertex,
+            done: false,
+            idx: 0,
+            part: 0,
+            cur: None,
+            list: Vec::new(),
+            li: 0,
+            sub: (0, 0),
+            elem: [[0.0; 3]; 3],
+            fseed: 0,
+            foffset: 0.0,
+            nv: 0,
+            area: 0.0,
+            len_total: 0.0,
+            per_len: 0.0,
+            fdens: 0.0,
+            acc: 0.0,
+            prev: 0,
+            ne: 0,
+            nf: 0,
+        }
+    }
+
+    /// Figures of the welded level (valid after the vertex pass).
+    fn summary(&self) -> MeshSummary {
+        MeshSummary {
+            source: self.lvl.name.clone(),
+            vertices: self.nv,
+            faces: self.lvl.faces(),
+            area: self.area,
+            bbox: self.lvl.bbox,
+        }
+    }
+
+    fn open_part(&mut self) -> Result<()> {
+        let n = self.part;
+        self.li = 0;
+        self.list.clear();
+        match self.kind {
+            Kind::Vertex => {
+                let (e, vown, eown) = self.lvl.owned(self.cache, n, true, true)?;
+                let s = e.src();
+                for t in &s.triangles {
+                    self.area += tri_area(t.map(|i| s.positions[i as usize]));
+                }
+                for (k, ed) in s.edges.iter().enumerate() {
+                    if eown[k] {
+                        self.len_total += seg_len(s.positions[ed[0] as usize], s.positions[ed[1] as usize]);
+                    }
+                }
+                self.list.extend((0..s.positions.len() as u32).filter(|&i| vown[i as usize]));
+                self.nv += self.list.len() as u64;
+                self.cur = Some(e);
+            }
+            Kind::Edge => {
+                let (e, _, eown) = self.lvl.owned(self.cache, n, false, true)?;
+                self.list.extend((0..eown.len() as u32).filter(|&k| eown[k as usize]));
+                self.cur = Some(e);
+            }
+            Kind::Face => self.cur = Some(self.lvl.get_src(self.cache, n)?),
+        }
+        Ok(())
+    }
+
+    /// Ends the current kind and sets up the next.
+    fn next_kind(&mut self) {
+        let handed = self.prev;
+        (self.part, self.cur, self.idx, self.sub, self.li, self.acc, self.prev) = (0, None, 0, (0, 0), 0, 0.0, 0);
+        self.list.clear();
+        let left = self.target.saturating_sub(self.nv);
+        match self.kind {
+            Kind::Vertex => {
+                self.per_len = edge_density(left, self.area, self.len_total);
+                self.kind = Kind::Edge;
+            }
+            Kind::Edge => {
+                self.ne = handed;
+                self.fdens = face_density(left.saturating_sub(self.ne), self.area);
+                self.kind = Kind::Face;
+            }
+            Kind::Face => {
+                self.nf = handed;
+                self.done = true;
+            }
+        }
+    }
+
+    /// The next sample of the current kind; None when the kind is exhausted.
+    fn next_point(&mut self) -> Result<Option<P3>> {
+        loop {
+            if self.sub.0 < self.sub.1 {
+                let (i, n) = self.sub;
+                self.sub.0 += 1;
+                return Ok(Some(match self.kind {
+                    Kind::Edge => edge_point(self.elem[0], self.elem[1], i, n),
+                    _ => face_point(&self.elem, self.fseed, self.foffset, i, n),
+                }));
+            }
+            let step = match &self.cur {
+                None => Step::Open,
+                Some(e) => {
+                    let s = e.src();
+                    let at = |i: u32| s.positions[i as usize];
+                    match self.kind {
+                        Kind::Vertex if self.li < self.list.len() => Step::Point(at(self.list[self.li])),
+                        Kind::Edge if self.li < self.list.len() => {
+                            let [a, b] = s.edges[self.list[self.li] as usize];
+                            Step::Edge(at(a), at(b))
+                        }
+                        Kind::Face if self.li < s.triangles.len() => Step::Face(s.triangles[self.li].map(at)),
+                        _ => Step::Close,
+                    }
+                }
+            };
+            match step {
+                Step::Point(p) => {
+                    self.li += 1;
+                    return Ok(Some(p));
+                }
+                Step::Edge(a, b) => {
+                    self.li += 1;
+                    let n = carry(&mut self.acc, &mut self.prev, seg_len(a, b), self.per_len);
+                    self.elem = [a, b, b];
+                    self.sub = (0, n);
+                }
+                Step::Face(c) => {
+                    let f = self.lvl.face_base[self.part] + self.li as u64;
+                    self.li += 1;
+                    let n = carry(&mut self.acc, &mut self.prev, tri_area(c), self.fdens);
+                    if n > 0 {
+                        (self.fseed, self.foffset) = face_seed(self.seed, f);
+                    }
+                    self.elem = c;
+                    self.sub = (0, n);
+                }
+                Step::Close => {
+                    self.cur = None;
+                    self.part += 1;
+                }
+                Step::Open => {
+                    if self.part >= self.lvl.parts() {
+                        return Ok(None);
+                    }
+                    self.open_part()?;
+                }
+            }
+        }
+    }
+}
+
+impl Gen for PagedGen<'_> {
+    fn fill(&mut self, points: &mut Vec<P3>, jobs: &mut Vec<Job>, max: usize) -> Result<bool> {
+        let before = jobs.len();
+        while !self.done && (jobs.len() == before || points.len() + CHUNK as usize <= max) {
+            let at = points.len();
+            let start = self.idx;
+            while self.idx - start < CHUNK {
+                match self.next_point()? {
+                    Some(p) => {
+                        points.push(p);
+                        self.idx += 1;
+                    }
+                    None => break,
+                }
+            }
+            let len = (self.idx - start) as usize;
+            if len > 0 {
+                jobs.push(Job { start, len, at });
+            }
+            if len < CHUNK as usize {
+                self.next_kind();
+            }
+        }
+        Ok(jobs.len() > before)
+    }
+    fn counts(&self) -> (u64, u64, u64) {
+        (self.nv, self.ne, self.nf)
+    }
+}
+
+/// Where one direction looks for closest points.
+enum Target<'a> {
+    Mem(&'a Bvh),
+    Paged { lvl: &'a PagedLevel, cache: &'a Cache, pool: rayon::ThreadPool },
+}
+
+/// A query worker's state against a paged target: the part of its last
+/// answer, held (so the next, nearby query usually needs no cache lookup),
+/// and the triangle slot there.
+struct Worker {
+    home: Option<(usize, Arc<Entry>)>,
+    slot: u32,
+    heap: BinaryHeap<Cand>,
+}
+
+/// A top-level node to visit, nearest first.
+#[derive(PartialEq)]
+struct Cand(f64, u32);
+impl Eq for Cand {}
+impl PartialOrd for Cand {
+    fn partial_cmp(&self, o: &Self) -> Option<std::cmp::Ordering> {
+        Some(self.cmp(o))
+    }
+}
+impl Ord for Cand {
+    fn cmp(&self, o: &Self) -> std::cmp::Ordering {
+        o.0.total_cmp(&self.0).then(o.1.cmp(&self.1))
+    }
+}
+
+impl PagedLevel {
+    /// Squared distance from `p` to the level: the home part first (which
+    /// bounds the search), then best-first over the parts' boxes, each part
+    /// searched only while its box is nearer than the best so far. A worker
+    /// holds at most two entries at a time: its home and one other.
+    fn closest(&self, cache: &Cache, p: P3, w: &mut Worker) -> Result<f64> {
+        let (mut best2, mut best_part, mut best_slot) = (f64::INFINITY, usize::MAX, u32::MAX);
+        let home = w.home.as_ref().map(|h| h.0);
+        if let Some((hp, e)) = &w.home {
+            if let Some((d, s, _)) = e.bvh().nearest_within(p, w.slot, f64::INFINITY) {
+                (best2, best_part, best_slot) = (d, *hp, s);
+            }
+        }
+        w.heap.clear();
+        if let Some(root) = self.tree.nodes.first() {
+            let d = root.dist2(p);
+            if d < best2 {
+                w.heap.push(Cand(d, 0));
+            }
+        }
+        while let Some(Cand(d, ni)) = w.heap.pop() {
+            if d >= best2 {
+                break;
+            }
+            let n = &self.tree.nodes[ni as usize];
+            if n.count > 0 {
+                let part = self.tree.items[n.start as usize] as usize;
+                if Some(part) == home {
+                    continue;
+                }
+                let e = self.get_tgt(cache, part)?;
+                if let Some((dd, s, _)) = e.bvh().nearest_within(p, u32::MAX, best2) {
+                    (best2, best_part, best_slot) = (dd, part, s);
+                }
+            } else {
+                for c in [ni + 1, n.start] {
+                    let dc = self.tree.nodes[c as usize].dist2(p);
+                    if dc < best2 {
+                        w.heap.push(Cand(dc, c));
+                    }
+                }
+            }
+        }
+        if best_part == usize::MAX {
+            // Only with non-finite coordinates: answer like the in-memory index.
+            let part = self.tree.items[0] as usize;
+            let e = self.get_tgt(cache, part)?;
+            let (d, s, _) = e.bvh().nearest(p, u32::MAX);
+            (best2, best_part, best_slot) = (d, part, s);
+        }
+        if Some(best_part) != home {
+            w.home = None;
+            w.home = Some((best_part, self.get_tgt(cache, best_part)?));
+        }
+        w.slot = best_slot;
+        Ok(best2)
+    }
+}
+
+impl Target<'_> {
+    /// Squared distances of `points` (grouped in `jobs`) into `d2`.
+    fn query(&self, points: &[P3], jobs: &[Job], d2: &mut [f64]) -> Result<()> {
+        match self {
+            Target::Mem(bvh) => {
+                let mut rest = &mut d2[..];
+                let mut work = Vec::with_capacity(jobs.len());
+                for j in jobs {
+                    let (head, tail) = rest.split_at_mut(j.len);
+                    work.push((j.at, head));
+                    rest = tail;
+                }
+                work.into_par_iter().for_each(|(at, out)| {
+                    let mut hint = u32::MAX;
+                    for (k, o) in out.iter_mut().enumerate() {
+                        let (d, slot, _) = bvh.nearest(points[at + k], hint);
+                        hint = slot;
+                        *o = d;
+                    }
+                });
+                Ok(())
+            }
+            Target::Paged { lvl, cache, pool } => {
+                let b = lvl.bbox;
+                let scale = [0, 1, 2].map(|k| {
+                    let e = b.max[k] - b.min[k];
+                    if e > 0.0 {
+                        (1u64 << 21) as f64 / e
+                    } else {
+                        0.0
+                    }
+                });
+                let q = |p: &P3, k: usize| (((p[k] - b.min[k]) * scale[k]).max(0.0) as u64).min((1 << 21) - 1);
+                let answers: Vec<Vec<(u32, f64)>> = pool.install(|| {
+                    let mut order: Vec<(u64, u32)> = points
+                        .par_iter()
+                        .enumerate()
+                        .map(|(i, p)| (crate::store::morton3(q(p, 0), q(p, 1), q(p, 2)), i as u32))
+                        .collect();
+                    order.par_sort_unstable();
+                    order
+                        .par_chunks(PIECE)
+                        .map_init(
+                            || Worker { home: None, slot: u32::MAX, heap: BinaryHeap::new() },
+                            |w, piece| {
+                                piece
+                                    .iter()
+                                    .map(|&(_, i)| Ok((i, lvl.closest(cache, points[i as usize], w)?)))
+                                    .collect::<Result<Vec<_>>>()
+                            },
+                        )
+                        .collect::<Result<Vec<_>>>()
+                })?;
+                for piece in answers {
+                    for (i, d) in piece {
+                        d2[i as usize] = d;
+                    }
+                }
+                Ok(())
+            }
+        }
+    }
+}
+
+/// Distances of one direction: batches from `gen`, closest points in
+/// `target`, per-job sums combined in job order.
+fn measure(gen: &mut dyn Gen, target: &Target, batch: usize, progress: &Progress) -> Result<Distances> {
+    let mut points: Vec<P3> = Vec::new();
+    let mut jobs: Vec<Job> = Vec::new();
+    let mut d2: Vec<f64> = Vec::new();
     let mut acc = Acc::default();
-    for p in &parts {
-        if p.n > 0 && (acc.n == 0 || p.max > acc.max) {
-            acc.max = p.max;
-            acc.max_at = p.max_at;
+    loop {
+        points.clear();
+        jobs.clear();
+        if !gen.fill(&mut points, &mut jobs, batch)? {
+            break;
         }
-        acc.n += p.n;
-        acc.sum += p.sum;
-        acc.sum2 += p.sum2;
+        d2.clear();
+        d2.resize(points.len(), 0.0);
+        target.query(&points, &jobs, &mut d2)?;
+        let parts: Vec<Acc> = jobs
+            .par_iter()
+            .map(|j| {
+                debug_assert!(j.start % CHUNK == 0 && j.len as u64 <= CHUNK);
+                let mut a = Acc::default();
+                for k in j.at..j.at + j.len {
+                    a.add(d2[k], points[k]);
+                }
+                a
+            })
+            .collect();
+        for p in &parts {
+            if p.n > 0 && (acc.n == 0 || p.max > acc.max) {
+                acc.max = p.max;
+                acc.max_at = p.max_at;
+            }
+            acc.n += p.n;
+            acc.sum += p.sum;
+            acc.sum2 += p.sum2;
+        }
+        progress.inc(points.len() as u64);
     }
+    let (nv, ne, nf) = gen.counts();
     let n = acc.n.max(1) as f64;
     Ok(Distances {
         samples: acc.n,
@@ -887,61 +2138,17 @@ pub fn one_sided(src: &Mesh, target: &Bvh, samples: u64, seed: u64, progress: &P
     })
 }
 
-/// Samples `[s, e)` of one kind, sequentially, seeded with the previous
-/// sample's closest triangle.
-fn run_job(src: &Mesh, bvh: &Bvh, plan: &Plan, kind: Kind, s: u64, e: u64, progress: &Progress) -> Acc {
-    let mut acc = Acc::default();
-    let mut hint = u32::MAX;
-    let mut query = |p: P3, acc: &mut Acc| {
-        let (d2, slot, _) = bvh.nearest(p, hint);
-        hint = slot;
-        acc.add(d2, p);
-    };
-    match kind {
-        Kind::Vertex => {
-            for &v in &plan.verts[s as usize..e as usize] {
-                query(src.positions[v as usize], &mut acc);
-            }
-        }
-        Kind::Edge => {
-            let mut ei = plan.edge_prefix.partition_point(|&x| x <= s) - 1;
-            let mut g = s;
-            while g < e {
-                let (lo, hi) = (plan.edge_prefix[ei], plan.edge_prefix[ei + 1]);
-                let n = hi - lo;
-                if n > 0 {
-                    let [a, b] = plan.edges[ei].map(|i| src.positions[i as usize]);
-                    let ab = sub(b, a);
-                    for i in (g - lo)..(n.min(e - lo)) {
-                        query(add(a, scale(ab, (i + 1) as f64 / (n + 1) as f64)), &mut acc);
-                    }
-                }
-                g = hi.max(g);
-                ei += 1;
-            }
-        }
-        Kind::Face => {
-            let mut fi = plan.face_prefix.partition_point(|&x| x <= s) - 1;
-            let mut g = s;
-            while g < e {
-                let (lo, hi) = (plan.face_prefix[fi], plan.face_prefix[fi + 1]);
-                let n = hi - lo;
-                if n > 0 {
-                    let c = src.corners(fi);
-                    let fseed = plan.seed ^ mix64((fi as u64).wrapping_mul(GOLDEN) ^ 0xFACE);
-                    let offset = Rng::new(fseed).f64();
-                    for i in (g - lo)..(n.min(e - lo)) {
-                        let mut rng = Rng::new(fseed.wrapping_add(mix64(i + 1)));
-                        query(face_sample(&c, i, n, offset, &mut rng), &mut acc);
-                    }
-                }
-                g = hi.max(g);
-                fi += 1;
-            }
-        }
+/// One-sided distances from `src`'s samples to the mesh `target` indexes:
+/// about `samples` samples (see the module documentation), from `seed`.
+pub fn one_sided(src: &Mesh, target: &Bvh, samples: u64, seed: u64, progress: &Progress) -> Result<Distances> {
+    if target.is_empty() {
+        return Err(Error::Usage("metro: the target mesh has no triangles".into()));
     }
-    progress.inc(e - s);
-    acc
+    if src.triangles.is_empty() {
+        return Err(Error::Usage("metro: the source mesh has no triangles".into()));
+    }
+    src.check_indices().map_err(|m| Error::Usage(format!("metro: source mesh: {m}")))?;
+    measure(&mut MemGen::new(src, samples, seed), &Target::Mem(target), BATCH_MAX, progress)
 }
 
 // ---------------------------------------------------------------------------
@@ -1013,9 +2220,91 @@ pub struct Report {
     /// Max of both maxima; mean and RMS over the samples of both directions.
     pub combined: Distances,
     pub seconds: Timings,
+    /// Present when an operand was a paged store level.
+    pub paging: Option<PagingReport>,
 }
 
-/// Two-sided Metro distance between `a` and `b`.
+/// One side of a comparison.
+enum Operand<'a> {
+    Mem(&'a Mesh),
+    Paged(&'a PagedLevel),
+}
+
+impl Operand<'_> {
+    fn faces(&self) -> u64 {
+        match self {
+            Operand::Mem(m) => m.triangles.len() as u64,
+            Operand::Paged(l) => l.faces(),
+        }
+    }
+}
+
+/// What paging did (present when an operand is a store level). Cache
+/// figures depend on thread scheduling; everything else in the report is a
+/// function of the inputs, options and seed.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct PagingReport {
+    /// `--mem`.
+    pub budget: u64,
+    /// What the page cache got: the budget less the batch buffers and, with
+    /// an explicit `--mem`, the PLY operands' estimated size.
+    pub cache_budget: u64,
+    /// Estimated bytes of the PLY operands held whole (mesh, index, plan).
+    pub ply_estimate: u64,
+    /// Samples per batch.
+    pub batch_samples: u64,
+    /// Largest resident cache bytes seen (entries and load reservations).
+    pub peak_resident: u64,
+    /// Node meshes read and indexed.
+    pub loads: u64,
+    /// Cache lookups answered without a read.
+    pub hits: u64,
+    pub evictions: u64,
+    /// Times the cache could not get under its budget (0 unless a bug).
+    pub overcommits: u64,
+    /// Bytes read by loads, and by the opening scans.
+    pub bytes_read: u64,
+    pub scan_bytes: u64,
+    /// Parts (cut nodes) of A and B when paged.
+    pub parts_a: Option<u64>,
+    pub parts_b: Option<u64>,
+    /// Threads querying a paged target, A -> B and B -> A (0: in memory).
+    pub query_threads: [u64; 2],
+    /// Peak RSS of the process (VmHWM), where the OS tells.
+    pub peak_rss: Option<u64>,
+}
+
+/// The memory budget of a comparison.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MemOptions {
+    /// Bytes (`--mem`, default [`DEFAULT_MEM`]).
+    pub budget: u64,
+    /// Given explicitly: then PLY operands, held whole, must fit it too.
+    pub explicit: bool,
+}
+
+impl Default for MemOptions {
+    fn default() -> Self {
+        MemOptions { budget: DEFAULT_MEM, explicit: false }
+    }
+}
+
+/// Estimated peak bytes of a PLY operand of `v` vertices and `f` faces held
+/// whole: reading (56-byte vertices, 24-byte faces), the mesh (24 + 12),
+/// its index (~165 per triangle at most) and its sample plan (~80 per face
+/// with the edge sort).
+pub fn ply_estimate(v: u64, f: u64) -> u64 {
+    80 * v + 36 * f + Bvh::bytes_bound(f) + 8 * v + 80 * f
+}
+
+/// The paging setup of [`compare_operands`].
+struct Paging<'a> {
+    cache: &'a Cache,
+    threads: usize,
+    report: PagingReport,
+}
+
+/// Two-sided Metro distance between `a` and `b`, both in memory.
 pub fn compare(a: &Mesh, b: &Mesh, opts: &Options) -> Result<Report> {
     for (m, name) in [(a, "A"), (b, "B")] {
         if m.triangles.is_empty() {
@@ -1023,28 +2312,194 @@ pub fn compare(a: &Mesh, b: &Mesh, opts: &Options) -> Result<Report> {
         }
         m.check_indices().map_err(|e| Error::Usage(format!("metro: mesh {name}: {e}")))?;
     }
+    compare_operands(&Operand::Mem(a), &Operand::Mem(b), opts, BATCH_MAX, None)
+}
+
+/// Two-sided Metro distance between two sources: PLYs are loaded whole,
+/// store levels are paged through one cache under `mem` (see the module
+/// documentation). The samples, and so every figure, are those [`compare`]
+/// gives for the same meshes in memory ([`load_store_level`] for a level).
+pub fn compare_sources(sa: &Source, sb: &Source, opts: &Options, mem: &MemOptions) -> Result<Report> {
+    let t0 = Instant::now();
+    let mut ply_est = 0u64;
+    for (s, name) in [(sa, "A"), (sb, "B")] {
+        if let Source::Ply(p) = s {
+            let h = crate::ply::read_header(p)?;
+            let e = ply_estimate(h.vertex_count(), h.face_count());
+            if mem.explicit && e > mem.budget {
+                return Err(Error::Usage(format!(
+                    "metro: {name} = {} ({} vertices, {} faces) needs about {} in memory, over --mem {}; \
+                     PLYs are held whole, store levels are paged: build a store with \
+                     `octolod build {} -o X.octolod` and pass X.octolod@0 (level 0 is the exact input), or raise --mem",
+                    p.display(),
+                    h.vertex_count(),
+                    h.face_count(),
+                    crate::progress::mib(e),
+                    crate::progress::mib(mem.budget),
+                    p.display()
+                )));
+            }
+            if !mem.explicit && e > mem.budget && crate::progress::visible(opts.quiet) {
+                eprintln!(
+                    "octolod: metro: note: {name} = {} is held in memory whole (about {}); for meshes larger than RAM \
+                     build a store (`octolod build`) and pass STORE@0, which is paged under --mem",
+                    p.display(),
+                    crate::progress::mib(e)
+                );
+            }
+            ply_est += e;
+        }
+    }
+    let batch = ((mem.budget / 16 / BATCH_BYTES_PER_SAMPLE) as usize / CHUNK as usize * CHUNK as usize)
+        .clamp(CHUNK as usize, BATCH_MAX);
+    let batch_bytes = batch as u64 * BATCH_BYTES_PER_SAMPLE;
+    let held = if mem.explicit { ply_est } else { 0 };
+    let cache_budget = mem.budget.saturating_sub(held).saturating_sub(batch_bytes);
+    let cache = Cache::new(cache_budget);
+    let threads = rayon::current_num_threads();
+    let open = |s: &Source, op: u64| -> Result<Option<PagedLevel>> {
+        match s {
+            Source::Store(d, l) => Ok(Some(PagedLevel::open(d, *l, s.to_string(), op, &cache, threads, opts.quiet)?)),
+            Source::Ply(_) => Ok(None),
+        }
+    };
+    let (la, lb) = (open(sa, 0)?, open(sb, 1)?);
+    let load = |s: &Source| -> Result<Option<Mesh>> {
+        match s {
+            Source::Ply(p) => Ok(Some(load_ply(p)?)),
+            Source::Store(..) => Ok(None),
+        }
+    };
+    let (ma, mb) = (load(sa)?, load(sb)?);
+    let load_s = t0.elapsed().as_secs_f64();
+    let a = match (&ma, &la) {
+        (Some(m), _) => Operand::Mem(m),
+        (None, Some(l)) => Operand::Paged(l),
+        _ => unreachable!(),
+    };
+    let b = match (&mb, &lb) {
+        (Some(m), _) => Operand::Mem(m),
+        (None, Some(l)) => Operand::Paged(l),
+        _ => unreachable!(),
+    };
+    for (o, name) in [(&a, "A"), (&b, "B")] {
+        if o.faces() == 0 {
+            return Err(Error::Usage(format!("metro: mesh {name} has no triangles")));
+        }
+    }
+    // Each direction holds at most: a paged source's current part and one
+    // earlier part (ownership test), or its current part while the target's
+    // workers each hold two parts.
+    for (src, tgt, dir) in [(&a, &b, "A -> B"), (&b, &a, "B -> A")] {
+        let s = if let Operand::Paged(l) = src { l.max_src() } else { 0 };
+        let t = if let Operand::Paged(l) = tgt { l.max_tgt() } else { 0 };
+        let need = (2 * s).max(s + 2 * t);
+        if need > cache_budget {
+            let names = |o: &Operand| if let Operand::Paged(l) = o { l.name.clone() } else { String::new() };
+            return Err(Error::Usage(format!(
+                "metro: --mem {} leaves {} for the page cache (after {} of batch buffers{}), too little for {dir} \
+                 ({}{}): its largest node needs up to {} as a sample source and {} as a query index; \
+                 give --mem at least {}",
+                crate::progress::mib(mem.budget),
+                crate::progress::mib(cache_budget),
+                crate::progress::mib(batch_bytes),
+                if held > 0 { format!(" and {} for the PLY operands", crate::progress::mib(held)) } else { String::new() },
+                names(src),
+                if matches!(tgt, Operand::Paged(_)) { format!(" against {}", names(tgt)) } else { String::new() },
+                crate::progress::mib(s),
+                crate::progress::mib(t),
+                crate::progress::mib(need + batch_bytes + held + (1 << 20)),
+            )));
+        }
+    }
+    let paged = la.is_some() || lb.is_some();
+    let report = PagingReport {
+        budget: mem.budget,
+        cache_budget,
+        ply_estimate: ply_est,
+        batch_samples: batch as u64,
+        parts_a: la.as_ref().map(|l| l.parts() as u64),
+        parts_b: lb.as_ref().map(|l| l.parts() as u64),
+        ..Default::default()
+    };
+    let paging = Paging { cache: &cache, threads, report };
+    let mut r = compare_operands(&a, &b, opts, batch, paged.then_some(paging))?;
+    r.a.source = sa.to_string();
+    r.b.source = sb.to_string();
+    r.seconds.load = load_s;
+    Ok(r)
+}
+
+/// The two directions, then the report.
+fn compare_operands(a: &Operand, b: &Operand, opts: &Options, batch: usize, paging: Option<Paging>) -> Result<Report> {
     let target = match opts.samples {
         Some(0) => return Err(Error::Usage("metro: --samples must be at least 1".into())),
         Some(n) => n,
-        None => SAMPLES_PER_FACE * a.triangles.len().max(b.triangles.len()) as u64,
+        None => SAMPLES_PER_FACE * a.faces().max(b.faces()),
     };
-    let t0 = Instant::now();
-    let (bvh_a, bvh_b) = rayon::join(|| Bvh::new(a), || Bvh::new(b));
-    let t1 = Instant::now();
     let seed_ab = mix64(opts.seed ^ 0xA70B);
     let seed_ba = mix64(opts.seed ^ 0xB70A);
-    let pa = Progress::items(target, "A -> B", opts.quiet);
-    let ab = one_sided(a, &bvh_b, target, seed_ab, &pa)?;
-    pa.finish();
-    let t2 = Instant::now();
-    drop(bvh_b);
-    let pb = Progress::items(target, "B -> A", opts.quiet);
-    let ba = one_sided(b, &bvh_a, target, seed_ba, &pb)?;
-    pb.finish();
-    let t3 = Instant::now();
-    let (sa, sb) = (MeshSummary::of(a, "A"), MeshSummary::of(b, "B"));
+    let mut bvh_s = 0.0;
+    let mut threads_used = [0u64; 2];
+    let mut direction = |src: &Operand, tgt: &Operand, seed: u64, name: &str, k: usize| -> Result<(Distances, Option<MeshSummary>, f64)> {
+        let t0 = Instant::now();
+        let bvh;
+        let tg = match tgt {
+            Operand::Mem(m) => {
+                bvh = Bvh::new(m);
+                Target::Mem(&bvh)
+            }
+            Operand::Paged(l) => {
+                let p = paging.as_ref().expect("a paged operand comes with a cache");
+                let hold = if let Operand::Paged(s) = src { s.max_src() } else { 0 };
+                let t = ((p.cache.budget.saturating_sub(hold)) / (2 * l.max_tgt()).max(1)).clamp(1, p.threads as u64) as usize;
+                threads_used[k] = t as u64;
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(t)
+                    .build()
+                    .map_err(|e| Error::Usage(format!("metro: cannot start {t} threads: {e}")))?;
+                Target::Paged { lvl: l, cache: p.cache, pool }
+            }
+        };
+        bvh_s += t0.elapsed().as_secs_f64();
+        let t1 = Instant::now();
+        let progress = Progress::items(target, name, opts.quiet);
+        let (d, summary) = match src {
+            Operand::Mem(m) => (measure(&mut MemGen::new(m, target, seed), &tg, batch, &progress)?, None),
+            Operand::Paged(l) => {
+                let p = paging.as_ref().expect("a paged operand comes with a cache");
+                let mut g = PagedGen::new(l, p.cache, target, seed);
+                let d = measure(&mut g, &tg, batch, &progress)?;
+                (d, Some(g.summary()))
+            }
+        };
+        progress.finish();
+        Ok((d, summary, t1.elapsed().as_secs_f64()))
+    };
+    let (ab, sum_a, t_ab) = direction(a, b, seed_ab, "A -> B", 0)?;
+    let (ba, sum_b, t_ba) = direction(b, a, seed_ba, "B -> A", 1)?;
+    let summary = |o: &Operand, s: Option<MeshSummary>, name: &str| match o {
+        Operand::Mem(m) => MeshSummary::of(m, name),
+        Operand::Paged(_) => s.expect("a paged operand is summarised by its sampling"),
+    };
+    let (sa, sb) = (summary(a, sum_a, "A"), summary(b, sum_b, "B"));
     let mut u = sa.bbox;
     u.merge(&sb.bbox);
+    let paging = paging.map(|p| {
+        let c = p.cache;
+        PagingReport {
+            peak_resident: c.acct.peak.load(Relaxed),
+            loads: c.loads.load(Relaxed),
+            hits: c.hits.load(Relaxed),
+            evictions: c.evictions.load(Relaxed),
+            overcommits: c.overcommits.load(Relaxed),
+            bytes_read: c.bytes_read.load(Relaxed),
+            scan_bytes: c.scan_bytes.load(Relaxed),
+            query_threads: threads_used,
+            peak_rss: crate::progress::peak_rss(),
+            ..p.report
+        }
+    });
     Ok(Report {
         diagonal: sa.bbox.diagonal(),
         union_diagonal: u.diagonal(),
@@ -1055,12 +2510,8 @@ pub fn compare(a: &Mesh, b: &Mesh, opts: &Options) -> Result<Report> {
         combined: ab.combine(&ba),
         a_to_b: ab,
         b_to_a: ba,
-        seconds: Timings {
-            load: 0.0,
-            bvh: (t1 - t0).as_secs_f64(),
-            a_to_b: (t2 - t1).as_secs_f64(),
-            b_to_a: (t3 - t2).as_secs_f64(),
-        },
+        seconds: Timings { load: 0.0, bvh: bvh_s, a_to_b: t_ab, b_to_a: t_ba },
+        paging,
     })
 }
 
@@ -1207,8 +2658,33 @@ impl Report {
                 )
             })
             .collect();
+        let paging = match &self.paging {
+            None => String::new(),
+            Some(p) => {
+                let opt = |x: Option<u64>| x.map_or("null".to_string(), |v| v.to_string());
+                format!(
+                    ",\"paging\":{{\"budget\":{},\"cache_budget\":{},\"ply_estimate\":{},\"batch_samples\":{},\"peak_resident\":{},\"loads\":{},\"hits\":{},\"evictions\":{},\"overcommits\":{},\"bytes_read\":{},\"scan_bytes\":{},\"parts\":{{\"a\":{},\"b\":{}}},\"query_threads\":[{},{}],\"peak_rss\":{}}}",
+                    p.budget,
+                    p.cache_budget,
+                    p.ply_estimate,
+                    p.batch_samples,
+                    p.peak_resident,
+                    p.loads,
+                    p.hits,
+                    p.evictions,
+                    p.overcommits,
+                    p.bytes_read,
+                    p.scan_bytes,
+                    opt(p.parts_a),
+                    opt(p.parts_b),
+                    p.query_threads[0],
+                    p.query_threads[1],
+                    opt(p.peak_rss)
+                )
+            }
+        };
         format!(
-            "{{\"a\":{},\"b\":{},\"diagonal\":{},\"diagonal_of\":\"a\",\"union_diagonal\":{},\"seed\":{},\"samples_target\":{},\"a_to_b\":{},\"b_to_a\":{},\"combined\":{},\"hausdorff\":{},\"hausdorff_rel\":{},\"thresholds\":[{}],\"pass\":{}}}",
+            "{{\"a\":{},\"b\":{},\"diagonal\":{},\"diagonal_of\":\"a\",\"union_diagonal\":{},\"seed\":{},\"samples_target\":{},\"a_to_b\":{},\"b_to_a\":{},\"combined\":{},\"hausdorff\":{},\"hausdorff_rel\":{},\"thresholds\":[{}],\"pass\":{}{}}}",
             mesh(&self.a),
             mesh(&self.b),
             jnum(self.diagonal),
@@ -1221,7 +2697,8 @@ impl Report {
             jnum(self.combined.max),
             jnum(self.rel(self.combined.max)),
             th.join(","),
-            !checks.iter().any(|c| c.exceeded)
+            !checks.iter().any(|c| c.exceeded),
+            paging
         )
     }
 
@@ -1282,16 +2759,36 @@ impl Report {
             self.combined.max_at[1],
             self.combined.max_at[2]
         );
+        if let Some(p) = &self.paging {
+            let parts = |n: Option<u64>| n.map_or("in memory".to_string(), |n| format!("{n} parts"));
+            let _ = writeln!(
+                s,
+                "paging: --mem {} (cache {}), peak resident {}; A {}, B {}; {} loads ({} read, {} scanned), {} hits, {} evictions; query threads {}/{}",
+                crate::progress::mib(p.budget),
+                crate::progress::mib(p.cache_budget),
+                crate::progress::mib(p.peak_resident),
+                parts(p.parts_a),
+                parts(p.parts_b),
+                p.loads,
+                crate::progress::mib(p.bytes_read),
+                crate::progress::mib(p.scan_bytes),
+                p.hits,
+                p.evictions,
+                p.query_threads[0],
+                p.query_threads[1]
+            );
+        }
         let t = &self.seconds;
         let q = t.a_to_b + t.b_to_a;
         let _ = write!(
             s,
-            "time: load {:.3} s, BVH {:.3} s, A -> B {:.3} s, B -> A {:.3} s; {:.3} M samples/s",
+            "time: load {:.3} s, BVH {:.3} s, A -> B {:.3} s, B -> A {:.3} s; {:.3} M samples/s; peak RSS {}",
             t.load,
             t.bvh,
             t.a_to_b,
             t.b_to_a,
-            self.combined.samples as f64 / 1e6 / q.max(1e-9)
+            self.combined.samples as f64 / 1e6 / q.max(1e-9),
+            crate::progress::peak_rss().map_or("n/a".to_string(), crate::progress::mib)
         );
         s
     }
@@ -1331,7 +2828,7 @@ fn jstr(s: &str) -> String {
 // Command line.
 
 /// `octolod metro A B [--samples N] [--seed S] [--json] [--max-hausdorff X]
-/// [--max-rms Y] [--max-mean Z]`.
+/// [--max-rms Y] [--max-mean Z] [--mem SIZE]`.
 #[derive(Clone, Debug, Default)]
 pub struct CliArgs {
     pub a: String,
@@ -1342,6 +2839,9 @@ pub struct CliArgs {
     pub max_hausdorff: Option<String>,
     pub max_rms: Option<String>,
     pub max_mean: Option<String>,
+    /// `--mem` (default [`DEFAULT_MEM`]): the page cache of store levels;
+    /// given explicitly, PLY operands (held whole) must fit it too.
+    pub mem: Option<String>,
     pub quiet: bool,
 }
 
@@ -1353,15 +2853,12 @@ pub fn run_cli(args: &CliArgs) -> Result<bool> {
     if args.samples == Some(0) {
         return Err(Error::Usage("metro: --samples must be at least 1".into()));
     }
+    let mem = match &args.mem {
+        Some(m) => MemOptions { budget: crate::mem::parse_size(m)?, explicit: true },
+        None => MemOptions::default(),
+    };
     let (sa, sb) = (Source::parse(&args.a)?, Source::parse(&args.b)?);
-    let t0 = Instant::now();
-    let (a, b) = rayon::join(|| sa.load(), || sb.load());
-    let (a, b) = (a?, b?);
-    let load = t0.elapsed().as_secs_f64();
-    let mut r = compare(&a, &b, &Options { samples: args.samples, seed: args.seed, quiet: args.quiet })?;
-    r.a.source = sa.to_string();
-    r.b.source = sb.to_string();
-    r.seconds.load = load;
+    let r = compare_sources(&sa, &sb, &Options { samples: args.samples, seed: args.seed, quiet: args.quiet }, &mem)?;
     let mut out = std::io::stdout().lock();
     let text = if args.json { r.to_json(&limits) } else { r.table() };
     let _ = writeln!(out, "{text}");
@@ -1603,6 +3100,79 @@ mod tests {
         // Budget below the vertex count: vertices only.
         let (v, e, f) = Plan::new(&m, 3, 1).counts();
         assert_eq!((v, e, f), (4, 0, 0));
+    }
+
+    #[test]
+    fn sample_order_is_first_reference_and_first_occurrence() {
+        // Two triangles sharing edge (2, 0); vertex 3 unreferenced.
+        let m = Mesh::new(vec![[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [9.0; 3], [1.0, 1.0, 0.0]], vec![[2, 0, 1], [1, 4, 2]]);
+        assert_eq!(m.first_reference_vertices(), vec![2, 0, 1, 4]);
+        // Edges as first met, directed as met: (2,0) (0,1) (1,2) then (1,4) (4,2).
+        assert_eq!(first_occurrence_edges(&m.triangles, true), vec![[2, 0], [0, 1], [1, 2], [1, 4], [4, 2]]);
+        assert_eq!(first_occurrence_edges(&m.triangles, false), first_occurrence_edges(&m.triangles, true));
+    }
+
+    #[test]
+    fn box_tree_finds_every_overlapping_box() {
+        let mut rng = Rng::new(3);
+        let boxes: Vec<Aabb> = (0..300)
+            .map(|k| {
+                if k % 17 == 0 {
+                    return Aabb::EMPTY;
+                }
+                let c = [rng.f64(), rng.f64(), rng.f64()];
+                let h = 0.05 * rng.f64();
+                Aabb { min: c.map(|x| x - h), max: c.map(|x| x + h) }
+            })
+            .collect();
+        let tree = BoxTree::new(&boxes);
+        for _ in 0..100 {
+            let c = [rng.f64(), rng.f64(), rng.f64()];
+            let q = Aabb { min: c.map(|x| x - 0.1), max: c.map(|x| x + 0.1) };
+            let mut got = Vec::new();
+            tree.overlapping(&q, |i| got.push(i));
+            got.sort_unstable();
+            let want: Vec<usize> = (0..boxes.len())
+                .filter(|&i| !boxes[i].is_empty() && (0..3).all(|k| boxes[i].min[k] <= q.max[k] && q.min[k] <= boxes[i].max[k]))
+                .collect();
+            assert_eq!(got, want);
+        }
+    }
+
+    #[test]
+    fn cache_evicts_least_recently_used_and_keeps_held_entries() {
+        let bvh = |n: usize| {
+            let m = random_mesh(n, n as u64);
+            Payload::Tgt(Bvh::build(&m, false))
+        };
+        let size = bvh(3).bytes();
+        assert!(size > 0 && size <= Bvh::bytes_bound(3), "{size}");
+        // Room for four entries.
+        let budget = 4 * size + size / 2;
+        let cache = Cache::new(budget);
+        let held = cache.get(0, size, || Ok((bvh(3), 10))).unwrap();
+        for k in 1..8u64 {
+            let _ = cache.get(k, size, || Ok((bvh(3), 10))).unwrap();
+            assert!(cache.acct.resident() <= budget);
+        }
+        assert!(cache.evictions.load(Relaxed) > 0);
+        // Entry 0 was held all along: still cached, a hit.
+        let again = cache.get(0, size, || panic!("held entries stay")).unwrap();
+        assert!(Arc::ptr_eq(&held, &again));
+        // Entry 1 was the least recently used of the others: gone.
+        let mut reloaded = false;
+        let _ = cache.get(1, size, || {
+            reloaded = true;
+            Ok((bvh(3), 10))
+        });
+        assert!(reloaded);
+        assert!(cache.acct.peak.load(Relaxed) <= budget);
+        assert_eq!(cache.overcommits.load(Relaxed), 0);
+        drop((held, again));
+        // A reservation larger than what can be freed is an overcommit.
+        let r = cache.reserve(2 * budget);
+        assert!(cache.overcommits.load(Relaxed) > 0);
+        drop(r);
     }
 
     #[test]

@@ -472,3 +472,127 @@ fn store_level_against_the_ply_it_was_built_from() {
     assert_eq!(o.status.code(), Some(1));
     assert!(text(&o.stderr).contains("@L"), "{}", text(&o.stderr));
 }
+
+// ---------------------------------------------------------------------------
+// Paging: store levels through the page cache.
+
+/// A store of a generated sphere with small leaves (many parts per level).
+fn small_store(dir: &Path) -> (std::path::PathBuf, std::path::PathBuf) {
+    let ply = dir.join("s.ply");
+    write_mesh(&ply, &generated(Shape::Sphere, 20_000));
+    let store = dir.join("s.octolod");
+    octolod::pipeline::build_store(
+        &ply,
+        &store,
+        &octolod::pipeline::BuildOptions { mem: 4 << 20, leaf_tris: 500, ..Default::default() },
+    )
+    .unwrap();
+    (ply, store)
+}
+
+fn close_rel(x: f64, y: f64) -> bool {
+    (x - y).abs() <= 1e-12 * x.abs().max(y.abs())
+}
+
+#[test]
+fn paged_store_levels_equal_the_in_memory_path_under_a_tiny_budget() {
+    use octolod::metro::{compare_sources, load_ply, load_store_level, MemOptions, Source};
+    let d = tempfile::tempdir().unwrap();
+    let (ply, store) = small_store(d.path());
+    let top = octolod::pipeline::top_level(&octolod::store::Store::open(&store).unwrap());
+    assert!(top >= 3, "{top}");
+    let level = |l: u8| Source::Store(store.clone(), l);
+    let load = |s: &Source| match s {
+        Source::Ply(p) => load_ply(p).unwrap(),
+        Source::Store(dir, l) => load_store_level(dir, *l).unwrap(),
+    };
+    // 2 MiB: the batch buffers take 0.75 MiB, the cache gets ~1.2 MiB, a
+    // fraction of levels 0 and 1's node meshes and indexes.
+    let tiny = MemOptions { budget: 2 << 20, explicit: false };
+    for (k, (a, b)) in [(level(0), level(1)), (Source::Ply(ply.clone()), level(2)), (level(top), Source::Ply(ply.clone()))]
+        .into_iter()
+        .enumerate()
+    {
+        let mem = compare(&load(&a), &load(&b), &opts(None)).unwrap();
+        let paged = compare_sources(&a, &b, &opts(None), &tiny).unwrap();
+        let what = format!("{a} vs {b}");
+        for (x, y) in [(&mem.a, &paged.a), (&mem.b, &paged.b)] {
+            assert_eq!((x.vertices, x.faces, x.area, x.bbox), (y.vertices, y.faces, y.area, y.bbox), "{what}");
+        }
+        assert_eq!(mem.samples_target, paged.samples_target);
+        for (x, y) in [(&mem.a_to_b, &paged.a_to_b), (&mem.b_to_a, &paged.b_to_a)] {
+            // The same samples ...
+            assert_eq!(
+                (x.samples, x.vertex_samples, x.edge_samples, x.face_samples),
+                (y.samples, y.vertex_samples, y.edge_samples, y.face_samples),
+                "{what}"
+            );
+            // ... at the same distances: each the minimum over the same
+            // triangles, summed in the same order (bit-identical here; the
+            // tolerance allows a near-tie pruned differently by the two
+            // hierarchies).
+            for (m, u, v) in [("max", x.max, y.max), ("mean", x.mean, y.mean), ("rms", x.rms, y.rms)] {
+                assert!(close_rel(u, v), "{what}: {m} {u} in memory, {v} paged");
+            }
+            assert!(x.max > 0.0, "{what}");
+        }
+        let p = paged.paging.as_ref().expect("paging figures");
+        assert!(mem.paging.is_none());
+        let parts = p.parts_a.unwrap_or(0) + p.parts_b.unwrap_or(0);
+        assert!(p.peak_resident > 0 && p.peak_resident <= p.cache_budget, "{what}: {p:?}");
+        // Every part is read at least once as a sample source and once as a
+        // query index; levels 0 and 1 together are several times the cache,
+        // so their parts are evicted and read again.
+        assert!(p.loads >= 2 * parts, "{what}: {p:?}");
+        if k == 0 {
+            assert!(parts > 50, "{what}: {p:?}");
+            assert!(p.evictions > 0 && p.loads > 2 * parts, "{what}: the budget forces re-reads: {p:?}");
+        }
+        assert_eq!(p.overcommits, 0, "{what}: {p:?}");
+        assert!(p.bytes_read > 0 && p.scan_bytes > 0 && p.hits > 0, "{what}: {p:?}");
+    }
+}
+
+#[test]
+fn paged_cli_reports_the_cache_and_rejects_budgets_it_cannot_keep() {
+    let d = tempfile::tempdir().unwrap();
+    let (ply, store) = small_store(d.path());
+    let (p, s) = (ply.to_str().unwrap(), store.to_str().unwrap());
+    let (s0, s1) = (format!("{s}@0"), format!("{s}@1"));
+    let run = |mem: &str| {
+        let o = octolod(&["metro", &s0, &s1, "--json", "--mem", mem]);
+        assert!(o.status.success(), "{}", text(&o.stderr));
+        Json::parse(&text(&o.stdout)).unwrap()
+    };
+    let (small, big) = (run("2M"), run("1G"));
+    for j in [&small, &big] {
+        for f in ["budget", "cache_budget", "peak_resident", "loads", "hits", "evictions", "bytes_read", "scan_bytes", "parts.a", "parts.b"] {
+            let _ = j.num(&format!("paging.{f}"));
+        }
+        assert!(j.num("paging.peak_resident") <= j.num("paging.cache_budget"));
+        assert_eq!(j.num("paging.overcommits"), 0.0);
+    }
+    assert_eq!(small.num("paging.budget"), (2 << 20) as f64);
+    assert!(small.num("paging.evictions") > 0.0);
+    assert_eq!(big.num("paging.evictions"), 0.0, "1 GiB holds this store");
+    // The budget changes how often nodes are read, never the figures.
+    for k in ["a_to_b", "b_to_a", "combined"] {
+        for f in ["samples", "vertex_samples", "edge_samples", "face_samples", "max", "mean", "rms"] {
+            assert_eq!(small.num(&format!("{k}.{f}")), big.num(&format!("{k}.{f}")), "{k}.{f}");
+        }
+    }
+    // A budget below two nodes' worth: a usage error naming what would do.
+    let o = octolod(&["metro", &s0, &s1, "--mem", "800K"]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(text(&o.stderr).contains("give --mem at least"), "{}", text(&o.stderr));
+    assert!(text(&o.stdout).is_empty());
+    // An explicit budget a PLY operand (held whole) does not fit: the fix is a store.
+    let o = octolod(&["metro", p, &s1, "--mem", "2M"]);
+    assert_eq!(o.status.code(), Some(1));
+    let e = text(&o.stderr);
+    assert!(e.contains("octolod build") && e.contains("@0"), "{e}");
+    // PLYs only: no paging object, the JSON stays a pure function of the inputs.
+    let o = octolod(&["metro", p, p, "--json", "--samples", "1000"]);
+    assert!(o.status.success());
+    assert!(!text(&o.stdout).contains("paging"));
+}
