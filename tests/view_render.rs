@@ -173,3 +173,31 @@ fn render_cli_writes_frames_and_rejects_bad_paths() {
     assert!(err.contains("bad.json") && err.contains("target"), "{err}");
     assert!(!out2.exists(), "partial output left behind");
 }
+
+#[test]
+fn streamed_full_res_reference_equals_drawing_everything_at_once() {
+    use octolod::view::gpu::Renderer;
+    use octolod::view::headless::{draw_params, full_res_frame};
+    if skip() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let s = store(dir.path(), Shape::Sphere, 40_000, 1024, AttrSet::NORMAL);
+    let st = octolod::store::Store::open(&s).unwrap();
+    let (w, h) = (160, 120);
+    let mut r = Renderer::headless(w, h).unwrap();
+    let (all, tris) = octolod::view::viewer::load_all_originals(&st, &mut |m| r.upload(m)).unwrap();
+    assert_eq!(tris, st.nodes[0].subtree_tris);
+    let b = st.nodes[0].content;
+    let mut cam = octolod::view::camera::Camera::frame_all(&b, glam::DVec3::Z, 50.0);
+    cam.dolly(0.6);
+    cam.fit_clip(&b);
+    let p = draw_params(&cam, glam::DVec3::from(st.header.cube.center), w, h, false);
+    let one = r.render_offscreen(&p, &all.iter().collect::<Vec<_>>()).unwrap();
+    // ~20 KB batches: dozens of passes sharing colour and depth.
+    let many = full_res_frame(&mut r, &st, &cam, &p, (w, h), 20 << 10).unwrap();
+    let d = octolod::view::image::compare(&one, &many, w, h, 0);
+    assert_eq!(d.differing_fraction, 0.0, "batched reference differs: {d:?}");
+    let bg = octolod::view::image::background_fraction(&one, w, h, octolod::view::headless::clear_rgba8(true));
+    assert!(bg > 0.02 && bg < 0.9, "background {bg}");
+}

@@ -567,17 +567,25 @@ impl Renderer {
     }
 
     fn encode_scene(&self, enc: &mut wgpu::CommandEncoder, view: &wgpu::TextureView, p: &DrawParams, meshes: &[&GpuMesh]) {
+        self.encode_scene_pass(enc, view, p, meshes, true)
+    }
+
+    /// One scene pass; `clear` false draws over what the target holds
+    /// (colour and depth), for frames drawn in several batches.
+    fn encode_scene_pass(&self, enc: &mut wgpu::CommandEncoder, view: &wgpu::TextureView, p: &DrawParams, meshes: &[&GpuMesh], clear: bool) {
+        let color_load = if clear { wgpu::LoadOp::Clear(self.clear_color(p.clear)) } else { wgpu::LoadOp::Load };
+        let depth_load = if clear { wgpu::LoadOp::Clear(1.0) } else { wgpu::LoadOp::Load };
         let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
             label: Some("scene"),
             color_attachments: &[Some(wgpu::RenderPassColorAttachment {
                 view,
                 depth_slice: None,
                 resolve_target: None,
-                ops: wgpu::Operations { load: wgpu::LoadOp::Clear(self.clear_color(p.clear)), store: wgpu::StoreOp::Store },
+                ops: wgpu::Operations { load: color_load, store: wgpu::StoreOp::Store },
             })],
             depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
                 view: &self.depth.view,
-                depth_ops: Some(wgpu::Operations { load: wgpu::LoadOp::Clear(1.0), store: wgpu::StoreOp::Discard }),
+                depth_ops: Some(wgpu::Operations { load: depth_load, store: wgpu::StoreOp::Store }),
                 stencil_ops: None,
             }),
             timestamp_writes: None,
@@ -642,8 +650,52 @@ impl Renderer {
         self.render_offscreen_overlay(p, meshes, None)
     }
 
+    /// Renders a frame too large to hold at once: `next_batch` hands out
+    /// meshes until it returns None; each batch is drawn over the previous
+    /// ones (sharing the depth buffer) and dropped before the next is asked
+    /// for, so only one batch is resident. Same image as drawing them all.
+    pub fn render_offscreen_batched(&mut self, p: &DrawParams, next_batch: &mut dyn FnMut(&Renderer) -> Result<Option<Vec<GpuMesh>>>) -> Result<Vec<u8>> {
+        let Some(color) = &self.color else {
+            return Err(Error::Usage("render_offscreen_batched needs a headless renderer".into()));
+        };
+        let view = color.view.clone();
+        self.write_globals(p);
+        let mut first = true;
+        loop {
+            let batch = next_batch(self)?;
+            let done = batch.is_none();
+            let meshes = batch.unwrap_or_default();
+            if done && !first {
+                break;
+            }
+            let refs: Vec<&GpuMesh> = meshes.iter().collect();
+            let mut enc = self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("batch") });
+            self.encode_scene_pass(&mut enc, &view, p, &refs, first);
+            self.queue.submit([enc.finish()]);
+            first = false;
+            drop(refs);
+            drop(meshes);
+            let _ = self.device.poll(wgpu::PollType::Wait);
+            if done {
+                break;
+            }
+        }
+        self.render_offscreen_keep()
+    }
+
+    /// Reads back the offscreen target as it is (no drawing).
+    fn render_offscreen_keep(&mut self) -> Result<Vec<u8>> {
+        self.readback_frame(None)
+    }
+
     /// [`Renderer::render_offscreen`] with an optional overlay on top.
     pub fn render_offscreen_overlay(&mut self, p: &DrawParams, meshes: &[&GpuMesh], overlay: Option<&OverlayImage>) -> Result<Vec<u8>> {
+        self.write_globals(p);
+        self.readback_frame(Some((p, meshes, overlay)))
+    }
+
+    /// Draws (when given a scene) and reads the offscreen target back.
+    fn readback_frame(&mut self, scene: Option<(&DrawParams, &[&GpuMesh], Option<&OverlayImage>)>) -> Result<Vec<u8>> {
         let Some(color) = &self.color else {
             return Err(Error::Usage("render_offscreen needs a headless renderer".into()));
         };
@@ -662,10 +714,11 @@ impl Renderer {
             });
             self.readback = Some((buf, size));
         }
-        self.write_globals(p);
         let mut enc = self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("offscreen") });
-        self.encode_scene(&mut enc, &color_view, p, meshes);
-        self.encode_overlay(&mut enc, &color_view, overlay);
+        if let Some((p, meshes, overlay)) = scene {
+            self.encode_scene(&mut enc, &color_view, p, meshes);
+            self.encode_overlay(&mut enc, &color_view, overlay);
+        }
         let (buf, _) = self.readback.as_ref().expect("readback buffer");
         enc.copy_texture_to_buffer(
             wgpu::TexelCopyTextureInfo {

@@ -6,7 +6,9 @@
 //! per-frame statistics of the window's overlay plus a summary), and with
 //! `--full-res` a reference render of the same path from every leaf at
 //! full resolution (`reference/`) with per-frame PSNR and the fraction of
-//! differing pixels. `--brute-force` draws everything at level 0 instead of
+//! differing pixels. The reference streams level 0 through the GPU in
+//! batches of 64 MiB (out of core, slow on big stores: it reads every leaf
+//! in view per frame). `--brute-force` draws everything at level 0 instead of
 //! the budgeted cut (the baseline). The directory appears only when
 //! complete (written under a temporary name, then renamed).
 //!
@@ -102,7 +104,7 @@ pub fn render(o: &RenderOptions) -> Result<RenderReport> {
         Some(p) => CameraPath::load(p, &bounds)?,
         None => CameraPath::orbit(&bounds, o.orbit_frames.max(1), 0),
     };
-    let reference = if o.full_res || o.brute_force {
+    let reference = if o.brute_force {
         let (meshes, _tris) = load_all_originals(&viewer.store, &mut |m| renderer.upload(m))?;
         Some(meshes)
     } else {
@@ -156,8 +158,7 @@ pub fn render(o: &RenderOptions) -> Result<RenderReport> {
             diff_fraction: None,
         };
         if o.full_res {
-            let all: Vec<&GpuMesh> = reference.as_ref().unwrap().iter().collect();
-            let ref_img = renderer.render_offscreen(&p, &all)?;
+            let ref_img = full_res_frame(&mut renderer, &viewer.store, &cam, &p, (o.width, o.height), REFERENCE_BATCH)?;
             super::image::write_png(&out.path().join("reference").join(&name), o.width, o.height, &ref_img)?;
             let d = super::image::compare(&img, &ref_img, o.width, o.height, o.diff_tolerance);
             rec.psnr_db = Some(d.psnr_db);
@@ -176,6 +177,38 @@ pub fn render(o: &RenderOptions) -> Result<RenderReport> {
     out.commit()?;
     Ok(RenderReport { frames, out: o.out.clone() })
 }
+
+/// Every leaf's original triangles in view, drawn in batches of at most
+/// `batch_bytes` (default [`REFERENCE_BATCH`]) read in store order: the full-resolution
+/// reference without holding level 0 in memory.
+pub fn full_res_frame(renderer: &mut Renderer, store: &crate::store::Store, cam: &Camera, p: &DrawParams, size: (u32, u32), batch_bytes: u64) -> Result<Vec<u8>> {
+    let frustum = cam.frustum(size.0 as f64 / size.1.max(1) as f64);
+    let leaves: Vec<usize> = store
+        .nodes
+        .iter()
+        .enumerate()
+        .filter(|(_, n)| n.is_leaf() && !n.orig.is_empty() && !frustum.culls(&n.content))
+        .map(|(i, _)| i)
+        .collect();
+    let origin = store.header.cube.center;
+    let mut next = 0usize;
+    renderer.render_offscreen_batched(p, &mut |r: &Renderer| {
+        if next >= leaves.len() {
+            return Ok(None);
+        }
+        let (mut batch, mut bytes) = (Vec::new(), 0u64);
+        while next < leaves.len() && bytes < batch_bytes {
+            let m = super::draw_mesh(&store.read_mesh(leaves[next], false)?, store.header.attrs, origin);
+            bytes += m.bytes();
+            batch.push(r.upload(&m));
+            next += 1;
+        }
+        Ok(Some(batch))
+    })
+}
+
+/// Bytes of GPU-ready meshes per reference batch.
+pub const REFERENCE_BATCH: u64 = 64 << 20;
 
 fn num(x: Option<f64>) -> String {
     match x {
