@@ -93,12 +93,16 @@
 //! * Queries against a paged level come a batch at a time (up to 1 M
 //!   samples), sorted along a Morton curve of the target's box, in pieces
 //!   of consecutive queries per worker. A worker keeps the part of its last
-//!   answer (its *home*) and searches it first, which bounds the rest: a
-//!   best-first walk of the box tree by box distance, searching a part
-//!   (loading it if needed) only while its box is nearer than the best so
-//!   far. Each answer is the minimum over the same triangles as in memory,
-//!   so the distances equal the in-memory ones (bit for bit but for a
-//!   near-tie pruned differently by the two hierarchies).
+//!   answer (its *home*) and searches it first, which bounds the rest: only
+//!   a part whose box is nearer than the best so far can hold a nearer
+//!   point, and such a box lies within `d + dist(p, home box)` of the home
+//!   box, so the worker's list of the parts near its home (rebuilt with
+//!   twice the radius when a query reaches past it) settles the query;
+//!   without a home, a nearer-child-first walk of the box tree does. A part
+//!   is searched (loaded if needed) only while its box is nearer than the
+//!   best so far. Each answer is the minimum over the same triangles as in
+//!   memory, so the distances equal the in-memory ones (bit for bit but for
+//!   a near-tie pruned differently by the two hierarchies).
 //! * Sampling a paged level gives the samples the welded level would give
 //!   in memory, in the same order: parts in cut order (the in-memory
 //!   concatenation order), in each its vertices and edges in first-
@@ -137,7 +141,7 @@ use crate::mesh::{Aabb, Vertex};
 use crate::progress::Progress;
 use crate::store::{IndexedMesh, Slot, Store};
 use rayon::prelude::*;
-use std::collections::{BTreeMap, BinaryHeap, HashMap};
+use std::collections::{BTreeMap, HashMap};
 use std::fmt;
 use std::io::Write;
 use std::mem::size_of;
@@ -1585,7 +1589,7 @@ impl PagedLevel {
             .num_threads(t)
             .build()
             .map_err(|e| Error::Usage(format!("metro: cannot start {t} threads: {e}")))?;
-        let progress = Progress::items(nodes.len() as u64, &format!("scan {name}"), quiet);
+        let progress = Progress::items(nodes.len() as u64, if op == 0 { "scan A" } else { "scan B" }, quiet);
         let scanned: Vec<(Aabb, u64)> = pool.install(|| {
             (0..nodes.len())
                 .into_par_iter()
@@ -1943,28 +1947,26 @@ enum Target<'a> {
 struct Worker {
     home: Option<(usize, Arc<Entry>)>,
     slot: u32,
-    heap: BinaryHeap<Cand>,
+    /// Box-tree nodes to visit, with their squared distance.
+    stack: Vec<(u32, f64)>,
+    /// Parts whose boxes come within `near_r` of part `near_of`'s box.
+    near: Vec<u32>,
+    near_r: f64,
+    near_of: usize,
 }
 
-/// A top-level node to visit, nearest first.
-#[derive(PartialEq)]
-struct Cand(f64, u32);
-impl Eq for Cand {}
-impl PartialOrd for Cand {
-    fn partial_cmp(&self, o: &Self) -> Option<std::cmp::Ordering> {
-        Some(self.cmp(o))
-    }
-}
-impl Ord for Cand {
-    fn cmp(&self, o: &Self) -> std::cmp::Ordering {
-        o.0.total_cmp(&self.0).then(o.1.cmp(&self.1))
-    }
+/// Squared distance from `p` to the box `b`.
+#[inline]
+fn box_dist2(b: &Aabb, p: P3) -> f64 {
+    let e = |k: usize| (b.min[k] - p[k]).max(p[k] - b.max[k]).max(0.0);
+    let (x, y, z) = (e(0), e(1), e(2));
+    x * x + y * y + z * z
 }
 
 impl PagedLevel {
     /// Squared distance from `p` to the level: the home part first (which
-    /// bounds the search), then best-first over the parts' boxes, each part
-    /// searched only while its box is nearer than the best so far. A worker
+    /// bounds the search), then the parts' box tree, nearer child first,
+    /// each part searched only while its box is nearer than the best so far. A worker
     /// holds at most two entries at a time: its home and one other.
     fn closest(&self, cache: &Cache, p: P3, w: &mut Worker) -> Result<f64> {
         let (mut best2, mut best_part, mut best_slot) = (f64::INFINITY, usize::MAX, u32::MAX);
@@ -1974,16 +1976,58 @@ impl PagedLevel {
                 (best2, best_part, best_slot) = (d, *hp, s);
             }
         }
-        w.heap.clear();
-        if let Some(root) = self.tree.nodes.first() {
-            let d = root.dist2(p);
-            if d < best2 {
-                w.heap.push(Cand(d, 0));
+        // With a home h and best distance d, a part m can only be nearer if
+        // dist(p, box m) < d, so box m is within d + dist(p, box h) of box h:
+        // the worker's list of parts near its home settles the query when
+        // that sum is within the list's radius (consecutive queries share the
+        // home, so the list is reused); else the whole box tree is walked.
+        if let Some(h) = home {
+            let reach = best2.sqrt() + box_dist2(&self.boxes[h], p).sqrt();
+            if reach.is_finite() {
+                if w.near_of != h || reach > w.near_r {
+                    w.near_r = 2.0 * reach;
+                    w.near_of = h;
+                    w.near.clear();
+                    let b = &self.boxes[h];
+                    let r = w.near_r;
+                    let grown = Aabb { min: b.min.map(|x| x - r), max: b.max.map(|x| x + r) };
+                    let near = &mut w.near;
+                    self.tree.overlapping(&grown, |m| {
+                        if m != h {
+                            near.push(m as u32)
+                        }
+                    });
+                }
+                // Nearest box first, so that later ones are pruned (and not loaded).
+                w.stack.clear();
+                for &m in &w.near {
+                    let d = box_dist2(&self.boxes[m as usize], p);
+                    if d < best2 {
+                        w.stack.push((m, d));
+                    }
+                }
+                w.stack.sort_unstable_by(|x, y| x.1.total_cmp(&y.1).then(x.0.cmp(&y.0)));
+                for k in 0..w.stack.len() {
+                    let (m, d) = w.stack[k];
+                    if d >= best2 {
+                        break;
+                    }
+                    let e = self.get_tgt(cache, m as usize)?;
+                    if let Some((dd, s, _)) = e.bvh().nearest_within(p, u32::MAX, best2) {
+                        (best2, best_part, best_slot) = (dd, m as usize, s);
+                    }
+                }
+                return self.settle(cache, w, best2, best_part, best_slot);
             }
         }
-        while let Some(Cand(d, ni)) = w.heap.pop() {
+        // Depth first, nearer child first, pruned by the best so far.
+        w.stack.clear();
+        if let Some(root) = self.tree.nodes.first() {
+            w.stack.push((0, root.dist2(p)));
+        }
+        while let Some((ni, d)) = w.stack.pop() {
             if d >= best2 {
-                break;
+                continue;
             }
             let n = &self.tree.nodes[ni as usize];
             if n.count > 0 {
@@ -1996,11 +2040,14 @@ impl PagedLevel {
                     (best2, best_part, best_slot) = (dd, part, s);
                 }
             } else {
-                for c in [ni + 1, n.start] {
-                    let dc = self.tree.nodes[c as usize].dist2(p);
-                    if dc < best2 {
-                        w.heap.push(Cand(dc, c));
-                    }
+                let (l, r) = (ni + 1, n.start);
+                let (dl, dr) = (self.tree.nodes[l as usize].dist2(p), self.tree.nodes[r as usize].dist2(p));
+                let (near, dn, far, df) = if dl <= dr { (l, dl, r, dr) } else { (r, dr, l, dl) };
+                if df < best2 {
+                    w.stack.push((far, df));
+                }
+                if dn < best2 {
+                    w.stack.push((near, dn));
                 }
             }
         }
@@ -2011,11 +2058,16 @@ impl PagedLevel {
             let (d, s, _) = e.bvh().nearest(p, u32::MAX);
             (best2, best_part, best_slot) = (d, part, s);
         }
-        if Some(best_part) != home {
+        self.settle(cache, w, best2, best_part, best_slot)
+    }
+
+    /// Makes the answer's part the worker's home.
+    fn settle(&self, cache: &Cache, w: &mut Worker, best2: f64, part: usize, slot: u32) -> Result<f64> {
+        if w.home.as_ref().map(|h| h.0) != Some(part) {
             w.home = None;
-            w.home = Some((best_part, self.get_tgt(cache, best_part)?));
+            w.home = Some((part, self.get_tgt(cache, part)?));
         }
-        w.slot = best_slot;
+        w.slot = slot;
         Ok(best2)
     }
 }
@@ -2063,7 +2115,7 @@ impl Target<'_> {
                     order
                         .par_chunks(PIECE)
                         .map_init(
-                            || Worker { home: None, slot: u32::MAX, heap: BinaryHeap::new() },
+                            || Worker { home: None, slot: u32::MAX, stack: Vec::new(), near: Vec::new(), near_r: 0.0, near_of: usize::MAX },
                             |w, piece| {
                                 piece
                                     .iter()
@@ -2350,7 +2402,9 @@ pub fn compare_sources(sa: &Source, sb: &Source, opts: &Options, mem: &MemOption
             ply_est += e;
         }
     }
-    let batch = ((mem.budget / 16 / BATCH_BYTES_PER_SAMPLE) as usize / CHUNK as usize * CHUNK as usize)
+    // An eighth of the budget for batches (up to 1 M samples): a larger
+    // batch visits each target part once for more queries.
+    let batch = ((mem.budget / 8 / BATCH_BYTES_PER_SAMPLE) as usize / CHUNK as usize * CHUNK as usize)
         .clamp(CHUNK as usize, BATCH_MAX);
     let batch_bytes = batch as u64 * BATCH_BYTES_PER_SAMPLE;
     let held = if mem.explicit { ply_est } else { 0 };
@@ -2370,7 +2424,8 @@ pub fn compare_sources(sa: &Source, sb: &Source, opts: &Options, mem: &MemOption
             Source::Store(..) => Ok(None),
         }
     };
-    let (ma, mb) = (load(sa)?, load(sb)?);
+    let (ma, mb) = rayon::join(|| load(sa), || load(sb));
+    let (ma, mb) = (ma?, mb?);
     let load_s = t0.elapsed().as_secs_f64();
     let a = match (&ma, &la) {
         (Some(m), _) => Operand::Mem(m),
