@@ -32,8 +32,10 @@
 //! any level, joins without cracks.
 //!
 //! Error: the node's geometric error, a vertex-sampled two-sided Hausdorff
-//! distance between its input and its output (input vertices to the output
-//! surface, output vertices to the input surface),
+//! distance between its input and its output — input vertices to the output
+//! surface (exact, through a BVH over the output), and output vertices to
+//! the input surface (bounded above by each representative's distance to
+//! the nearest input triangle of its own cluster, which needs no index) —
 //! maxed with its children's so it never decreases towards the root — the
 //! error a viewer turns into pixels (as meshoptimizer's clusterlod and
 //! Nanite do). It is measured, not a strict bound: between samples and
@@ -202,38 +204,45 @@ pub fn simplify_node(
             out.triangles.push(r);
         }
     }
+    // Output → input, bounded above without an index: each representative's
+    // distance to the nearest input triangle of its own cluster.
+    let stored = |p: [f64; 3]| if attrs.pos_f64() { p } else { p.map(|x| x as f32 as f64) };
+    let mut rep_d2 = vec![f64::INFINITY; quadrics.len()];
+    for t in &mesh.triangles {
+        let c = t.map(|v| mesh.vertices[v as usize].pos);
+        for &v in t {
+            let cl = cluster_of[v as usize];
+            if cl != u32::MAX {
+                let r = stored(out.vertices[(first_rep + cl) as usize].pos);
+                let q = crate::metro::closest_point_triangle(r, c[0], c[1], c[2]);
+                let d2 = (0..3).map(|k| (r[k] - q[k]).powi(2)).sum::<f64>();
+                rep_d2[cl as usize] = rep_d2[cl as usize].min(d2);
+            }
+        }
+    }
+    let out_to_in = rep_d2.iter().copied().filter(|d| d.is_finite()).fold(0.0, f64::max).sqrt();
     let out = compact(out);
-    if let Some(d) = surface_deviation(mesh, &out, attrs.pos_f64()) {
-        st.error = d;
+    if let Some(d) = input_to_output(mesh, &out, attrs.pos_f64()) {
+        st.error = d.max(out_to_in);
     }
     (out, st)
 }
 
-/// The geometric error of a simplification: the largest distance from the
-/// input's vertices to the output surface, and from the
-/// output's vertices to the input surface (a vertex-sampled two-sided
-/// Hausdorff distance, exact closest points through a BVH). Vertex
-/// displacement overstates it many times over: cluster representatives
-/// slide along the surface, which no viewer can see. None when either side
-/// has no triangles (the caller keeps the displacement bound then).
-fn surface_deviation(input: &IndexedMesh, output: &IndexedMesh, f64_positions: bool) -> Option<f64> {
+/// The input → output half of the geometric error: the largest distance
+/// from the input's vertices to the output surface (exact closest points
+/// through a BVH over the small output, as stored: f32 positions unless the
+/// input had f64). None when either side has no triangles (the caller keeps
+/// the displacement bound then).
+fn input_to_output(input: &IndexedMesh, output: &IndexedMesh, f64_positions: bool) -> Option<f64> {
     use crate::metro::{Bvh, Mesh};
     if input.triangles.is_empty() || output.triangles.is_empty() {
         return None;
     }
     let a = Mesh::from_vertices(&input.vertices, input.triangles.clone());
-    // Measured on the output as stored (f32 positions unless the input had f64).
     let stored = |p: [f64; 3]| if f64_positions { p } else { p.map(|x| x as f32 as f64) };
     let b = Mesh::new(output.vertices.iter().map(|v| stored(v.pos)).collect(), output.triangles.clone());
-    let (ta, tb) = (Bvh::new(&a), Bvh::new(&b));
-    let far = |bvh: &Bvh, p: [f64; 3]| bvh.closest(p).map(|c| c.dist2).unwrap_or(0.0);
-    let mut d2 = 0f64;
-    for i in a.referenced_vertices() {
-        d2 = d2.max(far(&tb, input.vertices[i as usize].pos));
-    }
-    for p in &b.positions {
-        d2 = d2.max(far(&ta, *p));
-    }
+    let tb = Bvh::new(&b);
+    let d2 = a.referenced_vertices().iter().map(|&i| tb.closest(input.vertices[i as usize].pos).map_or(0.0, |c| c.dist2)).fold(0.0, f64::max);
     Some(d2.sqrt())
 }
 

@@ -303,15 +303,16 @@ fn a_closed_object_inside_one_node_may_collapse_to_an_empty_node() {
 }
 
 /// A leaf's stored error is its measured geometric error: at least the
-/// distance of every original vertex to the simplified surface (and of every
-/// simplified vertex to the original), yet far below the cell size — the
+/// distance of every original vertex to the simplified surface and of every
+/// simplified vertex to the original, at most twice that, yet far below the
+/// cell size — the
 /// error a viewer can turn into pixels, not a loose bound.
 #[test]
 fn leaf_error_is_the_measured_surface_deviation() {
     use octolod::metro::{Bvh, Mesh};
     let dir = tempfile::tempdir().unwrap();
     let (s, _) = build(dir.path(), Shape::Sphere, 60_000, 0, 2048, 8);
-    let mut checked = 0;
+    let (mut checked, mut tight) = (0, 0);
     for (i, n) in s.nodes.iter().enumerate() {
         if !n.is_leaf() || n.simp.tris == 0 {
             continue;
@@ -324,9 +325,13 @@ fn leaf_error_is_the_measured_surface_deviation() {
         let d = d1.max(d2).sqrt();
         let e = n.simp.error as f64;
         assert!(e >= d * (1.0 - 1e-6), "node {i}: stored {e} below measured {d}");
-        assert!(e <= d * (1.0 + 1e-6) + 1e-12, "node {i}: stored {e} above measured {d}");
+        // The output → input half is an upper bound (nearest triangle of the
+        // representative's own cluster): above the exact value, not far.
+        assert!(e <= 2.0 * d + 1e-12, "node {i}: stored {e} far above measured {d}");
+        tight += (e <= d * (1.0 + 1e-6) + 1e-12) as usize;
         assert!(e < 0.05 * n.cell.diagonal(), "node {i}: error {e} is not small against the cell {}", n.cell.diagonal());
         checked += 1;
     }
     assert!(checked > 10);
+    assert!(tight * 2 >= checked, "the bound is exact on most leaves: {tight} of {checked}");
 }
