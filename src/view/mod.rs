@@ -64,7 +64,8 @@ impl DrawMesh {
 /// `origin` (the same subtraction for every node, so vertices shared by
 /// neighbouring nodes stay bit-identical and the surface stays watertight).
 /// Normals are the input's when it has them, else area-weighted vertex
-/// normals of this mesh; colors the input's, else [`DEFAULT_COLOR`].
+/// normals of this mesh (computed per node, so shading can show a faint
+/// seam along node borders; the geometry has none); colors the input's, else [`DEFAULT_COLOR`].
 pub fn draw_mesh(m: &IndexedMesh, attrs: AttrSet, origin: [f64; 3]) -> DrawMesh {
     let mut vertices: Vec<GpuVertex> = m
         .vertices
@@ -76,22 +77,32 @@ pub fn draw_mesh(m: &IndexedMesh, attrs: AttrSet, origin: [f64; 3]) -> DrawMesh 
         })
         .collect();
     if !attrs.normal() {
+        // Area-weighted sum, plus the largest incident face normal for
+        // vertices where the sum cancels (folded or duplicated faces, which
+        // simplification keeps to stay crack-free).
         let mut acc = vec![[0f64; 3]; vertices.len()];
+        let mut big = vec![([0f64; 3], 0f64); vertices.len()];
         for t in &m.triangles {
             let p = t.map(|i| m.vertices[i as usize].pos);
             let e1 = [0, 1, 2].map(|k| p[1][k] - p[0][k]);
             let e2 = [0, 1, 2].map(|k| p[2][k] - p[0][k]);
             let n = [e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2], e1[0] * e2[1] - e1[1] * e2[0]];
-            if n.iter().all(|x| x.is_finite()) {
+            let len2 = n[0] * n[0] + n[1] * n[1] + n[2] * n[2];
+            if len2.is_finite() {
                 for &i in t {
+                    let i = i as usize;
                     for k in 0..3 {
-                        acc[i as usize][k] += n[k];
+                        acc[i][k] += n[k];
+                    }
+                    if len2 > big[i].1 {
+                        big[i] = (n, len2);
                     }
                 }
             }
         }
-        for (v, a) in vertices.iter_mut().zip(&acc) {
-            v.normal = normalize(*a);
+        for ((v, a), (b, b2)) in vertices.iter_mut().zip(&acc).zip(&big) {
+            let a2 = a[0] * a[0] + a[1] * a[1] + a[2] * a[2];
+            v.normal = normalize(if a2 < 1e-4 * b2 { *b } else { *a });
         }
     } else {
         for v in &mut vertices {
@@ -120,5 +131,34 @@ pub trait GpuBytes {
 impl GpuBytes for DrawMesh {
     fn gpu_bytes(&self) -> u64 {
         self.bytes()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::Vertex;
+
+    #[test]
+    fn folded_faces_get_a_face_normal_not_a_default() {
+        let v = |x: f64, y: f64| Vertex { pos: [x, y, 0.0], ..Vertex::default() };
+        // A triangle and its mirror (opposite winding) on top of it: the
+        // area-weighted sum cancels at every vertex.
+        let m = IndexedMesh { vertices: vec![v(0.0, 0.0), v(1.0, 0.0), v(0.0, 1.0)], triangles: vec![[0, 1, 2], [0, 2, 1]] };
+        let d = draw_mesh(&m, AttrSet::POSITION_ONLY, [0.0; 3]);
+        for g in &d.vertices {
+            assert!(g.normal[2].abs() > 0.999, "{:?}", g.normal);
+        }
+        // A plain fan: the usual smooth normal, positions relative to the origin.
+        let m = IndexedMesh {
+            vertices: vec![Vertex { pos: [10.0, 10.0, 1.0], ..Vertex::default() }, v(11.0, 10.0), v(10.0, 11.0)],
+            triangles: vec![[0, 1, 2]],
+        };
+        let d = draw_mesh(&m, AttrSet::POSITION_ONLY, [10.0, 10.0, 0.0]);
+        assert_eq!(d.vertices[0].pos, [0.0, 0.0, 1.0]);
+        let n = d.vertices[0].normal;
+        assert!(((n[0] * n[0] + n[1] * n[1] + n[2] * n[2]) - 1.0).abs() < 1e-6);
+        assert_eq!(d.indices, vec![0, 1, 2]);
+        assert_eq!(d.bytes(), 3 * 28 + 12);
     }
 }
