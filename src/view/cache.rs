@@ -88,11 +88,12 @@ impl Drop for IoPool {
 fn load(dir: &Path, files: &mut HashMap<u8, std::fs::File>, attrs: AttrSet, origin: [f64; 3], job: &Job) -> Result<DrawMesh> {
     use std::os::unix::fs::FileExt;
     let path: PathBuf = dir.join(format!("level-{}.pack", job.pack));
-    if !files.contains_key(&job.pack) {
-        files.insert(job.pack, std::fs::File::open(&path).ctx(&path, "open pack file")?);
-    }
+    let f = match files.entry(job.pack) {
+        std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
+        std::collections::hash_map::Entry::Vacant(e) => e.insert(std::fs::File::open(&path).ctx(&path, "open pack file")?),
+    };
     let mut b = vec![0u8; job.bytes as usize];
-    files[&job.pack].read_exact_at(&mut b, job.offset).ctx(&path, "read pack file")?;
+    f.read_exact_at(&mut b, job.offset).ctx(&path, "read pack file")?;
     let m = decode_payload(&VertexLayout::new(attrs), &b, &path, job.offset)?;
     drop(b);
     Ok(draw_mesh(&m, attrs, origin))

@@ -150,7 +150,7 @@ pub fn render(o: &RenderOptions) -> Result<RenderReport> {
         let img = renderer.render_offscreen(&p, &meshes)?;
         stats.draw_ms = t.elapsed().as_secs_f64() * 1e3;
         let name = format!("frame-{:05}.png", i);
-        super::image::write_png(&out.path().join(&name), o.width, o.height, &img)?;
+        super::image::write_png(out.path().join(&name), o.width, o.height, &img)?;
         let mut rec = FrameRecord {
             background_fraction: super::image::background_fraction(&img, o.width, o.height, clear8),
             stats,
@@ -159,7 +159,7 @@ pub fn render(o: &RenderOptions) -> Result<RenderReport> {
         };
         if o.full_res {
             let ref_img = full_res_frame(&mut renderer, &viewer.store, &cam, &p, (o.width, o.height), REFERENCE_BATCH)?;
-            super::image::write_png(&out.path().join("reference").join(&name), o.width, o.height, &ref_img)?;
+            super::image::write_png(out.path().join("reference").join(&name), o.width, o.height, &ref_img)?;
             let d = super::image::compare(&img, &ref_img, o.width, o.height, o.diff_tolerance);
             rec.psnr_db = Some(d.psnr_db);
             rec.diff_fraction = Some(d.differing_fraction);
