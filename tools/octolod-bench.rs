@@ -16,8 +16,20 @@
 //!
 //! Gives, under `--out`: `report.md` (tables), `report.json` (every raw
 //! number, including each child's and each metro run's own JSON),
-//! `error_vs_speed.svg` and `error_vs_size.svg` (log–log, hand-made SVG), and
-//! per input a folder holding every output mesh (`--clean` deletes them).
+//! `error_vs_speed.svg` and `error_vs_size.svg` (log–log, hand-made SVG, one
+//! panel per input), and per input a folder holding every output mesh
+//! (`--clean` deletes them). `--suffix -10m` names the four files
+//! `report-10m.md` and so on; `--label TEXT` adds a line saying what was
+//! measured (the commit, say); `--from-json report.json` measures nothing
+//! and writes the report and plots again from an earlier run's JSON (for
+//! changes to the layout).
+//!
+//! The machine may be shared. Every child measures how many cores other
+//! processes kept busy during its timed section (the machine's busy time
+//! from `/proc/stat` minus its own CPU time, over the wall time; see
+//! [`CpuProbe`]), and the report gives it per row and in summary;
+//! `--wait-idle S` makes each run first wait, up to S seconds, until other
+//! processes use under a quarter of a core.
 //!
 //! Methods, each run in a child process (this binary re-invoked with the
 //! hidden `run-one` subcommand) that prints one JSON line with its timings
@@ -137,6 +149,22 @@ struct BenchArgs {
     /// Delete output meshes once measured.
     #[arg(long)]
     clean: bool,
+    /// Before each timed child run, wait (at most this many seconds) until
+    /// other processes use less than a quarter of a core; 0: do not wait.
+    #[arg(long, default_value_t = 0.0)]
+    wait_idle: f64,
+    /// Suffix for the report's file names (`report-10m.md`,
+    /// `error_vs_speed-10m.svg`, ...), so reports can sit side by side.
+    #[arg(long, default_value = "", allow_hyphen_values = true)]
+    suffix: String,
+    /// A line for the report saying what was measured (e.g. the commit the
+    /// binaries were built from).
+    #[arg(long)]
+    label: Option<String>,
+    /// Measure nothing: re-render report.md and the plots (into --out, with
+    /// --suffix) from a report.json this tool wrote earlier.
+    #[arg(long, value_name = "REPORT_JSON")]
+    from_json: Option<PathBuf>,
     /// No progress lines on stderr.
     #[arg(long, short)]
     quiet: bool,
@@ -574,6 +602,61 @@ fn reset_peak_rss() -> bool {
     std::fs::write("/proc/self/clear_refs", "5").is_ok()
 }
 
+/// Busy CPU seconds of the whole machine since boot (`/proc/stat`: user,
+/// nice, system, irq, softirq, steal; USER_HZ = 100).
+fn machine_busy_seconds() -> Option<f64> {
+    let s = std::fs::read_to_string("/proc/stat").ok()?;
+    let f: Vec<f64> = s.lines().next()?.split_whitespace().skip(1).take(8).map(|x| x.parse().unwrap_or(0.0)).collect();
+    (f.len() == 8).then(|| (f[0] + f[1] + f[2] + f[5] + f[6] + f[7]) / 100.0)
+}
+
+/// CPU seconds (user + system, every thread) of this process so far.
+fn own_cpu_seconds() -> Option<f64> {
+    let s = std::fs::read_to_string("/proc/self/stat").ok()?;
+    let f: Vec<&str> = s.rsplit_once(')')?.1.split_whitespace().collect();
+    Some((f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?) / 100.0)
+}
+
+/// How many cores other processes kept busy during a timed section: the
+/// machine's busy CPU time minus this process's, over the wall time. The
+/// machine may be shared (other people's compiles), and a timing taken while
+/// it is busy is slow for reasons that are not the method's.
+struct CpuProbe {
+    t: Instant,
+    busy: Option<f64>,
+    own: Option<f64>,
+}
+
+impl CpuProbe {
+    fn start() -> CpuProbe {
+        CpuProbe { t: Instant::now(), busy: machine_busy_seconds(), own: own_cpu_seconds() }
+    }
+    /// Mean cores used by other processes since `start` (clock ticks are
+    /// 10 ms, so sections under ~0.2 s read coarsely).
+    fn other_cores(&self) -> Option<f64> {
+        let wall = self.t.elapsed().as_secs_f64();
+        let busy = machine_busy_seconds()? - self.busy?;
+        let own = own_cpu_seconds()? - self.own?;
+        let threads = std::thread::available_parallelism().map_or(1, |n| n.get()) as f64;
+        (wall > 0.0).then(|| ((busy - own) / wall).clamp(0.0, threads))
+    }
+}
+
+/// Waits up to `max_s` seconds for other processes to use under a quarter
+/// of a core (sampled over 1 s windows); returns the seconds waited.
+fn wait_idle(max_s: f64) -> f64 {
+    let t = Instant::now();
+    while t.elapsed().as_secs_f64() < max_s {
+        let p = CpuProbe::start();
+        std::thread::sleep(std::time::Duration::from_secs(1));
+        match p.other_cores() {
+            Some(c) if c >= 0.25 => continue,
+            _ => break,
+        }
+    }
+    t.elapsed().as_secs_f64()
+}
+
 fn run_one(a: &RunOne) -> Result<J> {
     let t_all = Instant::now();
     let mut j = match a.method {
@@ -597,9 +680,11 @@ fn run_octolod(a: &RunOne) -> Result<J> {
     if store_dir.exists() {
         std::fs::remove_dir_all(&store_dir).with_context(|| format!("remove {}", store_dir.display()))?;
     }
+    let probe = CpuProbe::start();
     let t = Instant::now();
     let r = build_store(&a.input, &store_dir, &opts)?;
     let seconds = t.elapsed().as_secs_f64();
+    let other_cpu = probe.other_cores();
     let rss = peak_rss_mib();
     let mut levels = Vec::new();
     if !a.no_extract {
@@ -638,6 +723,7 @@ fn run_octolod(a: &RunOne) -> Result<J> {
         ("disk_bytes", r.disk_bytes.into()),
         ("peak_rss_mib", rss.into()),
         ("peak_rss_with_extract_mib", peak_rss_mib().into()),
+        ("other_cpu_cores", other_cpu.into()),
         ("levels", J::Arr(levels)),
     ]))
 }
@@ -672,6 +758,7 @@ fn run_peer(a: &RunOne, m: Method) -> Result<J> {
                 .map_err(|e| anyhow!("meshopt vertex adapter: {e}"))?;
             let target_idx = (a.target as usize).saturating_mul(3);
             let mut err = 0f32;
+            let probe = CpuProbe::start();
             let t = Instant::now();
             let out = if m == Method::MeshoptSimplify {
                 meshopt::simplify(idx, &adapter, target_idx, 1.0, meshopt::SimplifyOptions::None, Some(&mut err))
@@ -679,6 +766,7 @@ fn run_peer(a: &RunOne, m: Method) -> Result<J> {
                 meshopt::simplify_sloppy(idx, &adapter, target_idx, 1.0, Some(&mut err))
             };
             let seconds = t.elapsed().as_secs_f64();
+            extra.push(("other_cpu_cores", probe.other_cores().into()));
             extra.push(("meshopt_result_error", f64::from(err).into()));
             let faces: Vec<[u32; 3]> = out.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
             let (v, f) = compact(|i| pos[i as usize].map(f64::from), &faces, pos.len());
@@ -692,6 +780,7 @@ fn run_peer(a: &RunOne, m: Method) -> Result<J> {
             extra.push(("clamped", r.clamped.into()));
             extra.push(("search_seconds", r.search_seconds.into()));
             extra.push(("search_tries", r.tries.into()));
+            extra.push(("other_cpu_cores", r.other_cpu.into()));
             (r.seconds, r.vertices, r.triangles)
         }
         Method::Octolod => unreachable!(),
@@ -827,6 +916,8 @@ struct OocsResult {
     tries: u64,
     search_seconds: f64,
     seconds: f64,
+    /// Cores other processes used during the timed pass.
+    other_cpu: Option<f64>,
     vertices: Vec<Vertex>,
     triangles: Vec<[u32; 3]>,
 }
@@ -870,6 +961,7 @@ fn oocs(verts: &[Vertex], tris: &[[u32; 3]], bbox: &Aabb, target: u64) -> OocsRe
     let search_seconds = t0.elapsed().as_secs_f64();
 
     // The timed pass.
+    let probe = CpuProbe::start();
     let t = Instant::now();
     let grid = Grid::new(bbox, g);
     let (ids, keys) = cell_ids(&grid, verts);
@@ -909,6 +1001,7 @@ fn oocs(verts: &[Vertex], tris: &[[u32; 3]], bbox: &Aabb, target: u64) -> OocsRe
         })
         .collect();
     let seconds = t.elapsed().as_secs_f64();
+    let other_cpu = probe.other_cores();
     OocsResult {
         grid: g,
         dims: grid.n,
@@ -917,6 +1010,7 @@ fn oocs(verts: &[Vertex], tris: &[[u32; 3]], bbox: &Aabb, target: u64) -> OocsRe
         tries: tried.len() as u64,
         search_seconds,
         seconds,
+        other_cpu,
         vertices,
         triangles,
     }
@@ -1002,15 +1096,20 @@ impl Bench<'_> {
     }
 
     /// Runs a child `--repeat` times; keeps the fastest run's JSON, with the
-    /// largest peak RSS and every run's time added.
+    /// largest peak RSS and every run's time (and other processes' CPU use,
+    /// and any wait for an idle machine) added.
     fn child(&self, args: &[String]) -> Result<J> {
         let mut best: Option<J> = None;
-        let (mut times, mut rss) = (Vec::new(), f64::NAN);
+        let (mut times, mut rss, mut other, mut waits) = (Vec::new(), f64::NAN, Vec::new(), Vec::new());
         for _ in 0..self.args.repeat.max(1) {
+            if self.args.wait_idle > 0.0 {
+                waits.push(J::from(wait_idle(self.args.wait_idle)));
+            }
             let j = self.child_once(args)?;
             let t = j.f("seconds").unwrap_or(f64::NAN);
             rss = rss.max(j.f("peak_rss_mib").unwrap_or(f64::NAN));
             times.push(J::from(t));
+            other.push(j.get("other_cpu_cores").cloned().unwrap_or(J::Null));
             if best.as_ref().is_none_or(|b| t < b.f("seconds").unwrap_or(f64::INFINITY)) {
                 best = Some(j);
             }
@@ -1021,6 +1120,10 @@ impl Bench<'_> {
         }
         j.push("peak_rss_mib", rss.into());
         j.push("seconds_all_runs", J::Arr(times));
+        j.push("other_cpu_cores_all_runs", J::Arr(other));
+        if !waits.is_empty() {
+            j.push("idle_wait_seconds_all_runs", J::Arr(waits));
+        }
         Ok(j)
     }
 
@@ -1140,6 +1243,9 @@ fn scan(path: &Path) -> Result<InputInfo> {
 }
 
 fn bench(args: &BenchArgs) -> Result<()> {
+    if let Some(json) = &args.from_json {
+        return rerender(args, json);
+    }
     if args.inputs.is_empty() && args.attr_sweep.is_none() {
         bail!("give at least one input PLY (or --attr-sweep N)");
     }
@@ -1188,14 +1294,8 @@ fn bench(args: &BenchArgs) -> Result<()> {
         None => Vec::new(),
     };
 
-    let md = report_md(&b, &inputs, &rows, &builds, &sweep, &failures);
-    let path = args.out.join("report.md");
-    std::fs::write(&path, md).with_context(|| format!("write {}", path.display()))?;
-    let json = report_json(&b, &inputs, &rows, &builds, &sweep, &failures);
-    std::fs::write(args.out.join("report.json"), json.pretty()).context("write report.json")?;
-    let (speed, size) = plots(&inputs, &rows);
-    std::fs::write(args.out.join("error_vs_speed.svg"), speed).context("write error_vs_speed.svg")?;
-    std::fs::write(args.out.join("error_vs_size.svg"), size).context("write error_vs_size.svg")?;
+    let meta = Meta::of_run(&b);
+    let path = write_report(args, &meta, &inputs, &rows, &builds, &sweep, &failures)?;
     if args.clean {
         for r in &rows {
             let _ = std::fs::remove_file(&r.path);
@@ -1203,6 +1303,194 @@ fn bench(args: &BenchArgs) -> Result<()> {
     }
     b.say(&format!("report: {}", path.display()));
     Ok(())
+}
+
+/// Writes `report<suffix>.md`, `report<suffix>.json` and the two plots
+/// under `--out`; returns the Markdown's path.
+fn write_report(
+    args: &BenchArgs,
+    meta: &Meta,
+    inputs: &[InputInfo],
+    rows: &[Row],
+    builds: &[(usize, String, J)],
+    sweep: &[SweepRow],
+    failures: &[String],
+) -> Result<PathBuf> {
+    std::fs::create_dir_all(&args.out).with_context(|| format!("create {}", args.out.display()))?;
+    let write = |name: &str, text: String| -> Result<PathBuf> {
+        let path = args.out.join(name);
+        std::fs::write(&path, text).with_context(|| format!("write {}", path.display()))?;
+        Ok(path)
+    };
+    let sfx = &meta.suffix;
+    let md = write(&format!("report{sfx}.md"), report_md(meta, inputs, rows, builds, sweep, failures))?;
+    write(&format!("report{sfx}.json"), report_json(meta, inputs, rows, builds, sweep, failures).pretty())?;
+    let (speed, size) = plots(inputs, rows);
+    write(&format!("error_vs_speed{sfx}.svg"), speed)?;
+    write(&format!("error_vs_size{sfx}.svg"), size)?;
+    Ok(md)
+}
+
+/// How a report was made: from this run, or read back from its JSON.
+struct Meta {
+    generated: String,
+    command: String,
+    cpu: String,
+    threads: usize,
+    mem_gib: f64,
+    metro_bin: Option<PathBuf>,
+    metro_note: String,
+    samples: Option<u64>,
+    repeat: u32,
+    mem: String,
+    settings: Vec<String>,
+    min_tris: u64,
+    wait_idle: f64,
+    suffix: String,
+    label: Option<String>,
+    /// `--from-json`: when and from what the Markdown was re-rendered.
+    rerendered: Option<String>,
+}
+
+impl Meta {
+    fn of_run(b: &Bench) -> Meta {
+        let (cpu, threads, mem_gib) = machine();
+        Meta {
+            generated: now_utc(),
+            command: command_line(),
+            cpu,
+            threads,
+            mem_gib,
+            metro_bin: b.metro_bin.clone(),
+            metro_note: b.metro_note.clone(),
+            samples: b.args.samples,
+            repeat: b.args.repeat,
+            mem: b.args.mem.clone(),
+            settings: b.args.settings.clone(),
+            min_tris: b.args.min_tris,
+            wait_idle: b.args.wait_idle,
+            suffix: b.args.suffix.clone(),
+            label: b.args.label.clone(),
+            rerendered: None,
+        }
+    }
+}
+
+/// `--from-json`: rebuilds the rows from a report.json and writes the
+/// report and plots again (for changes to the report's layout without
+/// measuring again; the numbers are the JSON's).
+fn rerender(args: &BenchArgs, json: &Path) -> Result<()> {
+    let text = std::fs::read_to_string(json).with_context(|| format!("read {}", json.display()))?;
+    let j = J::parse(&text).with_context(|| format!("parse {}", json.display()))?;
+    let rerendered = format!("{} from `{}` by `{}`", now_utc(), json.display(), command_line());
+    let r = read_report(&j, &args.suffix, Some(rerendered)).with_context(|| format!("read {}", json.display()))?;
+    let path = write_report(args, &r.meta, &r.inputs, &r.rows, &r.builds, &r.sweep, &r.failures)?;
+    if !args.quiet {
+        eprintln!("report: {} (re-rendered from {})", path.display(), json.display());
+    }
+    Ok(())
+}
+
+/// Everything a report is made of.
+struct Report {
+    meta: Meta,
+    inputs: Vec<InputInfo>,
+    rows: Vec<Row>,
+    builds: Vec<(usize, String, J)>,
+    sweep: Vec<SweepRow>,
+    failures: Vec<String>,
+}
+
+/// Reads back what [`report_json`] wrote.
+fn read_report(j: &J, suffix: &str, rerendered: Option<String>) -> Result<Report> {
+    let m = j.get("machine");
+    let (metro_bin, metro_note) = match (j.str("metro"), j.get("metro_note")) {
+        (Some(bin), Some(J::Null) | None) if !bin.contains(' ') => (Some(PathBuf::from(bin)), String::new()),
+        (bin, note) => (None, note.and_then(|n| if let J::Str(s) = n { Some(s.clone()) } else { None }).or(bin.map(String::from)).unwrap_or_default()),
+    };
+    let meta = Meta {
+        generated: j.str("generated").unwrap_or("?").to_string(),
+        command: j.str("command").unwrap_or("?").to_string(),
+        cpu: m.and_then(|m| m.str("cpu")).unwrap_or("?").to_string(),
+        threads: m.and_then(|m| m.f("threads")).unwrap_or(0.0) as usize,
+        mem_gib: m.and_then(|m| m.f("mem_gib")).unwrap_or(f64::NAN),
+        metro_bin,
+        metro_note,
+        samples: j.f("samples").map(|x| x as u64),
+        repeat: j.f("repeat").unwrap_or(1.0) as u32,
+        mem: j.str("mem").unwrap_or("?").to_string(),
+        settings: j.arr("settings").iter().filter_map(|s| if let J::Str(s) = s { Some(s.clone()) } else { None }).collect(),
+        min_tris: j.f("min_tris").unwrap_or(0.0) as u64,
+        wait_idle: j.f("wait_idle").unwrap_or(0.0),
+        suffix: suffix.to_string(),
+        label: j.str("label").map(String::from),
+        rerendered,
+    };
+    let (mut inputs, mut rows, mut builds) = (Vec::new(), Vec::new(), Vec::new());
+    for (ii, inp) in j.arr("inputs").iter().enumerate() {
+        let info = InputInfo {
+            path: PathBuf::from(inp.str("path").unwrap_or("?")),
+            name: inp.str("name").unwrap_or("?").to_string(),
+            bytes: inp.f("bytes").unwrap_or(0.0) as u64,
+            vertices: inp.f("vertices").unwrap_or(0.0) as u64,
+            triangles: inp.f("triangles").unwrap_or(0.0) as u64,
+            diagonal: inp.f("bbox_diagonal").unwrap_or(f64::NAN),
+            attrs: inp.str("attributes").unwrap_or("?").to_string(),
+            scan_seconds: inp.f("scan_seconds").unwrap_or(f64::NAN),
+        };
+        for b in inp.arr("builds") {
+            let setting = format!("{}x{}", b.f("leaf_tris").unwrap_or(0.0), b.f("cluster_grid").unwrap_or(0.0));
+            builds.push((ii, setting, b.clone()));
+        }
+        for r in inp.arr("rows") {
+            let method = match r.str("method") {
+                Some("octolod") => Method::Octolod,
+                Some("meshopt-simplify") => Method::MeshoptSimplify,
+                Some("meshopt-sloppy") => Method::MeshoptSloppy,
+                Some("oocs") => Method::Oocs,
+                other => bail!("unknown method {other:?}"),
+            };
+            let err = match r.get("metro") {
+                Some(raw @ J::Obj(_)) => parse_metro(raw.clone(), r.f("metro_seconds").unwrap_or(f64::NAN)),
+                _ => None,
+            };
+            rows.push(Row {
+                input: ii,
+                method,
+                setting: r.str("setting").unwrap_or("").to_string(),
+                level: r.f("level").map(|l| l as u8),
+                target: r.f("target").map(|t| t as u64),
+                triangles: r.f("triangles").unwrap_or(0.0) as u64,
+                vertices: r.f("vertices").unwrap_or(0.0) as u64,
+                path: PathBuf::from(r.str("path").unwrap_or("")),
+                seconds: r.f("seconds").unwrap_or(f64::NAN),
+                load_seconds: r.f("load_seconds"),
+                throughput: r.f("throughput_mtris_per_s").unwrap_or(f64::NAN),
+                rss_mib: r.f("peak_rss_mib").unwrap_or(f64::NAN),
+                err,
+                err_note: r.str("error_note").map(String::from),
+                child: r.get("child").cloned().unwrap_or(J::Null),
+            });
+        }
+        inputs.push(info);
+    }
+    let sweep = j
+        .arr("attr_sweep")
+        .iter()
+        .map(|r| {
+            let label = r.str("label").unwrap_or("?").to_string();
+            let bits = SWEEP_SETS.iter().find(|(l, _)| *l == label).map_or(0, |s| s.1);
+            SweepRow {
+                label,
+                attrs: AttrSet(bits),
+                triangles: r.f("triangles").unwrap_or(0.0) as u64,
+                ply_bytes: r.f("ply_bytes").unwrap_or(0.0) as u64,
+                child: r.get("build").cloned().unwrap_or(J::Null),
+            }
+        })
+        .collect::<Vec<_>>();
+    let failures: Vec<String> = j.arr("failures").iter().filter_map(|f| if let J::Str(s) = f { Some(s.clone()) } else { None }).collect();
+    Ok(Report { meta, inputs, rows, builds, sweep, failures })
 }
 
 /// The `octolod` binary, if its `metro` subcommand answers `--help`.
@@ -1367,8 +1655,16 @@ fn measure(b: &Bench, info: &InputInfo, row: &mut Row) {
 // ---------------------------------------------------------------------------
 // Attribute sweep.
 
+/// The attribute sets of `--attr-sweep`: label, attribute bits.
+const SWEEP_SETS: [(&str, u32); 4] = [
+    ("position only", 0),
+    ("+uv", AttrSet::UV),
+    ("+normals", AttrSet::NORMAL),
+    ("+normals+colors+uvs", AttrSet::NORMAL | AttrSet::COLOR | AttrSet::UV),
+];
+
 struct SweepRow {
-    label: &'static str,
+    label: String,
     attrs: AttrSet,
     triangles: u64,
     ply_bytes: u64,
@@ -1378,14 +1674,8 @@ struct SweepRow {
 fn attr_sweep(b: &Bench, n: u64, (leaf, grid): (u64, u32), failures: &mut Vec<String>) -> Result<Vec<SweepRow>> {
     let dir = b.args.out.join("attr-sweep");
     std::fs::create_dir_all(&dir).with_context(|| format!("create {}", dir.display()))?;
-    let sets: [(&str, u32); 4] = [
-        ("position only", 0),
-        ("+uv", AttrSet::UV),
-        ("+normals", AttrSet::NORMAL),
-        ("+normals+colors+uvs", AttrSet::NORMAL | AttrSet::COLOR | AttrSet::UV),
-    ];
     let mut out = Vec::new();
-    for (label, bits) in sets {
+    for (label, bits) in SWEEP_SETS {
         let attrs = AttrSet(bits);
         let tag = label.trim_start_matches('+').replace(['+', ' '], "-");
         let path = dir.join(format!("sphere-{n}-{tag}.ply"));
@@ -1423,7 +1713,7 @@ fn attr_sweep(b: &Bench, n: u64, (leaf, grid): (u64, u32), failures: &mut Vec<St
                     s * 1e9 / info.triangles as f64,
                     j.f("peak_rss_mib").unwrap_or(f64::NAN)
                 ));
-                out.push(SweepRow { label, attrs, triangles: info.triangles, ply_bytes: info.bytes, child: j });
+                out.push(SweepRow { label: label.to_string(), attrs, triangles: info.triangles, ply_bytes: info.bytes, child: j });
             }
             Err(e) => {
                 b.say(&format!("[attr-sweep] {label}: FAILED: {e:#}"));
@@ -1550,30 +1840,70 @@ fn command_line() -> String {
     std::env::args().collect::<Vec<_>>().join(" ")
 }
 
-fn report_md(b: &Bench, inputs: &[InputInfo], rows: &[Row], builds: &[(usize, String, J)], sweep: &[SweepRow], failures: &[String]) -> String {
+/// Other processes' mean CPU use (cores) during a child's kept run.
+fn other_cpu(j: &J) -> Option<f64> {
+    j.f("other_cpu_cores")
+}
+
+fn report_md(meta: &Meta, inputs: &[InputInfo], rows: &[Row], builds: &[(usize, String, J)], sweep: &[SweepRow], failures: &[String]) -> String {
     let mut s = String::new();
-    let (cpu, cores, mem) = machine();
+    let (cpu, cores, mem) = (&meta.cpu, meta.threads, meta.mem_gib);
     let w = &mut s;
     let _ = writeln!(w, "# octolod speed-against-error report\n");
     let _ = writeln!(
         w,
-        "Generated {} by `{}`.{}\n",
-        now_utc(),
-        command_line(),
-        if b.args.repeat > 1 { format!(" Every method ran {} times; times are the fastest run, peak RSS the largest.", b.args.repeat) } else { String::new() }
+        "Generated {} by `{}`.{}{}\n",
+        meta.generated,
+        meta.command,
+        if meta.repeat > 1 { format!(" Every method ran {} times; times are the fastest run, peak RSS the largest.", meta.repeat) } else { String::new() },
+        meta.rerendered.as_ref().map_or(String::new(), |r| format!(" Tables and plots re-rendered {r}; the numbers are those of the run."))
     );
+    if let Some(l) = &meta.label {
+        let _ = writeln!(w, "Measured: {l}.\n");
+    }
     let _ = writeln!(w, "Machine: {cpu}, {cores} hardware threads, {mem:.1} GiB RAM. octolod uses all threads (rayon); meshoptimizer and the OOCS baseline are single-threaded.\n");
+    // Other processes' CPU use during the timed sections (the machine may be
+    // shared): kept runs and every run.
+    let kept: Vec<f64> = builds
+        .iter()
+        .map(|(_, _, j)| j)
+        .chain(rows.iter().filter(|r| r.method != Method::Octolod).map(|r| &r.child))
+        .chain(sweep.iter().map(|r| &r.child))
+        .filter_map(other_cpu)
+        .collect();
+    let all: Vec<f64> = builds
+        .iter()
+        .map(|(_, _, j)| j)
+        .chain(rows.iter().filter(|r| r.method != Method::Octolod).map(|r| &r.child))
+        .chain(sweep.iter().map(|r| &r.child))
+        .flat_map(|j| j.arr("other_cpu_cores_all_runs").iter().filter_map(J::num))
+        .collect();
+    if !kept.is_empty() {
+        let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+        let max = |v: &[f64]| v.iter().copied().fold(0.0f64, f64::max);
+        let busy = kept.iter().filter(|&&c| c >= 0.25).count();
+        let _ = writeln!(
+            w,
+            "Other processes' CPU use during the timed sections (machine busy time minus the child's own, from `/proc/stat`; the machine is shared): kept runs {:.2} cores on average, at most {:.2}, {busy} of {} kept runs at or above 0.25 cores; all {} runs at most {:.2}.{} The \"others' CPU\" columns give it per kept run: a time taken beside a busy neighbour is slower than the method.\n",
+            mean(&kept),
+            max(&kept),
+            kept.len(),
+            all.len(),
+            max(&all),
+            if meta.wait_idle > 0.0 { format!(" Each run first waited (up to {} s) for other processes to use under 0.25 cores.", meta.wait_idle) } else { String::new() }
+        );
+    }
     let which = rows.iter().find_map(|r| r.err.as_ref()).map(|m| m.which.clone());
     let samples = rows.iter().find_map(|r| r.err.as_ref().and_then(|m| m.samples));
     let taken = rows.iter().filter_map(|r| r.err.as_ref()).flat_map(|m| m.taken.iter().copied());
     let (tlo, thi) = taken.fold((f64::INFINITY, 0.0f64), |(lo, hi), t| (lo.min(t), hi.max(t)));
-    match (&b.metro_bin, which) {
+    match (&meta.metro_bin, which) {
         (Some(bin), Some(which)) => {
             let _ = writeln!(
                 w,
                 "Error: `{} metro INPUT OUTPUT --json{}` ({} samples per direction asked, {} taken: metro takes every vertex even when fewer are asked), figures from {which}, divided by the input's bounding-box diagonal.\n",
                 bin.display(),
-                b.args.samples.map_or(String::new(), |n| format!(" --samples {n}")),
+                meta.samples.map_or(String::new(), |n| format!(" --samples {n}")),
                 samples.map_or("metro's default".into(), |n| thousands(n as u64)),
                 if tlo.is_finite() { format!("{}–{}", thousands(tlo as u64), thousands(thi as u64)) } else { "?".into() },
             );
@@ -1582,35 +1912,40 @@ fn report_md(b: &Bench, inputs: &[InputInfo], rows: &[Row], builds: &[(usize, St
             let _ = writeln!(w, "Error: `{} metro` ran but gave no figures; errors n/a.\n", bin.display());
         }
         (None, _) => {
-            let _ = writeln!(w, "Error: {}.\n", b.metro_note);
+            let _ = writeln!(w, "Error: {}.\n", meta.metro_note);
         }
     }
     let _ = writeln!(
         w,
         "How to read: octolod rows show the whole build (PLY → all levels, out of core under `--mem {}`), its time and throughput repeated on each level it produced; peer rows show one in-core simplification of the whole input to the matching octolod output size, timed without loading (load separate). Throughput is always input triangles per second. Peers see positions only; octolod models every attribute the input has. Peak RSS is each child process's `VmHWM` (octolod: read after the build, before extraction; peers: including the load). Ratios pair each octolod output with each peer's run at the same target on the same input; below 1 favours octolod.\n",
-        b.args.mem
+        meta.mem
     );
 
     for (ii, info) in inputs.iter().enumerate() {
+        let dim = builds.iter().find(|(i, _, _)| *i == ii).and_then(|(_, _, j)| j.f("quadric_dim"));
         let _ = writeln!(
             w,
-            "## {}\n\n`{}`: {} triangles, {} vertices, {}, {:.1} MB, bbox diagonal {:.6}.\n",
+            "## {}\n\n`{}`: {} triangles, {} vertices, {}{}, {:.1} MB, bbox diagonal {:.6}.\n",
             info.name,
             info.path.display(),
             thousands(info.triangles),
             thousands(info.vertices),
             info.attrs,
+            dim.map_or(String::new(), |d| format!(" (octolod quadric dimension {d})")),
             info.bytes as f64 / 1e6,
             info.diagonal
         );
         let _ = writeln!(w, "### octolod builds\n");
-        let _ = writeln!(w, "| setting | levels | nodes | time (s) | soup / octree / simplify (s) | M input tris/s | peak RSS (MiB) | store on disk (MB) |");
-        let _ = writeln!(w, "|---|---:|---:|---:|---|---:|---:|---:|");
+        let _ = writeln!(
+            w,
+            "| setting | levels | nodes | time (s) | soup / octree / simplify (s) | M input tris/s | peak RSS (MiB) | store on disk (MB) | others' CPU (cores) |"
+        );
+        let _ = writeln!(w, "|---|---:|---:|---:|---|---:|---:|---:|---:|");
         for (_, setting, j) in builds.iter().filter(|(i, _, _)| *i == ii) {
             let t = j.f("seconds").unwrap_or(f64::NAN);
             let _ = writeln!(
                 w,
-                "| {setting} | {} | {} | {t:.2} | {:.2} / {:.2} / {:.2} | {:.3} | {:.0} | {:.1} |",
+                "| {setting} | {} | {} | {t:.2} | {:.2} / {:.2} / {:.2} | {:.3} | {:.0} | {:.1} | {} |",
                 j.arr("levels").len(),
                 thousands(j.f("nodes").unwrap_or(0.0) as u64),
                 j.f("soup_seconds").unwrap_or(f64::NAN),
@@ -1618,21 +1953,26 @@ fn report_md(b: &Bench, inputs: &[InputInfo], rows: &[Row], builds: &[(usize, St
                 j.f("simplify_seconds").unwrap_or(f64::NAN),
                 info.triangles as f64 / t / 1e6,
                 j.f("peak_rss_mib").unwrap_or(f64::NAN),
-                j.f("disk_bytes").unwrap_or(f64::NAN) / 1e6
+                j.f("disk_bytes").unwrap_or(f64::NAN) / 1e6,
+                opt(other_cpu(j), |c| format!("{c:.2}")),
             );
         }
         let _ = writeln!(w, "\n### All outputs\n");
         let _ = writeln!(
             w,
-            "| method | setting | output tris | time (s) | load (s) | M input tris/s | peak RSS (MiB) | RMS / diag | Hausdorff / diag |"
+            "| method | setting | output tris | time (s) | load (s) | M input tris/s | peak RSS (MiB) | RMS / diag | Hausdorff / diag | others' CPU (cores) |"
         );
-        let _ = writeln!(w, "|---|---|---:|---:|---:|---:|---:|---:|---:|");
+        let _ = writeln!(w, "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|");
         let mut mine: Vec<&Row> = rows.iter().filter(|r| r.input == ii).collect();
         mine.sort_by(|a, b| (a.method as u8).cmp(&(b.method as u8)).then(b.triangles.cmp(&a.triangles)));
         for r in &mine {
+            let others = match r.method {
+                Method::Octolod => builds.iter().find(|(i, s, _)| *i == ii && *s == r.setting).and_then(|(_, _, j)| other_cpu(j)),
+                _ => other_cpu(&r.child),
+            };
             let _ = writeln!(
                 w,
-                "| {} | {} | {} | {:.3} | {} | {:.3} | {:.0} | {} | {} |",
+                "| {} | {} | {} | {:.3} | {} | {:.3} | {:.0} | {} | {} | {} |",
                 r.method.name(),
                 r.setting_text(),
                 thousands(r.triangles),
@@ -1645,6 +1985,7 @@ fn report_md(b: &Bench, inputs: &[InputInfo], rows: &[Row], builds: &[(usize, St
                 r.rss_mib,
                 opt(r.err.as_ref().map(|m| m.rms / info.diagonal), sci),
                 opt(r.err.as_ref().map(|m| m.max / info.diagonal), sci),
+                opt(others, |c| format!("{c:.2}")),
             );
         }
         let _ = writeln!(w, "\n### Ratios, octolod ÷ peer at the same target\n");
@@ -1712,21 +2053,21 @@ fn report_md(b: &Bench, inputs: &[InputInfo], rows: &[Row], builds: &[(usize, St
             w,
             "The same generated sphere ({} triangles, seed 1) with four vertex attribute sets, built by octolod with setting {} under `--mem {}` (build only). The quadric dimension follows the attributes present, so a position-only input pays nothing for attributes it does not have.\n",
             thousands(base.triangles),
-            b.args.settings.first().map_or("", |s| s.as_str()),
-            b.args.mem
+            meta.settings.first().map_or("", |s| s.as_str()),
+            meta.mem
         );
         let _ = writeln!(
             w,
-            "| attributes | quadric dim | PLY (MB) | build (s) | soup / octree / simplify (s) | ns per input tri | peak RSS (MiB) | RSS bytes per input tri | time ÷ position-only | simplify ÷ position-only | RSS ÷ position-only |"
+            "| attributes | quadric dim | PLY (MB) | build (s) | soup / octree / simplify (s) | ns per input tri | peak RSS (MiB) | RSS bytes per input tri | store on disk (MB) | time ÷ position-only | simplify ÷ position-only | RSS ÷ position-only | others' CPU (cores) |"
         );
-        let _ = writeln!(w, "|---|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|");
+        let _ = writeln!(w, "|---|---:|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|");
         for r in sweep {
             let t = r.child.f("seconds").unwrap_or(f64::NAN);
             let rss = r.child.f("peak_rss_mib").unwrap_or(f64::NAN);
             let simp = r.child.f("simplify_seconds").unwrap_or(f64::NAN);
             let _ = writeln!(
                 w,
-                "| {} (`{}`) | {} | {:.1} | {t:.2} | {:.2} / {:.2} / {simp:.2} | {:.0} | {rss:.0} | {:.0} | {} | {} | {} |",
+                "| {} (`{}`) | {} | {:.1} | {t:.2} | {:.2} / {:.2} / {simp:.2} | {:.0} | {rss:.0} | {:.0} | {:.1} | {} | {} | {} | {} |",
                 r.label,
                 r.attrs.describe(),
                 r.attrs.quadric_dim(),
@@ -1735,9 +2076,19 @@ fn report_md(b: &Bench, inputs: &[InputInfo], rows: &[Row], builds: &[(usize, St
                 r.child.f("octree_seconds").unwrap_or(f64::NAN),
                 t * 1e9 / r.triangles as f64,
                 rss * 1048576.0 / r.triangles as f64,
+                r.child.f("disk_bytes").unwrap_or(f64::NAN) / 1e6,
                 ratio(t / r.triangles as f64 / bt),
                 ratio(simp / bs),
                 ratio(rss / r.triangles as f64 / br),
+                opt(other_cpu(&r.child), |c| format!("{c:.2}")),
+            );
+        }
+        let budget = octolod::mem::parse_size(&meta.mem).map_or(f64::NAN, |b| b as f64 / 1048576.0);
+        if sweep.iter().all(|r| r.child.f("peak_rss_mib").is_some_and(|m| m >= 0.95 * budget)) {
+            let _ = writeln!(
+                w,
+                "\nEvery build here filled its `--mem {}` budget, so peak RSS is the budget whatever the attributes: at this size they cost time and disk, not memory.",
+                meta.mem
             );
         }
         let _ = writeln!(w);
@@ -1750,12 +2101,16 @@ fn report_md(b: &Bench, inputs: &[InputInfo], rows: &[Row], builds: &[(usize, St
         }
         let _ = writeln!(w);
     }
-    let _ = writeln!(w, "Plots: [error vs speed](error_vs_speed.svg), [error vs size](error_vs_size.svg). Raw numbers: `report.json`.");
+    let sfx = &meta.suffix;
+    let _ = writeln!(w, "## Plots\n");
+    let _ = writeln!(w, "![RMS error vs throughput](error_vs_speed{sfx}.svg)\n");
+    let _ = writeln!(w, "![RMS error vs output size](error_vs_size{sfx}.svg)\n");
+    let _ = writeln!(w, "Raw numbers: `report{sfx}.json`.");
     s
 }
 
-fn report_json(b: &Bench, inputs: &[InputInfo], rows: &[Row], builds: &[(usize, String, J)], sweep: &[SweepRow], failures: &[String]) -> J {
-    let (cpu, cores, mem) = machine();
+fn report_json(meta: &Meta, inputs: &[InputInfo], rows: &[Row], builds: &[(usize, String, J)], sweep: &[SweepRow], failures: &[String]) -> J {
+    let (cpu, cores, mem) = (meta.cpu.as_str(), meta.threads, meta.mem_gib);
     let ps = pairs(rows);
     let inputs_j: Vec<J> = inputs
         .iter()
@@ -1829,7 +2184,7 @@ fn report_json(b: &Bench, inputs: &[InputInfo], rows: &[Row], builds: &[(usize, 
         .iter()
         .map(|r| {
             obj([
-                ("label", r.label.into()),
+                ("label", r.label.as_str().into()),
                 ("attributes", r.attrs.describe().into()),
                 ("quadric_dim", (r.attrs.quadric_dim() as u64).into()),
                 ("triangles", r.triangles.into()),
@@ -1839,15 +2194,19 @@ fn report_json(b: &Bench, inputs: &[InputInfo], rows: &[Row], builds: &[(usize, 
         })
         .collect();
     obj([
-        ("generated", now_utc().into()),
-        ("command", command_line().into()),
+        ("generated", meta.generated.as_str().into()),
+        ("command", meta.command.as_str().into()),
+        ("label", meta.label.clone().into()),
+        ("rerendered", meta.rerendered.clone().into()),
         ("machine", obj([("cpu", cpu.into()), ("threads", (cores as u64).into()), ("mem_gib", mem.into())])),
-        ("metro", b.metro_bin.as_deref().map(J::from).unwrap_or_else(|| J::from(b.metro_note.as_str()))),
-        ("samples", b.args.samples.into()),
-        ("repeat", b.args.repeat.into()),
-        ("mem", b.args.mem.as_str().into()),
-        ("settings", J::Arr(b.args.settings.iter().map(|s| J::from(s.as_str())).collect())),
-        ("min_tris", b.args.min_tris.into()),
+        ("metro", meta.metro_bin.as_deref().map(J::from).unwrap_or_else(|| J::from(meta.metro_note.as_str()))),
+        ("metro_note", if meta.metro_bin.is_some() { J::Null } else { meta.metro_note.as_str().into() }),
+        ("samples", meta.samples.into()),
+        ("repeat", meta.repeat.into()),
+        ("mem", meta.mem.as_str().into()),
+        ("settings", J::Arr(meta.settings.iter().map(|s| J::from(s.as_str())).collect())),
+        ("min_tris", meta.min_tris.into()),
+        ("wait_idle", meta.wait_idle.into()),
         ("inputs", J::Arr(inputs_j)),
         ("attr_sweep", J::Arr(sweep_j)),
         ("failures", J::Arr(failures.iter().map(|f| J::from(f.as_str())).collect())),
@@ -1870,10 +2229,15 @@ struct Series {
     label: String,
     color: &'static str,
     marker: Marker,
-    /// SVG `stroke-dasharray` of the joining line ("" solid).
-    dash: &'static str,
-    /// (x, y, hover text), joined by a line in this order.
+    /// (x, y, hover text), joined by a line in this order when `join`.
     points: Vec<(f64, f64, String)>,
+    join: bool,
+}
+
+/// One plot area (one input).
+struct Panel {
+    title: String,
+    series: Vec<Series>,
 }
 
 const OCTOLOD_COLORS: [&str; 4] = ["#1f4e99", "#4a90d9", "#7b3fa0", "#0b8a8a"];
@@ -1887,12 +2251,11 @@ fn method_color(m: Method) -> &'static str {
     }
 }
 
-/// (error vs speed, error vs size).
+/// (error vs speed, error vs size): one panel per input, on shared axes.
 fn plots(inputs: &[InputInfo], rows: &[Row]) -> (String, String) {
     // Colour: method (octolod: shades per setting); shape: octolod setting
-    // (peers: circles); line dash: input.
+    // (peers: circles).
     let markers = [Marker::Square, Marker::Diamond, Marker::Triangle, Marker::Cross];
-    let dashes = ["", "7,4", "2,3", "9,3,2,3"];
     let mut keys: Vec<(usize, Method, String)> = Vec::new();
     for r in rows {
         let k = (r.input, r.method, r.setting.clone());
@@ -1900,56 +2263,53 @@ fn plots(inputs: &[InputInfo], rows: &[Row]) -> (String, String) {
             keys.push(k);
         }
     }
-    let settings: Vec<String> = {
-        let mut s: Vec<String> = rows.iter().filter(|r| r.method == Method::Octolod).map(|r| r.setting.clone()).collect();
-        s.dedup();
-        let mut u = Vec::new();
-        for x in s {
-            if !u.contains(&x) {
-                u.push(x);
-            }
+    let mut settings: Vec<String> = Vec::new();
+    for r in rows.iter().filter(|r| r.method == Method::Octolod) {
+        if !settings.contains(&r.setting) {
+            settings.push(r.setting.clone());
         }
-        u
-    };
-    let make = |x: &dyn Fn(&Row) -> f64| -> Vec<Series> {
-        keys.iter()
-            .map(|(ii, m, setting)| {
-                let mut rs: Vec<&Row> = rows.iter().filter(|r| r.input == *ii && r.method == *m && &r.setting == setting).collect();
-                rs.sort_by_key(|r| std::cmp::Reverse(r.triangles));
-                let diag = inputs[*ii].diagonal;
-                let points = rs
+    }
+    let make = |x: &dyn Fn(&Row) -> f64, join_peers: bool| -> Vec<Panel> {
+        inputs
+            .iter()
+            .enumerate()
+            .map(|(ii, info)| {
+                let series = keys
                     .iter()
-                    .filter_map(|r| {
-                        let e = r.err.as_ref()?;
-                        Some((
-                            x(r),
-                            e.rms / diag,
-                            format!(
-                                "{} {}: {} tris, {:.3} M tri/s, RMS {:.3e}, Hausdorff {:.3e}",
-                                r.method.name(),
-                                r.setting_text(),
-                                thousands(r.triangles),
-                                r.throughput,
-                                e.rms / diag,
-                                e.max / diag
-                            ),
-                        ))
+                    .filter(|k| k.0 == ii)
+                    .map(|(_, m, setting)| {
+                        let mut rs: Vec<&Row> = rows.iter().filter(|r| r.input == ii && r.method == *m && &r.setting == setting).collect();
+                        rs.sort_by_key(|r| std::cmp::Reverse(r.triangles));
+                        let points = rs
+                            .iter()
+                            .filter_map(|r| {
+                                let e = r.err.as_ref()?;
+                                Some((
+                                    x(r),
+                                    e.rms / info.diagonal,
+                                    format!(
+                                        "{} {}: {} tris, {:.3} M tri/s, RMS {:.3e}, Hausdorff {:.3e}",
+                                        r.method.name(),
+                                        r.setting_text(),
+                                        thousands(r.triangles),
+                                        r.throughput,
+                                        e.rms / info.diagonal,
+                                        e.max / info.diagonal
+                                    ),
+                                ))
+                            })
+                            .collect();
+                        let k = settings.iter().position(|s| s == setting).unwrap_or(0);
+                        let (label, color, marker) = match m {
+                            Method::Octolod => {
+                                (format!("octolod {setting}"), OCTOLOD_COLORS[k % OCTOLOD_COLORS.len()], markers[k % markers.len()])
+                            }
+                            m => (m.name().to_string(), method_color(*m), Marker::Circle),
+                        };
+                        Series { label, color, marker, points, join: join_peers || *m == Method::Octolod }
                     })
                     .collect();
-                let color = match m {
-                    Method::Octolod => OCTOLOD_COLORS[settings.iter().position(|s| s == setting).unwrap_or(0) % OCTOLOD_COLORS.len()],
-                    m => method_color(*m),
-                };
-                let name = match m {
-                    Method::Octolod => format!("octolod {setting}"),
-                    m => m.name().to_string(),
-                };
-                let label = if inputs.len() > 1 { format!("{name} · {}", inputs[*ii].name) } else { name };
-                let marker = match m {
-                    Method::Octolod => markers[settings.iter().position(|s| s == setting).unwrap_or(0) % markers.len()],
-                    _ => Marker::Circle,
-                };
-                Series { label, color, marker, dash: dashes[*ii % dashes.len()], points }
+                Panel { title: format!("{}: {} triangles, {}", info.name, thousands(info.triangles), info.attrs), series }
             })
             .collect()
     };
@@ -1957,14 +2317,14 @@ fn plots(inputs: &[InputInfo], rows: &[Row]) -> (String, String) {
         "RMS error vs throughput",
         "throughput (M input triangles / s, log)",
         "RMS error / bbox diagonal (log)",
-        &make(&|r| r.throughput),
-        "octolod: one build makes every level, so a setting's outputs share its throughput",
+        &make(&|r| r.throughput, false),
+        "octolod: one build makes every level, so a setting's outputs share its throughput (joined by a line); peers: one run per output",
     );
     let size = svg_plot(
         "RMS error vs output size",
         "output triangles (log)",
         "RMS error / bbox diagonal (log)",
-        &make(&|r| r.triangles as f64),
+        &make(&|r| r.triangles as f64, true),
         "peers are run at each octolod output size",
     );
     (speed, size)
@@ -2069,103 +2429,119 @@ fn marker_svg(m: Marker, x: f64, y: f64, color: &str) -> String {
     }
 }
 
-fn svg_plot(title: &str, xlabel: &str, ylabel: &str, series: &[Series], note: &str) -> String {
-    let (w, h) = (980.0, 600.0);
-    let (px0, px1, py0, py1) = (90.0, 680.0, 50.0, 530.0);
-    let (xlo, xhi) = log_range(series.iter().flat_map(|s| s.points.iter().map(|p| p.0)));
-    let (ylo, yhi) = log_range(series.iter().flat_map(|s| s.points.iter().map(|p| p.1)));
-    let sx = |v: f64| px0 + (v.log10() - xlo) / (xhi - xlo) * (px1 - px0);
-    let sy = |v: f64| py1 - (v.log10() - ylo) / (yhi - ylo) * (py1 - py0);
+/// Log–log plot, one panel per input stacked (each scaled to its data), one
+/// legend.
+fn svg_plot(title: &str, xlabel: &str, ylabel: &str, panels: &[Panel], note: &str) -> String {
+    let (px0, px1) = (90.0, 680.0);
+    let (top, ph, gap) = (64.0, 440.0, 84.0);
+    let n = panels.len().max(1) as f64;
+    let (w, h) = (980.0, top + n * ph + (n - 1.0) * gap + 70.0);
     let mut s = String::new();
     let _ = writeln!(
         s,
         "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{w}\" height=\"{h}\" viewBox=\"0 0 {w} {h}\" font-family=\"Helvetica, Arial, sans-serif\" font-size=\"12\">"
     );
     let _ = writeln!(s, "<rect width=\"{w}\" height=\"{h}\" fill=\"white\"/>");
-    let _ = writeln!(s, "<text x=\"{:.1}\" y=\"28\" text-anchor=\"middle\" font-size=\"16\" font-weight=\"bold\">{}</text>", (px0 + px1) / 2.0, esc(title));
-    // Grid and ticks.
-    for (v, lab) in log_ticks(xlo, xhi) {
-        let x = sx(v);
-        let (stroke, sw) = if lab { ("#d0d0d0", 1.0) } else { ("#eeeeee", 0.8) };
-        let _ = writeln!(s, "<line x1=\"{x:.1}\" y1=\"{py0}\" x2=\"{x:.1}\" y2=\"{py1}\" stroke=\"{stroke}\" stroke-width=\"{sw}\"/>");
-        let _ = writeln!(s, "<line x1=\"{x:.1}\" y1=\"{py1}\" x2=\"{x:.1}\" y2=\"{:.1}\" stroke=\"#333\"/>", py1 + if lab { 6.0 } else { 3.0 });
-        if lab {
-            let _ = writeln!(s, "<text x=\"{x:.1}\" y=\"{:.1}\" text-anchor=\"middle\">{}</text>", py1 + 20.0, tick_label(v));
+    let _ = writeln!(s, "<text x=\"{:.1}\" y=\"24\" text-anchor=\"middle\" font-size=\"16\" font-weight=\"bold\">{}</text>", (px0 + px1) / 2.0, esc(title));
+    for (k, panel) in panels.iter().enumerate() {
+        let py0 = top + k as f64 * (ph + gap);
+        let py1 = py0 + ph;
+        let all = || panel.series.iter().flat_map(|s| s.points.iter());
+        let (xlo, xhi) = log_range(all().map(|p| p.0));
+        let (ylo, yhi) = log_range(all().map(|p| p.1));
+        let sx = |v: f64| px0 + (v.log10() - xlo) / (xhi - xlo) * (px1 - px0);
+        let sy = |v: f64| py1 - (v.log10() - ylo) / (yhi - ylo) * (py1 - py0);
+        if panels.len() > 1 || !panel.title.is_empty() {
+            let _ = writeln!(s, "<text x=\"{px0}\" y=\"{:.1}\" font-size=\"13\" font-weight=\"bold\">{}</text>", py0 - 8.0, esc(&panel.title));
         }
-    }
-    for (v, lab) in log_ticks(ylo, yhi) {
-        let y = sy(v);
-        let (stroke, sw) = if lab { ("#d0d0d0", 1.0) } else { ("#eeeeee", 0.8) };
-        let _ = writeln!(s, "<line x1=\"{px0}\" y1=\"{y:.1}\" x2=\"{px1}\" y2=\"{y:.1}\" stroke=\"{stroke}\" stroke-width=\"{sw}\"/>");
-        let _ = writeln!(s, "<line x1=\"{:.1}\" y1=\"{y:.1}\" x2=\"{px0}\" y2=\"{y:.1}\" stroke=\"#333\"/>", px0 - if lab { 6.0 } else { 3.0 });
-        if lab {
-            let _ = writeln!(s, "<text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"end\">{}</text>", px0 - 9.0, y + 4.0, tick_label(v));
+        // Grid and ticks.
+        for (v, lab) in log_ticks(xlo, xhi) {
+            let x = sx(v);
+            let (stroke, sw) = if lab { ("#d0d0d0", 1.0) } else { ("#eeeeee", 0.8) };
+            let _ = writeln!(s, "<line x1=\"{x:.1}\" y1=\"{py0}\" x2=\"{x:.1}\" y2=\"{py1}\" stroke=\"{stroke}\" stroke-width=\"{sw}\"/>");
+            let _ = writeln!(s, "<line x1=\"{x:.1}\" y1=\"{py1}\" x2=\"{x:.1}\" y2=\"{:.1}\" stroke=\"#333\"/>", py1 + if lab { 6.0 } else { 3.0 });
+            if lab {
+                let _ = writeln!(s, "<text x=\"{x:.1}\" y=\"{:.1}\" text-anchor=\"middle\">{}</text>", py1 + 20.0, tick_label(v));
+            }
         }
-    }
-    let _ = writeln!(
-        s,
-        "<rect x=\"{px0}\" y=\"{py0}\" width=\"{:.1}\" height=\"{:.1}\" fill=\"none\" stroke=\"#333\"/>",
-        px1 - px0,
-        py1 - py0
-    );
-    let _ = writeln!(s, "<text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"middle\" font-size=\"13\">{}</text>", (px0 + px1) / 2.0, py1 + 44.0, esc(xlabel));
-    let _ = writeln!(
-        s,
-        "<text x=\"22\" y=\"{:.1}\" text-anchor=\"middle\" font-size=\"13\" transform=\"rotate(-90 22 {:.1})\">{}</text>",
-        (py0 + py1) / 2.0,
-        (py0 + py1) / 2.0,
-        esc(ylabel)
-    );
-    if series.iter().all(|s| s.points.is_empty()) {
+        for (v, lab) in log_ticks(ylo, yhi) {
+            let y = sy(v);
+            let (stroke, sw) = if lab { ("#d0d0d0", 1.0) } else { ("#eeeeee", 0.8) };
+            let _ = writeln!(s, "<line x1=\"{px0}\" y1=\"{y:.1}\" x2=\"{px1}\" y2=\"{y:.1}\" stroke=\"{stroke}\" stroke-width=\"{sw}\"/>");
+            let _ = writeln!(s, "<line x1=\"{:.1}\" y1=\"{y:.1}\" x2=\"{px0}\" y2=\"{y:.1}\" stroke=\"#333\"/>", px0 - if lab { 6.0 } else { 3.0 });
+            if lab {
+                let _ = writeln!(s, "<text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"end\">{}</text>", px0 - 9.0, y + 4.0, tick_label(v));
+            }
+        }
         let _ = writeln!(
             s,
-            "<text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"middle\" font-size=\"14\" fill=\"#888\">no error figures (metro unavailable)</text>",
-            (px0 + px1) / 2.0,
-            (py0 + py1) / 2.0
+            "<rect x=\"{px0}\" y=\"{py0}\" width=\"{:.1}\" height=\"{:.1}\" fill=\"none\" stroke=\"#333\"/>",
+            px1 - px0,
+            py1 - py0
         );
-    }
-    // Data: lines first, markers on top.
-    for se in series.iter().filter(|s| s.points.len() > 1) {
-        let pts: Vec<String> = se.points.iter().map(|p| format!("{:.1},{:.1}", sx(p.0), sy(p.1))).collect();
+        let _ = writeln!(s, "<text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"middle\" font-size=\"13\">{}</text>", (px0 + px1) / 2.0, py1 + 44.0, esc(xlabel));
         let _ = writeln!(
             s,
-            "<polyline points=\"{}\" fill=\"none\" stroke=\"{}\" stroke-width=\"1.6\" stroke-opacity=\"0.75\" stroke-dasharray=\"{}\"/>",
-            pts.join(" "),
-            se.color,
-            se.dash
+            "<text x=\"22\" y=\"{:.1}\" text-anchor=\"middle\" font-size=\"13\" transform=\"rotate(-90 22 {:.1})\">{}</text>",
+            (py0 + py1) / 2.0,
+            (py0 + py1) / 2.0,
+            esc(ylabel)
         );
-    }
-    for se in series {
-        for p in &se.points {
-            let _ = writeln!(s, "<g><title>{}</title>{}</g>", esc(&p.2), marker_svg(se.marker, sx(p.0), sy(p.1), se.color));
+        if panel.series.iter().all(|s| s.points.is_empty()) {
+            let _ = writeln!(
+                s,
+                "<text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"middle\" font-size=\"14\" fill=\"#888\">no error figures (metro unavailable)</text>",
+                (px0 + px1) / 2.0,
+                (py0 + py1) / 2.0
+            );
+        }
+        // Data: lines first, markers on top.
+        for se in panel.series.iter().filter(|s| s.join && s.points.len() > 1) {
+            let pts: Vec<String> = se.points.iter().map(|p| format!("{:.1},{:.1}", sx(p.0), sy(p.1))).collect();
+            let _ = writeln!(
+                s,
+                "<polyline points=\"{}\" fill=\"none\" stroke=\"{}\" stroke-width=\"1.6\" stroke-opacity=\"0.75\"/>",
+                pts.join(" "),
+                se.color
+            );
+        }
+        for se in &panel.series {
+            for p in &se.points {
+                let _ = writeln!(s, "<g><title>{}</title>{}</g>", esc(&p.2), marker_svg(se.marker, sx(p.0), sy(p.1), se.color));
+            }
         }
     }
-    // Legend.
+    // One legend: every distinct series label, in first-seen order.
+    let mut legend: Vec<&Series> = Vec::new();
+    for se in panels.iter().flat_map(|p| p.series.iter()) {
+        if !legend.iter().any(|l| l.label == se.label) {
+            legend.push(se);
+        }
+    }
     let lx = px1 + 20.0;
-    let mut ly = py0 + 8.0;
+    let mut ly = top + 8.0;
     let _ = writeln!(s, "<text x=\"{lx}\" y=\"{ly}\" font-weight=\"bold\">method</text>");
     ly += 20.0;
-    for se in series {
-        let _ = writeln!(
-            s,
-            "<line x1=\"{lx}\" y1=\"{ly:.1}\" x2=\"{:.1}\" y2=\"{ly:.1}\" stroke=\"{}\" stroke-width=\"1.6\" stroke-dasharray=\"{}\"/>",
-            lx + 26.0,
-            se.color,
-            se.dash
-        );
+    for se in legend {
+        let _ = writeln!(s, "<line x1=\"{lx}\" y1=\"{ly:.1}\" x2=\"{:.1}\" y2=\"{ly:.1}\" stroke=\"{}\" stroke-width=\"1.6\"/>", lx + 26.0, se.color);
         let _ = writeln!(s, "{}", marker_svg(se.marker, lx + 13.0, ly, se.color));
         let _ = writeln!(s, "<text x=\"{:.1}\" y=\"{:.1}\">{}</text>", lx + 34.0, ly + 4.0, esc(&se.label));
         ly += 20.0;
     }
     ly += 10.0;
-    for line in wrap(note, 44) {
-        let _ = writeln!(s, "<text x=\"{lx}\" y=\"{ly:.1}\" font-size=\"11\" fill=\"#555\">{}</text>", esc(&line));
-        ly += 14.0;
+    let mut notes = wrap(note, 44);
+    notes.push(String::new());
+    let joined = if panels.iter().flat_map(|p| &p.series).all(|s| s.join) { "lines join one method's outputs, largest first; " } else { "" };
+    notes.extend(wrap(&format!("{joined}colour: method, shape: octolod setting"), 44));
+    if panels.len() > 1 {
+        notes.push(String::new());
+        notes.extend(wrap("one panel per input, each scaled to its own data", 44));
     }
-    ly += 6.0;
-    for line in wrap("lines join one method's outputs, largest first; colour: method, shape: octolod setting, dashes: input", 44) {
-        let _ = writeln!(s, "<text x=\"{lx}\" y=\"{ly:.1}\" font-size=\"11\" fill=\"#555\">{}</text>", esc(&line));
-        ly += 14.0;
+    for line in notes {
+        if !line.is_empty() {
+            let _ = writeln!(s, "<text x=\"{lx}\" y=\"{ly:.1}\" font-size=\"11\" fill=\"#555\">{}</text>", esc(&line));
+        }
+        ly += if line.is_empty() { 6.0 } else { 14.0 };
     }
     s.push_str("</svg>\n");
     s
@@ -2225,6 +2601,77 @@ mod tests {
             let rad = (x.pos[0].powi(2) + x.pos[1].powi(2) + x.pos[2].powi(2)).sqrt();
             assert!((0.8..1.2).contains(&rad), "{rad}");
         }
+    }
+
+    /// `--from-json` gives back the report the run wrote.
+    #[test]
+    fn report_json_reads_back() {
+        let meta = Meta {
+            generated: "2026-01-01 00:00 UTC".into(),
+            command: "octolod-bench x.ply".into(),
+            cpu: "cpu".into(),
+            threads: 2,
+            mem_gib: 8.0,
+            metro_bin: Some(PathBuf::from("octolod")),
+            metro_note: String::new(),
+            samples: Some(1000),
+            repeat: 2,
+            mem: "512M".into(),
+            settings: vec!["16384x8".into()],
+            min_tris: 500,
+            wait_idle: 0.0,
+            suffix: "-t".into(),
+            label: Some("commit x".into()),
+            rerendered: None,
+        };
+        let info = InputInfo {
+            path: "x.ply".into(),
+            name: "x".into(),
+            bytes: 100,
+            vertices: 50,
+            triangles: 96,
+            diagonal: 2.0,
+            attrs: "position(f32)".into(),
+            scan_seconds: 0.1,
+        };
+        let metro = J::parse(r#"{"combined":{"max":0.2,"mean":0.05,"rms":0.1},"samples_target":1000}"#).unwrap();
+        let row = |method, setting: &str, level, target, child: J| Row {
+            input: 0,
+            method,
+            setting: setting.into(),
+            level,
+            target,
+            triangles: 40,
+            vertices: 22,
+            path: "o.ply".into(),
+            seconds: 0.5,
+            load_seconds: target.map(|_| 0.1),
+            throughput: 96.0 / 0.5 / 1e6,
+            rss_mib: 30.0,
+            err: parse_metro(metro.clone(), 0.3),
+            err_note: None,
+            child,
+        };
+        let build = obj([("leaf_tris", 16384u64.into()), ("cluster_grid", 8u32.into()), ("seconds", 0.5.into()), ("other_cpu_cores", 0.1.into())]);
+        let rows = vec![
+            row(Method::Octolod, "16384x8", Some(1), None, J::Null),
+            row(Method::Oocs, "", None, Some(40), obj([("grid", 7u32.into()), ("other_cpu_cores", 0.0.into())])),
+        ];
+        let builds = vec![(0, "16384x8".to_string(), build)];
+        let sweep = vec![SweepRow {
+            label: "+uv".into(),
+            attrs: AttrSet(AttrSet::UV),
+            triangles: 96,
+            ply_bytes: 200,
+            child: obj([("seconds", 0.2.into())]),
+        }];
+        let md = report_md(&meta, &[info], &rows, &builds, &sweep, &[]);
+        let info = InputInfo { path: "x.ply".into(), name: "x".into(), bytes: 100, vertices: 50, triangles: 96, diagonal: 2.0, attrs: "position(f32)".into(), scan_seconds: 0.1 };
+        let j = J::parse(&report_json(&meta, &[info], &rows, &builds, &sweep, &[]).pretty()).unwrap();
+        let r = read_report(&j, "-t", None).unwrap();
+        assert_eq!(report_md(&r.meta, &r.inputs, &r.rows, &r.builds, &r.sweep, &r.failures), md);
+        assert!(md.contains("| oocs | target 40 (grid 7) | 40 |"), "{md}");
+        assert!(md.contains("![RMS error vs throughput](error_vs_speed-t.svg)"));
     }
 
     #[test]
