@@ -114,9 +114,10 @@
 //!   the owned edges' length the densities need), edges, faces.
 //! * Budget: `--mem` (default [`DEFAULT_MEM`]) covers the batch buffers
 //!   (48 bytes a sample) and the cache; given explicitly, also each PLY
-//!   operand's estimated in-memory size ([`ply_estimate`]), and a PLY that
-//!   does not fit is refused (build a store of it; its level 0 is the exact
-//!   input). The cache must hold what one direction holds at once: a paged
+//!   operand's estimated in-memory size ([`ply_estimate`]); a PLY that does
+//!   not fit is streamed into a scratch store of its level 0 (the exact
+//!   input: soup + octree under `--mem`, leaves sized to the budget) and
+//!   paged like a store level. The cache must hold what one direction holds at once: a paged
 //!   source's current part and one earlier part, and two parts per query
 //!   worker (its home and one other); the number of workers is cut to fit,
 //!   and a budget below one worker's worth is a usage error naming the
@@ -2372,6 +2373,45 @@ pub fn compare(a: &Mesh, b: &Mesh, opts: &Options) -> Result<Report> {
 /// documentation). The samples, and so every figure, are those [`compare`]
 /// gives for the same meshes in memory ([`load_store_level`] for a level).
 pub fn compare_sources(sa: &Source, sb: &Source, opts: &Options, mem: &MemOptions) -> Result<Report> {
+    // A PLY over an explicit --mem is streamed into a scratch store of its
+    // level 0 (external sort + dereference + octree, under --mem; level 0
+    // is the exact input) and then paged like any store level.
+    let mut scratch = Vec::new();
+    let mut resolved = Vec::new();
+    for s in [sa, sb] {
+        match s {
+            Source::Ply(p) if mem.explicit => {
+                let h = crate::ply::read_header(p)?;
+                if ply_estimate(h.vertex_count(), h.face_count()) > mem.budget {
+                    let tmp = crate::io::scratch_dir(p)?;
+                    let stem = p.file_stem().map(|x| x.to_string_lossy().into_owned()).unwrap_or_else(|| "input".into());
+                    let dir = tmp.path().join(format!("{stem}.level0.octolod"));
+                    if crate::progress::visible(opts.quiet) {
+                        eprintln!("octolod: metro: {} does not fit --mem: streaming it into a scratch store of its level 0", p.display());
+                    }
+                    // Leaves small enough that several nodes' query indexes
+                    // (~250 B per triangle) fit the page cache.
+                    let leaf_tris = (mem.budget / 2048).clamp(256, 16384);
+                    let bo = crate::pipeline::BuildOptions {
+                        mem: mem.budget.max(crate::mem::MIN_BUDGET),
+                        leaf_tris,
+                        levels: Some(0),
+                        quiet: opts.quiet,
+                        ..Default::default()
+                    };
+                    crate::pipeline::build_store(p, &dir, &bo)?;
+                    resolved.push(Source::Store(dir, 0));
+                    scratch.push(tmp);
+                    continue;
+                }
+                resolved.push(s.clone());
+            }
+            _ => resolved.push(s.clone()),
+        }
+    }
+    if !scratch.is_empty() {
+        return compare_sources(&resolved[0], &resolved[1], opts, mem);
+    }
     let t0 = Instant::now();
     let mut ply_est = 0u64;
     for (s, name) in [(sa, "A"), (sb, "B")] {

@@ -554,7 +554,7 @@ fn paged_store_levels_equal_the_in_memory_path_under_a_tiny_budget() {
 }
 
 #[test]
-fn paged_cli_reports_the_cache_and_rejects_budgets_it_cannot_keep() {
+fn paged_cli_reports_the_cache_streams_big_plys_and_rejects_budgets_it_cannot_keep() {
     let d = tempfile::tempdir().unwrap();
     let (ply, store) = small_store(d.path());
     let (p, s) = (ply.to_str().unwrap(), store.to_str().unwrap());
@@ -586,11 +586,19 @@ fn paged_cli_reports_the_cache_and_rejects_budgets_it_cannot_keep() {
     assert_eq!(o.status.code(), Some(1));
     assert!(text(&o.stderr).contains("give --mem at least"), "{}", text(&o.stderr));
     assert!(text(&o.stdout).is_empty());
-    // An explicit budget a PLY operand (held whole) does not fit: the fix is a store.
-    let o = octolod(&["metro", p, &s1, "--mem", "2M"]);
-    assert_eq!(o.status.code(), Some(1));
-    let e = text(&o.stderr);
-    assert!(e.contains("octolod build") && e.contains("@0"), "{e}");
+    // A PLY operand over an explicit budget is streamed into a scratch store
+    // of its level 0 (exact input) and paged: same distances as the store's
+    // level 0 up to sampling (vertex order differs), no scratch left behind.
+    let o = octolod(&["metro", p, &s1, "--json", "--mem", "2M"]);
+    assert!(o.status.success(), "{}", text(&o.stderr));
+    let streamed = Json::parse(&text(&o.stdout)).unwrap();
+    assert!(streamed.num("paging.peak_resident") <= streamed.num("paging.cache_budget"));
+    for f in ["max", "mean", "rms"] {
+        let (x, y) = (streamed.num(&format!("combined.{f}")), small.num(&format!("combined.{f}")));
+        assert!((x - y).abs() <= 0.05 * y, "combined.{f}: streamed PLY {x} vs store level 0 {y}");
+    }
+    let left: Vec<_> = std::fs::read_dir(d.path()).unwrap().filter_map(|e| e.ok()).filter(|e| e.file_name().to_string_lossy().starts_with(".octolod-scratch")).collect();
+    assert!(left.is_empty(), "scratch store left behind");
     // PLYs only: no paging object, the JSON stays a pure function of the inputs.
     let o = octolod(&["metro", p, p, "--json", "--samples", "1000"]);
     assert!(o.status.success());
