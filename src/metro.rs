@@ -2373,63 +2373,22 @@ pub fn compare(a: &Mesh, b: &Mesh, opts: &Options) -> Result<Report> {
 /// documentation). The samples, and so every figure, are those [`compare`]
 /// gives for the same meshes in memory ([`load_store_level`] for a level).
 pub fn compare_sources(sa: &Source, sb: &Source, opts: &Options, mem: &MemOptions) -> Result<Report> {
+    let t0 = Instant::now();
     // A PLY over an explicit --mem is streamed into a scratch store of its
-    // level 0 (external sort + dereference + octree, under --mem; level 0
-    // is the exact input) and then paged like any store level.
+    // level 0 (the exact input) and then paged like any store level; one
+    // that fits is held whole and counted against --mem.
     let mut scratch = Vec::new();
     let mut resolved = Vec::new();
-    for s in [sa, sb] {
-        match s {
-            Source::Ply(p) if mem.explicit => {
-                let h = crate::ply::read_header(p)?;
-                if ply_estimate(h.vertex_count(), h.face_count()) > mem.budget {
-                    let tmp = crate::io::scratch_dir(p)?;
-                    let stem = p.file_stem().map(|x| x.to_string_lossy().into_owned()).unwrap_or_else(|| "input".into());
-                    let dir = tmp.path().join(format!("{stem}.level0.octolod"));
-                    if crate::progress::visible(opts.quiet) {
-                        eprintln!("octolod: metro: {} does not fit --mem: streaming it into a scratch store of its level 0", p.display());
-                    }
-                    // Leaves small enough that several nodes' query indexes
-                    // (~250 B per triangle) fit the page cache.
-                    let leaf_tris = (mem.budget / 2048).clamp(256, 16384);
-                    let bo = crate::pipeline::BuildOptions {
-                        mem: mem.budget.max(crate::mem::MIN_BUDGET),
-                        leaf_tris,
-                        levels: Some(0),
-                        quiet: opts.quiet,
-                        ..Default::default()
-                    };
-                    crate::pipeline::build_store(p, &dir, &bo)?;
-                    resolved.push(Source::Store(dir, 0));
-                    scratch.push(tmp);
-                    continue;
-                }
-                resolved.push(s.clone());
-            }
-            _ => resolved.push(s.clone()),
-        }
-    }
-    if !scratch.is_empty() {
-        return compare_sources(&resolved[0], &resolved[1], opts, mem);
-    }
-    let t0 = Instant::now();
     let mut ply_est = 0u64;
     for (s, name) in [(sa, "A"), (sb, "B")] {
         if let Source::Ply(p) = s {
             let h = crate::ply::read_header(p)?;
             let e = ply_estimate(h.vertex_count(), h.face_count());
             if mem.explicit && e > mem.budget {
-                return Err(Error::Usage(format!(
-                    "metro: {name} = {} ({} vertices, {} faces) needs about {} in memory, over --mem {}; \
-                     PLYs are held whole, store levels are paged: build a store with \
-                     `octolod build {} -o X.octolod` and pass X.octolod@0 (level 0 is the exact input), or raise --mem",
-                    p.display(),
-                    h.vertex_count(),
-                    h.face_count(),
-                    crate::progress::mib(e),
-                    crate::progress::mib(mem.budget),
-                    p.display()
-                )));
+                let (tmp, store) = level0_scratch_store(p, opts, mem)?;
+                scratch.push(tmp);
+                resolved.push(store);
+                continue;
             }
             if !mem.explicit && e > mem.budget && crate::progress::visible(opts.quiet) {
                 eprintln!(
@@ -2441,7 +2400,9 @@ pub fn compare_sources(sa: &Source, sb: &Source, opts: &Options, mem: &MemOption
             }
             ply_est += e;
         }
+        resolved.push(s.clone());
     }
+    let (sa, sb) = (&resolved[0], &resolved[1]);
     // An eighth of the budget for batches (up to 1 M samples): a larger
     // batch visits each target part once for more queries.
     let batch = ((mem.budget / 8 / BATCH_BYTES_PER_SAMPLE) as usize / CHUNK as usize * CHUNK as usize)
@@ -2523,6 +2484,29 @@ pub fn compare_sources(sa: &Source, sb: &Source, opts: &Options, mem: &MemOption
     r.b.source = sb.to_string();
     r.seconds.load = load_s;
     Ok(r)
+}
+
+/// Streams PLY `p` into a scratch store of its level 0 (soup + octree under
+/// `--mem`, no simplification; level 0 is the exact input). The store lives
+/// as long as the returned directory guard.
+fn level0_scratch_store(p: &Path, opts: &Options, mem: &MemOptions) -> Result<(tempfile::TempDir, Source)> {
+    let tmp = crate::io::scratch_dir(p)?;
+    let stem = p.file_stem().map(|x| x.to_string_lossy().into_owned()).unwrap_or_else(|| "input".into());
+    let dir = tmp.path().join(format!("{stem}.level0.octolod"));
+    if crate::progress::visible(opts.quiet) {
+        eprintln!("octolod: metro: {} does not fit --mem: streaming it into a scratch store of its level 0", p.display());
+    }
+    // Leaves small enough that several nodes' query indexes (~250 B per
+    // triangle) fit the page cache.
+    let bo = crate::pipeline::BuildOptions {
+        mem: mem.budget.max(crate::mem::MIN_BUDGET),
+        leaf_tris: (mem.budget / 2048).clamp(256, 16384),
+        levels: Some(0),
+        quiet: opts.quiet,
+        ..Default::default()
+    };
+    crate::pipeline::build_store(p, &dir, &bo)?;
+    Ok((tmp, Source::Store(dir, 0)))
 }
 
 /// The two directions, then the report.
