@@ -105,8 +105,9 @@ pub fn render(o: &RenderOptions) -> Result<RenderReport> {
         None => CameraPath::orbit(&bounds, o.orbit_frames.max(1), 0),
     };
     let reference = if o.brute_force {
-        let (meshes, _tris) = load_all_originals(&viewer.store, &mut |m| renderer.upload(m))?;
-        Some(meshes)
+        let (meshes, tris) = load_all_originals(&viewer.store, &mut |m| renderer.upload(m))?;
+        let bytes: u64 = meshes.iter().map(super::GpuBytes::gpu_bytes).sum();
+        Some((meshes, tris, bytes))
     } else {
         None
     };
@@ -125,9 +126,8 @@ pub fn render(o: &RenderOptions) -> Result<RenderReport> {
         let mut cam = path.camera(i);
         cam.fit_clip(&bounds);
         let (mut stats, meshes): (FrameStats, Vec<&GpuMesh>) = if o.brute_force {
-            let r = reference.as_ref().unwrap();
-            let bytes: u64 = r.iter().map(super::GpuBytes::gpu_bytes).sum();
-            let tris = viewer.store.nodes.iter().filter(|n| n.is_leaf()).map(|n| n.orig.tris as u64).sum();
+            let (r, tris, bytes) = reference.as_ref().unwrap();
+            let (tris, bytes) = (*tris, *bytes);
             let s = FrameStats {
                 frame: i as u64 + 1,
                 triangles: tris,
