@@ -206,7 +206,7 @@ pub fn simplify_node(
     }
     // Output → input, bounded above without an index: each representative's
     // distance to the nearest input triangle of its own cluster.
-    let stored = |p: [f64; 3]| if attrs.pos_f64() { p } else { p.map(|x| x as f32 as f64) };
+    let stored = |p: [f64; 3]| as_stored(p, attrs.pos_f64());
     let mut rep_d2 = vec![f64::INFINITY; quadrics.len()];
     for t in &mesh.triangles {
         let c = t.map(|v| mesh.vertices[v as usize].pos);
@@ -239,11 +239,19 @@ fn input_to_output(input: &IndexedMesh, output: &IndexedMesh, f64_positions: boo
         return None;
     }
     let a = Mesh::from_vertices(&input.vertices, input.triangles.clone());
-    let stored = |p: [f64; 3]| if f64_positions { p } else { p.map(|x| x as f32 as f64) };
-    let b = Mesh::new(output.vertices.iter().map(|v| stored(v.pos)).collect(), output.triangles.clone());
+    let b = Mesh::new(output.vertices.iter().map(|v| as_stored(v.pos, f64_positions)).collect(), output.triangles.clone());
     let tb = Bvh::new(&b);
     let d2 = a.referenced_vertices().iter().map(|&i| tb.closest(input.vertices[i as usize].pos).map_or(0.0, |c| c.dist2)).fold(0.0, f64::max);
     Some(d2.sqrt())
+}
+
+/// A position as the store keeps it: f32 unless the input had f64.
+fn as_stored(p: [f64; 3], f64_positions: bool) -> [f64; 3] {
+    if f64_positions {
+        p
+    } else {
+        p.map(|x| x as f32 as f64)
+    }
 }
 
 fn cell_diag(c: &Aabb) -> f64 {
