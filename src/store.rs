@@ -235,7 +235,7 @@ pub struct PackWriter {
 
 impl PackWriter {
     pub fn create(dir: &Path, level: usize) -> Result<PackWriter> {
-        let path = dir.join(format!("level-{level}.pack"));
+        let path = pack_file(dir, level);
         let f = File::create(&path).ctx(&path, "create pack file")?;
         Ok(PackWriter { w: std::io::BufWriter::with_capacity(crate::io::SEQ_BUF, f), path, pos: 0 })
     }
@@ -374,7 +374,7 @@ impl Store {
     }
 
     pub fn pack_path(&self, level: usize) -> PathBuf {
-        self.dir.join(format!("level-{level}.pack"))
+        pack_file(&self.dir, level)
     }
 
     /// Reads node `id`'s original (`simplified == false`, leaves) or
@@ -386,13 +386,18 @@ impl Store {
     }
 }
 
+/// The pack file of `level` in store directory `dir`.
+pub fn pack_file(dir: &Path, level: usize) -> PathBuf {
+    dir.join(format!("level-{level}.pack"))
+}
+
 /// Reads one payload of `dir`'s level-`level` pack.
 pub fn read_slot(dir: &Path, layout: &VertexLayout, level: usize, s: &Slot) -> Result<IndexedMesh> {
     use std::os::unix::fs::FileExt;
     if s.is_empty() {
         return Ok(IndexedMesh::default());
     }
-    let path = dir.join(format!("level-{level}.pack"));
+    let path = pack_file(dir, level);
     let f = File::open(&path).ctx(&path, "open pack file")?;
     let mut b = vec![0u8; s.bytes as usize];
     f.read_exact_at(&mut b, s.offset).ctx(&path, "read pack file")?;

@@ -23,7 +23,7 @@ use crate::mesh::AttrSet;
 use crate::mesh::VertexLayout;
 use crate::store::decode_payload;
 use std::collections::HashMap;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::mpsc::{channel, Receiver, Sender};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -87,7 +87,7 @@ impl Drop for IoPool {
 /// Reads and decodes one unit (used by the I/O threads and for pinned units).
 fn load(dir: &Path, files: &mut HashMap<u8, std::fs::File>, attrs: AttrSet, origin: [f64; 3], job: &Job) -> Result<DrawMesh> {
     use std::os::unix::fs::FileExt;
-    let path: PathBuf = dir.join(format!("level-{}.pack", job.pack));
+    let path = crate::store::pack_file(dir, job.pack as usize);
     let f = match files.entry(job.pack) {
         std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
         std::collections::hash_map::Entry::Vacant(e) => e.insert(std::fs::File::open(&path).ctx(&path, "open pack file")?),
