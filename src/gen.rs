@@ -973,10 +973,11 @@ fn stream<W: Write + Send>(
 /// appears only when complete), with a progress bar by bytes unless `quiet`.
 /// The vertex attributes written are `opts.attrs` (they replace
 /// `wopts.attrs`); everything else comes from `wopts`. Returns bytes written.
-pub fn write(opts: &GenOptions, wopts: &PlyWriteOptions, path: &Path, quiet: bool) -> Result<u64> {
+/// An existing PLY that octolod wrote is replaced only when `force` is set.
+pub fn write(opts: &GenOptions, wopts: &PlyWriteOptions, path: &Path, quiet: bool, force: bool) -> Result<u64> {
     let g = Generator::new(opts);
     let wopts = PlyWriteOptions { attrs: opts.attrs, ..wopts.clone() };
-    let mut file = AtomicFile::create(path)?;
+    let mut file = AtomicFile::create(path, crate::io::OutputKind::Ply, force)?;
     let n = write_to(&g, &wopts, file.writer(), quiet).ctx(path, "write")?;
     file.commit()?;
     Ok(n)
@@ -1235,7 +1236,7 @@ mod tests {
             let opts = GenOptions { shape: Shape::Sphere, tris: 5000, seed: 3, attrs: AttrSet(ALL_ATTRS) };
             let wopts = PlyWriteOptions { encoding, ..Default::default() };
             let p = d.path().join("s.ply");
-            let n = write(&opts, &wopts, &p, true).unwrap();
+            let n = write(&opts, &wopts, &p, true, true).unwrap();
             let bytes = std::fs::read(&p).unwrap();
             assert_eq!(n as usize, bytes.len());
             let (vs, fs) = Generator::new(&opts).mesh();

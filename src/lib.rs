@@ -20,6 +20,7 @@ pub mod pipeline;
 pub mod ply;
 pub mod progress;
 pub mod quadric;
+
 pub mod simplify;
 pub mod soup;
 pub mod store;

@@ -14,6 +14,10 @@ struct Cli {
     /// No progress bars (they are also hidden when stderr is not a terminal).
     #[arg(long, short, global = true)]
     quiet: bool,
+    /// Replace an existing output of the same kind (a store, a PLY or soup
+    /// octolod wrote, a render directory). Anything else is never replaced.
+    #[arg(long, global = true)]
+    force: bool,
     #[command(subcommand)]
     cmd: Cmd,
 }
@@ -172,7 +176,7 @@ struct BuildParams {
 }
 
 impl BuildParams {
-    fn options(&self, quiet: bool) -> Result<octolod::pipeline::BuildOptions> {
+    fn options(&self, quiet: bool, force: bool) -> Result<octolod::pipeline::BuildOptions> {
         Ok(octolod::pipeline::BuildOptions {
             mem: mem::parse_size(&self.mem)?,
             leaf_tris: self.leaf_tris,
@@ -180,6 +184,7 @@ impl BuildParams {
             cluster_grid: self.cluster_grid,
             levels: self.levels,
             quiet,
+            force,
         })
     }
 }
@@ -203,6 +208,7 @@ fn print_build(r: &octolod::pipeline::BuildReport) {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    octolod::io::clean_up_on_signals();
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
@@ -220,6 +226,7 @@ fn run(cli: Cli) -> Result<()> {
                 quiet: cli.quiet,
                 force_external: external,
                 max_fan_in: None,
+                replace: cli.force,
             };
             let rep = soup::build_soup(&input, &output, &opts)?;
             let peak = peak_rss();
@@ -269,6 +276,7 @@ fn run(cli: Cli) -> Result<()> {
                 wireframe,
                 diff_tolerance,
                 quiet: cli.quiet,
+                force: cli.force,
             };
             let r = octolod::view::headless::render(&o)?;
             let max_res = r.frames.iter().map(|f| f.stats.resident_bytes).max().unwrap_or(0);
@@ -299,25 +307,26 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Cmd::Build { input, output, params } => {
-            let r = octolod::pipeline::build_store(&input, &output, &params.options(cli.quiet)?)?;
+            let r = octolod::pipeline::build_store(&input, &output, &params.options(cli.quiet, cli.force)?)?;
             print_build(&r);
             Ok(())
         }
         Cmd::Info { store } => info(&store),
         Cmd::Extract { store, level, output, no_weld } => {
             let s = octolod::store::Store::open(&store)?;
-            let (nv, nf) = octolod::pipeline::extract(&s, level, &output, !no_weld)?;
+            let (nv, nf) = octolod::pipeline::extract(&s, level, &output, !no_weld, cli.force)?;
             println!("extract: level {level}: {nv} vertices, {nf} triangles -> {}", output.display());
             Ok(())
         }
         Cmd::Simplify { input, output, target_tris, params } => {
+            octolod::io::check_output(&output, octolod::io::OutputKind::Ply, cli.force)?;
             let tmp = octolod::io::scratch_dir(&output)?;
             let dir = tmp.path().join("store.octolod");
-            let r = octolod::pipeline::build_store(&input, &dir, &params.options(cli.quiet)?)?;
+            let r = octolod::pipeline::build_store(&input, &dir, &params.options(cli.quiet, false)?)?;
             print_build(&r);
             let s = octolod::store::Store::open(&dir)?;
             let level = octolod::pipeline::nearest_level(&s, target_tris);
-            let (nv, nf) = octolod::pipeline::extract(&s, level, &output, true)?;
+            let (nv, nf) = octolod::pipeline::extract(&s, level, &output, true, cli.force)?;
             println!("simplify: level {level} nearest {target_tris}: {nv} vertices, {nf} triangles -> {}", output.display());
             Ok(())
         }

@@ -2489,7 +2489,7 @@ pub fn compare_sources(sa: &Source, sb: &Source, opts: &Options, mem: &MemOption
 /// Streams PLY `p` into a scratch store of its level 0 (soup + octree under
 /// `--mem`, no simplification; level 0 is the exact input). The store lives
 /// as long as the returned directory guard.
-fn level0_scratch_store(p: &Path, opts: &Options, mem: &MemOptions) -> Result<(tempfile::TempDir, Source)> {
+fn level0_scratch_store(p: &Path, opts: &Options, mem: &MemOptions) -> Result<(crate::io::ScratchDir, Source)> {
     let tmp = crate::io::scratch_dir(p)?;
     let stem = p.file_stem().map(|x| x.to_string_lossy().into_owned()).unwrap_or_else(|| "input".into());
     let dir = tmp.path().join(format!("{stem}.level0.octolod"));

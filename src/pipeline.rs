@@ -7,7 +7,7 @@
 //! indexed PLY of a whole level.
 
 use crate::error::{Error, IoContext, Result};
-use crate::io::AtomicDir;
+use crate::io::{AtomicDir, OutputKind};
 use crate::octree::{build_octree, OctreeOptions, OctreeReport};
 use crate::ply::write::{PlyWriteOptions, PlyWriter};
 use crate::simplify::{build_levels, level_cut, weld_union, LevelReport, SimplifyOptions};
@@ -25,11 +25,13 @@ pub struct BuildOptions {
     pub cluster_grid: u32,
     pub levels: Option<u8>,
     pub quiet: bool,
+    /// Replace an existing store at the output path (`--force`).
+    pub force: bool,
 }
 
 impl Default for BuildOptions {
     fn default() -> Self {
-        BuildOptions { mem: 512 << 20, leaf_tris: 16384, max_depth: 16, cluster_grid: 8, levels: None, quiet: true }
+        BuildOptions { mem: 512 << 20, leaf_tris: 16384, max_depth: 16, cluster_grid: 8, levels: None, quiet: true, force: false }
     }
 }
 
@@ -46,7 +48,7 @@ pub struct BuildReport {
 /// PLY → store, every stage under `opts.mem`.
 pub fn build_store(input: &Path, output: &Path, opts: &BuildOptions) -> Result<BuildReport> {
     let t0 = Instant::now();
-    let out = AtomicDir::create(output)?;
+    let out = AtomicDir::create(output, OutputKind::Store, opts.force)?;
     let soup_path = out.path().join("input.soup");
     let soup = build_soup(input, &soup_path, &SoupOptions { mem: opts.mem, quiet: opts.quiet, ..Default::default() })?;
     let t1 = Instant::now();
@@ -163,8 +165,9 @@ pub fn top_level(store: &Store) -> u8 {
 /// Writes a whole level as one indexed PLY (binary little endian, with the
 /// store's attributes). Vertices shared by neighbouring nodes are welded
 /// (bit-identical vertices become one) unless `weld` is false, which
-/// streams node by node without holding the level in memory.
-pub fn extract(store: &Store, level: u8, out: &Path, weld: bool) -> Result<(u64, u64)> {
+/// streams node by node without holding the level in memory. An existing
+/// PLY octolod wrote at `out` is replaced only when `force` is set.
+pub fn extract(store: &Store, level: u8, out: &Path, weld: bool, force: bool) -> Result<(u64, u64)> {
     check_level(store, level)?;
     let cut = level_cut(&store.nodes, level);
     let read = |i: usize| read_level_mesh(store, i, level);
@@ -174,7 +177,7 @@ pub fn extract(store: &Store, level: u8, out: &Path, weld: bool) -> Result<(u64,
         comments: vec![format!("octolod level {level} of {}", store.dir.display())],
         ..Default::default()
     };
-    let mut file = crate::io::AtomicFile::create(out)?;
+    let mut file = crate::io::AtomicFile::create(out, OutputKind::Ply, force)?;
     let (nv, nf) = if weld {
         let parts = cut.iter().map(|&i| read(i)).collect::<Result<Vec<_>>>()?;
         let m = weld_union(&store.layout, &parts);

@@ -20,7 +20,7 @@ fn build(dir: &Path, shape: Shape, tris: u64, attrs: u32, leaf: u64, grid: u32) 
     build_store(
         &ply,
         &out,
-        &BuildOptions { mem: 4 << 20, leaf_tris: leaf, max_depth: 12, cluster_grid: grid, levels: None, quiet: true },
+        &BuildOptions { mem: 4 << 20, leaf_tris: leaf, max_depth: 12, cluster_grid: grid, levels: None, quiet: true, force: false },
     )
     .unwrap_or_else(|e| panic!("{}: {e}", shape.name()));
     let original = IndexedMesh { vertices: v, triangles: f };
@@ -258,7 +258,7 @@ fn level_zero_extract_gives_back_the_input_triangles() {
     let d = tempfile::tempdir().unwrap();
     let (s, orig) = build(d.path(), Shape::Open, 10_000, AttrSet::NORMAL | AttrSet::UV, 500, 4);
     let out = d.path().join("l0.ply");
-    let (_, nf) = extract(&s, 0, &out, true).unwrap();
+    let (_, nf) = extract(&s, 0, &out, true, false).unwrap();
     assert_eq!(nf as usize, orig.triangles.len());
     let (_, back, _) = octolod::ply::read::read_all(&out).unwrap();
     let key = |vs: &[Vertex], t: [u64; 3]| {
@@ -297,7 +297,7 @@ fn a_closed_object_inside_one_node_may_collapse_to_an_empty_node() {
     assert!(!root.simp.is_empty(), "an empty mesh is still a stored payload");
     assert!(node_mesh(&s, 0, true).triangles.is_empty());
     let out = d.path().join("empty.ply");
-    assert_eq!(extract(&s, 1, &out, true).unwrap(), (0, 0));
+    assert_eq!(extract(&s, 1, &out, true, false).unwrap(), (0, 0));
     let (h, m, _) = octolod::ply::read::read_all(&out).unwrap();
     assert_eq!((h.face_count(), m.vertices.len()), (0, 0));
 }

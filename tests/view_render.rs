@@ -51,6 +51,7 @@ fn opts(store: &Path, out: &Path, path: Option<PathBuf>, ram: u64) -> RenderOpti
         wireframe: false,
         diff_tolerance: 16,
         quiet: true,
+        force: false,
     }
 }
 

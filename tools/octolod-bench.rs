@@ -675,11 +675,10 @@ fn run_octolod(a: &RunOne) -> Result<J> {
         cluster_grid: a.cluster_grid,
         levels: None,
         quiet: true,
+        // The bench's own store from an earlier run (refused if it is anything else).
+        force: true,
     };
     let store_dir = PathBuf::from(format!("{}.octolod", a.output.display()));
-    if store_dir.exists() {
-        std::fs::remove_dir_all(&store_dir).with_context(|| format!("remove {}", store_dir.display()))?;
-    }
     let probe = CpuProbe::start();
     let t = Instant::now();
     let r = build_store(&a.input, &store_dir, &opts)?;
@@ -691,7 +690,7 @@ fn run_octolod(a: &RunOne) -> Result<J> {
         let store = Store::open(&store_dir)?;
         for l in 1..=top_level(&store) {
             let path = PathBuf::from(format!("{}-L{l}.ply", a.output.display()));
-            let (nv, nf) = extract(&store, l, &path, true)?;
+            let (nv, nf) = extract(&store, l, &path, true, true)?;
             let lr = r.levels.iter().find(|x| x.level == l);
             levels.push(obj([
                 ("level", u32::from(l).into()),
@@ -1686,6 +1685,7 @@ fn attr_sweep(b: &Bench, n: u64, (leaf, grid): (u64, u32), failures: &mut Vec<St
                 &PlyWriteOptions::default(),
                 &path,
                 true,
+                false,
             )?;
             b.say(&format!("[attr-sweep] generated {} in {:.1} s", path.display(), t.elapsed().as_secs_f64()));
         }

@@ -66,6 +66,9 @@ struct Args {
     /// No progress bar.
     #[arg(long, short)]
     quiet: bool,
+    /// Replace an existing PLY that octolod wrote (never any other file).
+    #[arg(long)]
+    force: bool,
     /// Output PLY.
     #[arg(short, long)]
     output: PathBuf,
@@ -145,7 +148,7 @@ fn run(args: Args) -> anyhow::Result<()> {
     };
     let start = Instant::now();
     // octolod errors already name the file and include their cause.
-    let bytes = octolod::gen::write(&opts, &wopts, &args.output, args.quiet).map_err(|e| anyhow!("{e}"))?;
+    let bytes = octolod::gen::write(&opts, &wopts, &args.output, args.quiet, args.force).map_err(|e| anyhow!("{e}"))?;
     let secs = start.elapsed().as_secs_f64();
     println!(
         "{}: {} vertices, {} triangles, {} bytes in {:.2} s ({:.1} MB/s) -> {}",
@@ -169,6 +172,7 @@ fn main() {
             std::process::exit(code);
         }
     };
+    octolod::io::clean_up_on_signals();
     if let Err(e) = run(args) {
         eprintln!("octolod-gen: error: {e:#}");
         std::process::exit(1);

@@ -23,7 +23,7 @@
 
 use super::{Encoding, Scalar};
 use crate::error::{IoContext, Result};
-use crate::io::AtomicFile;
+use crate::io::{AtomicFile, OutputKind};
 use crate::mesh::{AttrSet, Vertex};
 use std::io::{self, Write};
 use std::path::Path;
@@ -89,6 +89,10 @@ pub fn header(opts: &PlyWriteOptions, n_vertices: u64, n_faces: u64) -> String {
     let mut h = String::with_capacity(512);
     h.push_str("ply\n");
     let _ = writeln!(h, "format {} 1.0", opts.encoding.header_name());
+    // Marks the file as ours, so `--force` may replace it later (see `io::OutputKind`).
+    if !opts.comments.iter().any(|c| c.starts_with("octolod")) {
+        h.push_str("comment octolod\n");
+    }
     for c in &opts.comments {
         let _ = writeln!(h, "comment {}", c.replace(['\n', '\r'], " "));
     }
@@ -494,7 +498,8 @@ impl<W: Write> PlyWriter<W> {
     }
 }
 
-/// Writes a triangle mesh to `path` atomically.
+/// Writes a triangle mesh to `path` atomically, replacing a PLY octolod
+/// wrote there before (never anything else).
 pub fn write_ply(path: &Path, opts: &PlyWriteOptions, vertices: &[Vertex], faces: &[[u32; 3]]) -> Result<()> {
     write_whole(path, opts, vertices, faces.len() as u64, faces.iter().map(|f| &f[..]))
 }
@@ -511,7 +516,7 @@ fn write_whole<'a>(
     n_faces: u64,
     faces: impl Iterator<Item = &'a [u32]>,
 ) -> Result<()> {
-    let mut file = AtomicFile::create(path)?;
+    let mut file = AtomicFile::create(path, OutputKind::Ply, true)?;
     let res: io::Result<()> = (|| {
         let mut w = PlyWriter::new(file.writer(), opts, vertices.len() as u64, n_faces)?;
         for v in vertices {
@@ -540,7 +545,7 @@ mod tests {
         let h = header(&PlyWriteOptions::default(), 3, 1);
         assert_eq!(
             h,
-            "ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\n\
+            "ply\nformat binary_little_endian 1.0\ncomment octolod\nelement vertex 3\nproperty float x\nproperty float y\n\
              property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"
         );
     }
@@ -556,7 +561,7 @@ mod tests {
             comments: vec!["made by test".into(), "two\nlines".into()],
             extra_vertex_quality: true,
         };
-        let expect = "ply\nformat ascii 1.0\ncomment made by test\ncomment two lines\nelement vertex 7\n\
+        let expect = "ply\nformat ascii 1.0\ncomment octolod\ncomment made by test\ncomment two lines\nelement vertex 7\n\
             property double x\nproperty float quality\nproperty double y\nproperty double z\n\
             property float nx\nproperty float ny\nproperty float nz\n\
             property uchar red\nproperty uchar green\nproperty uchar blue\nproperty uchar alpha\n\
@@ -572,7 +577,7 @@ mod tests {
         };
         assert_eq!(
             header(&opts2, 0, 0),
-            "ply\nformat binary_big_endian 1.0\nelement vertex 0\nproperty float x\nproperty float y\n\
+            "ply\nformat binary_big_endian 1.0\ncomment octolod\nelement vertex 0\nproperty float x\nproperty float y\n\
              property float z\nproperty float red\nproperty float green\nproperty float blue\n\
              property float s\nproperty float t\nelement face 0\nproperty list uchar int vertex_indices\nend_header\n"
         );

@@ -50,11 +50,13 @@ pub struct SoupOptions {
     pub force_external: bool,
     /// Cap on runs per merge (tests force multi-pass merges with 2).
     pub max_fan_in: Option<usize>,
+    /// Replace an existing soup at the output path (`--force`).
+    pub replace: bool,
 }
 
 impl Default for SoupOptions {
     fn default() -> Self {
-        SoupOptions { mem: 256 << 20, quiet: true, force_external: false, max_fan_in: None }
+        SoupOptions { mem: 256 << 20, quiet: true, force_external: false, max_fan_in: None, replace: false }
     }
 }
 
@@ -104,6 +106,7 @@ pub fn build_soup(input: &Path, output: &Path, opts: &SoupOptions) -> Result<Sou
     if opts.mem < crate::mem::MIN_BUDGET {
         return Err(Error::Usage(format!("--mem must be at least {} bytes", crate::mem::MIN_BUDGET)));
     }
+    crate::io::check_output(output, crate::io::OutputKind::Soup, opts.replace)?;
     let header = read_header(input)?;
     check_has_faces(input, &header)?;
     let input_bytes = std::fs::metadata(input).ctx(input, "stat")?.len();
@@ -113,7 +116,7 @@ pub fn build_soup(input: &Path, output: &Path, opts: &SoupOptions) -> Result<Sou
     let in_memory = !opts.force_external && vertices_first && vertex_table <= opts.mem / 4 * 3;
     let progress = Progress::bytes(input_bytes, "reading", opts.quiet);
     let mut report = if in_memory {
-        build_in_memory(input, output, &header, &progress)?
+        build_in_memory(input, output, &header, opts, &progress)?
     } else {
         build_external(input, output, &header, opts, &progress)?
     };
@@ -177,9 +180,9 @@ impl BodySink for InMemorySink<'_> {
     }
 }
 
-fn build_in_memory(input: &Path, output: &Path, header: &PlyHeader, progress: &Progress) -> Result<SoupReport> {
+fn build_in_memory(input: &Path, output: &Path, header: &PlyHeader, opts: &SoupOptions, progress: &Progress) -> Result<SoupReport> {
     let layout = VertexLayout::new(header.attrs);
-    let mut soup = SoupWriter::create(output, header.attrs)?;
+    let mut soup = SoupWriter::create(output, header.attrs, opts.replace)?;
     let mut sink = InMemorySink {
         table: Vec::with_capacity(header.vertex_count() as usize * layout.size),
         layout,
@@ -308,7 +311,7 @@ fn build_external(
     let t2 = Instant::now();
     // Phase 4: each slot range placed in memory, written as triangles in order.
     let write_progress = Progress::items(body.triangles, "writing", opts.quiet);
-    let mut soup = SoupWriter::create(output, header.attrs)?;
+    let mut soup = SoupWriter::create(output, header.attrs, opts.replace)?;
     let mut written = 0u64;
     let slot_buckets = buckets.len();
     let bucket_bytes = buckets.finish(|tri| {

@@ -45,6 +45,8 @@ pub struct RenderOptions {
     /// Pixels whose channels differ by more than this count as different.
     pub diff_tolerance: u8,
     pub quiet: bool,
+    /// Replace an existing render directory at `out` (`--force`).
+    pub force: bool,
 }
 
 /// One rendered frame: its statistics and, with `--full-res`, the comparison.
@@ -95,7 +97,7 @@ pub fn draw_params(cam: &Camera, origin: glam::DVec3, w: u32, h: u32, wireframe:
 
 /// Renders the path; see the module doc.
 pub fn render(o: &RenderOptions) -> Result<RenderReport> {
-    let out = AtomicDir::create(&o.out)?;
+    let out = AtomicDir::create(&o.out, crate::io::OutputKind::Frames, o.force)?;
     let mut renderer = Renderer::headless(o.width, o.height)?;
     let mut viewer: Viewer<GpuMesh> = Viewer::open(&o.store, o.view.clone())?;
     let bounds = viewer.bounds();

@@ -29,7 +29,7 @@ pub fn write_png(path: impl AsRef<Path>, width: u32, height: u32, rgba: &[u8]) -
     if width == 0 || height == 0 {
         return Err(Error::Usage(format!("{}: cannot write an empty {width}x{height} PNG", path.display())));
     }
-    let mut f = AtomicFile::create(path)?;
+    let mut f = AtomicFile::create(path, crate::io::OutputKind::Inner, false)?;
     ::image::codecs::png::PngEncoder::new(f.writer())
         .write_image(rgba, width, height, ::image::ExtendedColorType::Rgba8)
         .map_err(|e| match e {

@@ -1,0 +1,174 @@
+//! Issue 11 ("never lose a user's data"): one test per row of its table
+//! that concerns outputs, temp files and interruption.
+
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+fn octolod(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_octolod")).args(args).output().unwrap()
+}
+
+fn gen(shape: &str, tris: u64, out: &Path) {
+    let o = Command::new(env!("CARGO_BIN_EXE_octolod-gen"))
+        .args(["--shape", shape, "--tris", &tris.to_string(), "--quiet", "-o", out.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
+fn names(d: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(d).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    v.sort();
+    v
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// Row 1: `build proj/input.ply -o proj` deleted the whole directory.
+#[test]
+fn build_into_a_user_directory_is_refused_and_deletes_nothing() {
+    let d = tempfile::tempdir().unwrap();
+    let proj = d.path().join("proj");
+    std::fs::create_dir(&proj).unwrap();
+    let ply = proj.join("input.ply");
+    gen("sphere", 2000, &ply);
+    std::fs::write(proj.join("notes.txt"), b"mine").unwrap();
+    let before = std::fs::read(&ply).unwrap();
+    for extra in [&[][..], &["--force"][..]] {
+        let mut args = vec!["build", s(&ply), "-o", s(&proj), "--quiet"];
+        args.extend_from_slice(extra);
+        let o = octolod(&args);
+        assert!(!o.status.success(), "build into a user directory must fail ({extra:?})");
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(err.contains("not an octolod store") && err.contains("proj"), "{err}");
+        assert_eq!(names(&proj), ["input.ply", "notes.txt"]);
+        assert_eq!(std::fs::read(&ply).unwrap(), before);
+        assert_eq!(names(d.path()), ["proj"], "nothing may be created next to it");
+    }
+    // A directory named like a store that holds user files.
+    let x = d.path().join("x.octolod");
+    std::fs::create_dir(&x).unwrap();
+    std::fs::write(x.join("keep.txt"), b"1").unwrap();
+    let o = octolod(&["build", s(&ply), "-o", s(&x), "--quiet", "--force"]);
+    assert!(!o.status.success());
+    assert_eq!(names(&x), ["keep.txt"]);
+}
+
+/// Rows 1 and 13: an existing store needs --force and is then replaced whole;
+/// a regular file in the way of a store is refused and stays as it was.
+#[test]
+fn an_existing_store_is_replaced_only_with_force_and_files_are_never_replaced() {
+    let d = tempfile::tempdir().unwrap();
+    let ply = d.path().join("a.ply");
+    gen("sphere", 3000, &ply);
+    let st = d.path().join("a.octolod");
+    assert!(octolod(&["build", s(&ply), "-o", s(&st), "--quiet"]).status.success());
+    let o = octolod(&["build", s(&ply), "-o", s(&st), "--quiet"]);
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--force"));
+    let o = octolod(&["build", s(&ply), "-o", s(&st), "--quiet", "--force", "--leaf-tris", "1000"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(octolod(&["info", s(&st)]).status.success());
+    assert_eq!(names(d.path()), ["a.octolod", "a.ply"], "no old copy or temp left");
+
+    let f = d.path().join("file.octolod");
+    std::fs::write(&f, b"a user's file").unwrap();
+    let o = octolod(&["build", s(&ply), "-o", s(&f), "--quiet", "--force"]);
+    assert!(!o.status.success());
+    assert_eq!(std::fs::read(&f).unwrap(), b"a user's file");
+    assert_eq!(names(d.path()), ["a.octolod", "a.ply", "file.octolod"]);
+}
+
+/// Row 13: `soup`/`extract -o existing_dir` failed only after all the work,
+/// leaving the finished temp file; a PLY not written by octolod is never
+/// replaced, one that octolod wrote only with --force.
+#[test]
+fn file_outputs_are_checked_before_work_and_foreign_files_are_kept() {
+    let d = tempfile::tempdir().unwrap();
+    let ply = d.path().join("a.ply");
+    gen("sphere", 3000, &ply);
+    let st = d.path().join("a.octolod");
+    assert!(octolod(&["build", s(&ply), "-o", s(&st), "--quiet"]).status.success());
+    let dir = d.path().join("dir");
+    std::fs::create_dir(&dir).unwrap();
+    for args in [vec!["soup", s(&ply), "-o", s(&dir)], vec!["extract", s(&st), "--level", "1", "-o", s(&dir)]] {
+        let o = octolod(&args);
+        assert!(!o.status.success(), "{args:?}");
+        assert!(String::from_utf8_lossy(&o.stderr).contains("refusing"), "{}", String::from_utf8_lossy(&o.stderr));
+        assert!(names(&dir).is_empty());
+        assert_eq!(names(d.path()), ["a.octolod", "a.ply", "dir"], "{args:?} left something behind");
+    }
+    let foreign = d.path().join("theirs.ply");
+    std::fs::write(&foreign, "ply\nformat ascii 1.0\ncomment made elsewhere\nelement vertex 0\nend_header\n").unwrap();
+    let o = octolod(&["extract", s(&st), "--level", "1", "-o", s(&foreign), "--force"]);
+    assert!(!o.status.success());
+    assert!(std::fs::read_to_string(&foreign).unwrap().contains("made elsewhere"));
+    let ours = d.path().join("ours.ply");
+    assert!(octolod(&["extract", s(&st), "--level", "1", "-o", s(&ours)]).status.success());
+    assert!(!octolod(&["extract", s(&st), "--level", "0", "-o", s(&ours)]).status.success());
+    assert!(octolod(&["extract", s(&st), "--level", "0", "-o", s(&ours), "--force"]).status.success());
+    assert_eq!(names(d.path()), ["a.octolod", "a.ply", "dir", "ours.ply", "theirs.ply"]);
+}
+
+/// Starts a build that runs a while and waits until its temp directory exists.
+fn start_build(d: &Path, ply: &Path, out: &Path) -> std::process::Child {
+    let child = Command::new(env!("CARGO_BIN_EXE_octolod"))
+        .args(["build", s(ply), "-o", s(out), "--mem", "1M", "--quiet"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let t0 = Instant::now();
+    while !names(d).iter().any(|n| n.contains("octolod-tmp")) {
+        assert!(t0.elapsed() < Duration::from_secs(60), "the build never created its temp directory");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    // Let it get into the middle of its work (the build takes seconds).
+    std::thread::sleep(Duration::from_millis(50));
+    child
+}
+
+fn kill(child: &std::process::Child, sig: &str) {
+    assert!(Command::new("kill").args([sig, &child.id().to_string()]).status().unwrap().success());
+}
+
+/// Row 12: SIGINT/SIGTERM left 70-80 MB of `.partial` plus scratch forever.
+#[test]
+fn sigint_and_sigterm_remove_temp_and_scratch_before_exiting() {
+    let d = tempfile::tempdir().unwrap();
+    let ply = d.path().join("in.ply");
+    gen("sphere", 1_000_000, &ply);
+    for (sig, code) in [("-INT", 130), ("-TERM", 143)] {
+        let out = d.path().join("s.octolod");
+        let mut child = start_build(d.path(), &ply, &out);
+        kill(&child, sig);
+        let st = child.wait().unwrap();
+        assert!(!st.success(), "{sig}: the build finished before the signal; make the input larger");
+        assert_eq!(st.code(), Some(code), "{sig}");
+        assert_eq!(names(d.path()), ["in.ply"], "{sig} left temp or scratch paths");
+    }
+}
+
+/// Row 12: after SIGKILL the temp paths stay, but the next run removes them.
+#[test]
+fn a_later_run_removes_what_a_killed_run_left() {
+    let d = tempfile::tempdir().unwrap();
+    let ply = d.path().join("in.ply");
+    gen("sphere", 1_000_000, &ply);
+    let out = d.path().join("s.octolod");
+    let mut child = start_build(d.path(), &ply, &out);
+    kill(&child, "-KILL");
+    let _ = child.wait().unwrap();
+    let left: Vec<String> = names(d.path()).into_iter().filter(|n| n != "in.ply").collect();
+    assert!(!left.iter().any(|n| n == "s.octolod"), "the build finished before the kill; make the input larger");
+    assert!(!left.is_empty(), "SIGKILL cannot clean up; expected leftovers");
+    let small = d.path().join("small.ply");
+    gen("sphere", 2000, &small);
+    let o = octolod(&["build", s(&small), "-o", s(&d.path().join("t.octolod")), "--quiet"]);
+    assert!(o.status.success());
+    assert_eq!(names(d.path()), ["in.ply", "small.ply", "t.octolod"]);
+}
+
