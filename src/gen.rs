@@ -58,6 +58,10 @@ pub enum Shape {
     Fan,
     /// A sphere with one cap (a whole cube-face patch) removed; open border.
     Open,
+    /// A range scan: a depth-image grid over [0,1]² of a bumpy dome with
+    /// a thin ridge, per-vertex scanner noise, holes (dropouts) and a long
+    /// ragged silhouette border; unreferenced vertices stay in the file.
+    Scan,
 }
 
 impl Shape {
@@ -76,9 +80,10 @@ impl Shape {
             Shape::Single => "single",
             Shape::Fan => "fan",
             Shape::Open => "open",
+            Shape::Scan => "scan",
         }
     }
-    pub const ALL: [Shape; 12] = [
+    pub const ALL: [Shape; 13] = [
         Shape::Sphere,
         Shape::Terrain,
         Shape::Instances,
@@ -91,6 +96,7 @@ impl Shape {
         Shape::Single,
         Shape::Fan,
         Shape::Open,
+        Shape::Scan,
     ];
 }
 
@@ -507,6 +513,11 @@ enum Kind {
     Instances { torus: Torus, count: u64 },
     /// `p` pages on the spine edge, `q` triangles in the fan disc.
     Fan { p: u64, q: u64 },
+    /// A (w+1)×(h+1) vertex grid; the kept cells follow an mx × my coarse
+    /// mask: `prefix[cy * (mx+1) + cx]` kept fine cells left of coarse
+    /// column cx in a fine row of coarse row cy; `col_first[cx]` the first
+    /// fine column of cx; `row_off[t]` kept cells before fine row t.
+    Scan { w: u64, h: u64, waves: Waves, noise: f64, mx: u64, my: u64, col_first: Vec<u64>, prefix: Vec<u64>, row_off: Vec<u64> },
     Single,
 }
 
@@ -598,6 +609,43 @@ impl Generator {
                 Kind::Fan { p, q }
             }
             Shape::Single => Kind::Single,
+            Shape::Scan => {
+                let waves = Waves::octaves(&mut rng, 4, 2, TAU * 2.0, 0.03);
+                let holes: Vec<([f64; 2], f64)> = (0..7).map(|_| ([rng.range(0.2, 0.8), rng.range(0.2, 0.8)], rng.range(0.02, 0.06))).collect();
+                let phase = rng.range(0.0, TAU);
+                // Which cells the scanner saw, on a coarse mask grid (so
+                // building is O(rows + mask), whatever the triangle count).
+                let m = SCAN_MASK;
+                let coarse: Vec<bool> =
+                    (0..m * m).map(|i| scan_keeps((i % m) as f64 / m as f64 + 0.5 / m as f64, (i / m) as f64 / m as f64 + 0.5 / m as f64, &holes, phase)).collect();
+                let share = (coarse.iter().filter(|&&k| k).count() as f64 / (m * m) as f64).max(0.01);
+                let (w, h) = grid_dims(t / 2.0 / share, 1.0, 4);
+                let (mx, my) = (m.min(w), m.min(h));
+                let col_first: Vec<u64> = (0..=mx).map(|c| c * w / mx).collect();
+                let sampled = |cx: u64, cy: u64| coarse[((cy * m / my) * m + cx * m / mx) as usize];
+                // A grid too small to sample the mask keeps everything.
+                let none = (0..my).all(|cy| (0..mx).all(|cx| !sampled(cx, cy)));
+                let seen = |cx: u64, cy: u64| none || sampled(cx, cy);
+                let mut prefix = Vec::with_capacity(((mx + 1) * my) as usize);
+                for cy in 0..my {
+                    let mut acc = 0u64;
+                    for cx in 0..mx {
+                        prefix.push(acc);
+                        if seen(cx, cy) {
+                            acc += col_first[cx as usize + 1] - col_first[cx as usize];
+                        }
+                    }
+                    prefix.push(acc);
+                }
+                let mut row_off = Vec::with_capacity(h as usize + 1);
+                let mut kept = 0u64;
+                for tt in 0..h {
+                    row_off.push(kept);
+                    kept += prefix[((tt * my / h) * (mx + 1) + mx) as usize];
+                }
+                row_off.push(kept);
+                Kind::Scan { w, h, waves, noise: 0.15 / w as f64, mx, my, col_first, prefix, row_off }
+            }
         };
         let (nv, nf) = match &kind {
             Kind::Sphere { lat, open, dup, .. } => {
@@ -618,6 +666,7 @@ impl Generator {
             Kind::Instances { torus, count } => (count * torus.vertex_count(), count * torus.face_count()),
             Kind::Fan { p, q } => (2 + p + q, p + q),
             Kind::Single => (3, 1),
+            Kind::Scan { w, h, row_off, .. } => ((w + 1) * (h + 1), 2 * row_off[*h as usize]),
         };
         assert!(nv <= u32::MAX as u64 + 1, "{nv} vertices do not fit u32 indices");
         Generator { shape: opts.shape, seed: opts.seed, attrs: opts.attrs, kind, nv, nf }
@@ -661,6 +710,18 @@ impl Generator {
                 let (s, t) = (i % (w + 1), i / (w + 1));
                 let (x, y) = (s as f64 / *w as f64, t as f64 / *h as f64);
                 let (z, g) = waves.eval([x, y, 0.0], a.normal());
+                self.make([x, y, z], [x, y, z], || [-g[0], -g[1], 1.0], || [x, y])
+            }
+            Kind::Scan { w, h, waves, noise, .. } => {
+                let (s, t) = (i % (w + 1), i / (w + 1));
+                let (x, y) = (s as f64 / *w as f64, t as f64 / *h as f64);
+                let (zw, g) = waves.eval([x, y, 0.0], a.normal());
+                // A dome, the waves, a thin ridge along a curve, scanner noise.
+                let (dx, dy) = (x - 0.5, y - 0.5);
+                let dome = 0.35 * (1.0 - 2.0 * (dx * dx + dy * dy)).max(0.0).sqrt();
+                let rd = (y - 0.3 - 0.35 * x - 0.08 * fsin(6.0 * x)).abs();
+                let ridge = 0.05 * (-(rd / 0.004) * (rd / 0.004)).exp();
+                let z = dome + zw + ridge + noise * (2.0 * hash_unit(self.seed ^ 0x5CA7, i) - 1.0);
                 self.make([x, y, z], [x, y, z], || [-g[0], -g[1], 1.0], || [x, y])
             }
             Kind::Cylinder { s, h } => {
@@ -766,6 +827,17 @@ impl Generator {
                 }
             }
             Kind::Single => [0, 1, 2],
+            Kind::Scan { w, h, mx, my, col_first, prefix, row_off, .. } => {
+                let q = j / 2;
+                let t = row_off.partition_point(|&o| o <= q) as u64 - 1;
+                let k = q - row_off[t as usize];
+                let cy = t * my / h;
+                let row = &prefix[(cy * (mx + 1)) as usize..((cy + 1) * (mx + 1)) as usize];
+                // The coarse column holding the k-th kept cell (kept columns only grow the prefix).
+                let cx = row.partition_point(|&p| p <= k) - 1;
+                let s = col_first[cx] + (k - row[cx]);
+                grid_face(*w, 2 * (s + t * w) + (j & 1), 0, false)
+            }
         }
     }
 
@@ -828,6 +900,27 @@ impl Generator {
 #[inline]
 fn mat_mul(m: &[[f64; 3]; 3], p: [f64; 3]) -> [f64; 3] {
     [dot(m[0], p), dot(m[1], p), dot(m[2], p)]
+}
+
+/// Side of the scan's coarse visibility mask.
+const SCAN_MASK: u64 = 512;
+
+/// Whether the scan keeps the cell centred at (x, y): inside a ragged
+/// silhouette and outside the holes and a dropout band.
+fn scan_keeps(x: f64, y: f64, holes: &[([f64; 2], f64)], phase: f64) -> bool {
+    let (dx, dy) = (x - 0.5, y - 0.5);
+    let r = (dx * dx + dy * dy).sqrt();
+    let ang = dy.atan2(dx);
+    let edge = 0.46 + 0.025 * fsin(7.0 * ang + phase) + 0.012 * fsin(23.0 * ang + 2.0 * phase);
+    if r > edge {
+        return false;
+    }
+    if holes.iter().any(|(c, rad)| (x - c[0]).powi(2) + (y - c[1]).powi(2) < rad * rad) {
+        return false;
+    }
+    // A dropout band (a shadowed strip), broken in places.
+    let band = (x + 0.6 * y - 0.95 - 0.02 * fsin(15.0 * y)).abs();
+    !(band < 0.008 && fsin(40.0 * y + phase) > -0.3)
 }
 
 /// Triangle `j` of a grid `w` quads wide with vertices `base + s + t(w+1)`,
@@ -1085,7 +1178,8 @@ mod tests {
                 assert!(v.uv.iter().all(|c| c.is_finite()));
             }
             assert!(fs.iter().flatten().all(|&i| (i as u64) < g.vertex_count()), "{shape:?}");
-            assert!(all_referenced(g.vertex_count(), &fs), "{shape:?} has unreferenced vertices");
+            // A scan keeps the vertices of its dropped cells, as scanners write them.
+            assert_eq!(all_referenced(g.vertex_count(), &fs), shape != Shape::Scan, "{shape:?}: unreferenced vertices");
             if matches!(
                 shape,
                 Shape::Sphere | Shape::Terrain | Shape::Plane | Shape::Cylinder | Shape::Sheets | Shape::Open | Shape::Instances
