@@ -21,7 +21,8 @@ pub mod ply;
 pub mod progress;
 pub mod quadric;
 
-pub mod simplify;
+pub mod lod;
+
 pub mod soup;
 pub mod store;
 pub mod view;

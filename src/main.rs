@@ -49,11 +49,15 @@ enum Cmd {
     },
     /// Per level: nodes, triangles, bytes, error range, build time.
     Info { store: PathBuf },
-    /// Write a whole level of a store as one indexed PLY.
+    /// Write a cut of a store as one indexed PLY: a whole level, or the cut at an error.
     Extract {
         store: PathBuf,
-        #[arg(long, default_value_t = 0)]
-        level: u8,
+        /// The whole level L (default 0, the input).
+        #[arg(long, conflicts_with = "max_error")]
+        level: Option<u8>,
+        /// The cut whose every part has error at most E (object space, or `0.1%` of the diagonal).
+        #[arg(long, value_name = "E")]
+        max_error: Option<String>,
         #[arg(short, long)]
         output: PathBuf,
         /// Do not weld vertices shared between nodes (streams, no level in memory).
@@ -161,15 +165,18 @@ struct BuildParams {
     /// Working-memory budget (e.g. 512M, 2G).
     #[arg(long, default_value = "512M")]
     mem: String,
-    /// Split an octree node while it holds more triangles than this.
+    /// Split a level's octree cell while it holds more triangles than this.
     #[arg(long, default_value_t = 16384)]
     leaf_tris: u64,
     /// Never split deeper than this (1..=21).
     #[arg(long, default_value_t = 16)]
     max_depth: u8,
-    /// Clustering sub-grid per axis inside each node (1: one representative per node).
-    #[arg(long, default_value_t = 8)]
-    cluster_grid: u32,
+    /// Each level holds about 1/R of the triangles of the level below.
+    #[arg(long, default_value_t = 2.0)]
+    level_ratio: f64,
+    /// The root (the coarsest level, one node) holds at most this many triangles.
+    #[arg(long, default_value_t = 4096)]
+    root_tris: u64,
     /// Build levels up to this one only (default: up to the root).
     #[arg(long)]
     levels: Option<u8>,
@@ -181,7 +188,8 @@ impl BuildParams {
             mem: mem::parse_size(&self.mem)?,
             leaf_tris: self.leaf_tris,
             max_depth: self.max_depth,
-            cluster_grid: self.cluster_grid,
+            level_ratio: self.level_ratio,
+            root_tris: self.root_tris,
             levels: self.levels,
             quiet,
             force,
@@ -191,12 +199,11 @@ impl BuildParams {
 
 fn print_build(r: &octolod::pipeline::BuildReport) {
     println!(
-        "build: {} triangles, {} leaves, {} nodes, depth {}, {} levels; soup {:.2} s, octree {:.2} s, simplify {:.2} s, total {:.2} s; {} on disk; peak RSS {}",
+        "build: {} triangles, {} level-0 nodes, {} nodes, {} levels; soup {:.2} s, partition {:.2} s, levels {:.2} s, total {:.2} s; {} on disk; peak RSS {}",
         r.soup.header.triangles,
         r.octree.leaves,
-        r.octree.nodes,
-        r.octree.deepest,
-        r.levels.len() + 1,
+        r.nodes,
+        r.levels.len(),
         r.seconds[0],
         r.seconds[1],
         r.seconds[2],
@@ -312,10 +319,17 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Cmd::Info { store } => info(&store),
-        Cmd::Extract { store, level, output, no_weld } => {
+        Cmd::Extract { store, level, max_error, output, no_weld } => {
             let s = octolod::store::Store::open(&store)?;
-            let (nv, nf) = octolod::pipeline::extract(&s, level, &output, !no_weld, cli.force)?;
-            println!("extract: level {level}: {nv} vertices, {nf} triangles -> {}", output.display());
+            let spec = match max_error {
+                Some(e) => {
+                    let t = octolod::metro::Threshold::parse(&e)?;
+                    octolod::pipeline::CutSpec::MaxError(t.limit(s.header.bbox.diagonal()))
+                }
+                None => octolod::pipeline::CutSpec::Level(level.unwrap_or(0)),
+            };
+            let (nv, nf) = octolod::pipeline::extract(&s, spec, &output, !no_weld, cli.force)?;
+            println!("extract: {}: {nv} vertices, {nf} triangles -> {}", spec.describe(), output.display());
             Ok(())
         }
         Cmd::Simplify { input, output, target_tris, params } => {
@@ -326,7 +340,7 @@ fn run(cli: Cli) -> Result<()> {
             print_build(&r);
             let s = octolod::store::Store::open(&dir)?;
             let level = octolod::pipeline::nearest_level(&s, target_tris);
-            let (nv, nf) = octolod::pipeline::extract(&s, level, &output, true, cli.force)?;
+            let (nv, nf) = octolod::pipeline::extract(&s, octolod::pipeline::CutSpec::Level(level), &output, true, cli.force)?;
             println!("simplify: level {level} nearest {target_tris}: {nv} vertices, {nf} triangles -> {}", output.display());
             Ok(())
         }
@@ -353,44 +367,36 @@ fn info(dir: &std::path::Path) -> Result<()> {
     let s = octolod::store::Store::open(dir)?;
     let h = &s.header;
     println!("store: {}", dir.display());
-    println!("attributes: {} (quadric dimension {})", h.attrs.describe(), h.attrs.quadric_dim());
     println!(
-        "nodes: {}, leaves: {}, deepest: {}",
-        s.nodes.len(),
-        s.nodes.iter().filter(|n| n.is_leaf()).count(),
-        s.nodes.iter().map(|n| n.depth).max().unwrap_or(0)
+        "attributes: {} (quadric dimension {}){}",
+        h.attrs.describe(),
+        h.attrs.quadric_dim(),
+        if h.derived_normals { ", normals computed at build time" } else { "" }
     );
-    let manifest = std::fs::read_to_string(dir.join("store.json")).unwrap_or_default();
-    let seconds_of = |level: u8| -> String {
-        let key = format!("{{\"level\": {level},");
-        manifest
-            .lines()
-            .find(|l| l.trim_start().starts_with(&key))
-            .and_then(|l| l.split("\"seconds\": ").nth(1))
-            .map(|x| format!("{} s", x.trim_end_matches(|c| c == '}' || c == ',')))
-            .unwrap_or_else(|| "n/a".into())
-    };
-    println!("{:>5} {:>8} {:>14} {:>14} {:>12} {:>12} {:>10}", "level", "nodes", "triangles", "bytes", "err min", "err max", "time");
-    for level in 0..=octolod::pipeline::top_level(&s) {
-        let (mut nodes, mut bytes, mut tris, mut emin, mut emax) = (0u64, 0u64, 0u64, f64::INFINITY, 0f64);
-        for n in &s.nodes {
-            let slot = if level == 0 { n.orig } else if n.level == level { n.simp } else { continue };
-            if slot.is_empty() {
-                continue;
-            }
-            nodes += 1;
-            bytes += slot.bytes as u64;
-            tris += slot.tris as u64;
-            emin = emin.min(slot.error as f64);
-            emax = emax.max(slot.error as f64);
-        }
+    println!("nodes: {}, levels: {}, root: {} triangles", s.nodes.len(), h.levels, s.nodes[s.root()].tris);
+    let manifest = octolod::store::Manifest::read(dir).ok();
+    let ml = |level: u8| manifest.as_ref().and_then(|m| m.levels.iter().find(|l| l.level == level).cloned());
+    println!(
+        "{:>5} {:>8} {:>14} {:>14} {:>12} {:>12} {:>8} {:>9} {:>9}",
+        "level", "nodes", "triangles", "bytes", "err min", "err max", "locked", "prev.lock", "time"
+    );
+    for level in 0..=s.top_level() {
+        let ids = s.level_nodes(level);
+        let tris: u64 = ids.iter().map(|&i| s.nodes[i].tris as u64).sum();
+        let bytes: u64 = ids.iter().map(|&i| s.nodes[i].bytes as u64).sum();
+        let emin = ids.iter().map(|&i| s.nodes[i].error as f64).fold(f64::INFINITY, f64::min);
+        let emax = ids.iter().map(|&i| s.nodes[i].error as f64).fold(0.0, f64::max);
+        let m = ml(level);
         println!(
-            "{level:>5} {nodes:>8} {tris:>14} {bytes:>14} {:>12.3e} {emax:>12.3e} {:>10}   whole-level view: {} triangles",
-            if nodes == 0 { 0.0 } else { emin },
-            seconds_of(level),
-            octolod::pipeline::level_triangles(&s, level)
+            "{level:>5} {:>8} {tris:>14} {bytes:>14} {:>12.3e} {emax:>12.3e} {:>8} {:>9} {:>9}",
+            ids.len(),
+            if ids.is_empty() { 0.0 } else { emin },
+            m.as_ref().map(|m| format!("{:.1}%", 100.0 * m.locked_fraction)).unwrap_or_default(),
+            m.as_ref().filter(|_| level > 0).map(|m| format!("{:.1}%", 100.0 * m.prev_locked_still_fraction)).unwrap_or_default(),
+            m.as_ref().map(|m| format!("{:.2} s", m.seconds)).unwrap_or_else(|| "n/a".into()),
         );
     }
+    println!("locked: share of the level's vertex positions locked when it was simplified; prev.lock: share of the level below's locked positions still locked here");
     Ok(())
 }
 

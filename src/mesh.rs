@@ -209,7 +209,7 @@ impl VertexLayout {
     }
 }
 
-/// Axis-aligned bounding box in f64.
+/// Axis-aligned bounding box in f64 (the default is empty).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Aabb {
     pub min: [f64; 3],
@@ -289,5 +289,11 @@ mod tests {
         assert_eq!(AttrSet(AttrSet::COLOR).quadric_dim(), 6);
         assert_eq!(AttrSet(AttrSet::COLOR | AttrSet::NORMAL | AttrSet::UV).quadric_dim(), 11);
         assert!(AttrSet::from_bits(AttrSet::ALPHA).is_none());
+    }
+}
+
+impl Default for Aabb {
+    fn default() -> Self {
+        Aabb::EMPTY
     }
 }

@@ -140,7 +140,7 @@
 use crate::error::{Error, Location, Result};
 use crate::mesh::{Aabb, Vertex};
 use crate::progress::Progress;
-use crate::store::{IndexedMesh, Slot, Store};
+use crate::store::{IndexedMesh, NodeRec, Store};
 use rayon::prelude::*;
 use std::collections::{BTreeMap, HashMap};
 use std::fmt;
@@ -333,12 +333,12 @@ pub fn load_ply(path: &Path) -> Result<Mesh> {
 /// concatenated in memory, bit-identical positions welded.
 pub fn load_store_level(dir: &Path, level: u8) -> Result<Mesh> {
     let store = crate::store::Store::open(dir)?;
-    crate::pipeline::check_level(&store, level)?;
+    store.check_level(level)?;
     let mut mesh = Mesh::default();
     let mut weld: HashMap<[u64; 3], u32> = HashMap::new();
-    for i in crate::simplify::level_cut(&store.nodes, level) {
+    for i in store.level_nodes(level) {
         let n = &store.nodes[i];
-        let m = crate::pipeline::read_level_mesh(&store, i, level)?;
+        let m = store.read_node(i)?.mesh;
         let ids: Vec<u32> = m
             .vertices
             .iter()
@@ -1545,7 +1545,7 @@ struct PartCost {
 }
 
 impl PartCost {
-    fn of(s: &Slot) -> PartCost {
+    fn of(s: &NodeRec) -> PartCost {
         let (v, f) = (s.verts as u64, s.tris as u64);
         let load = s.bytes as u64 + v * size_of::<Vertex>() as u64 + f * size_of::<[u32; 3]>() as u64;
         // Weld map (hashbrown: ≤ 2 buckets of 33 bytes per entry), positions,
@@ -1561,7 +1561,6 @@ impl PartCost {
 pub struct PagedLevel {
     name: String,
     store: Store,
-    level: u8,
     /// Which operand (cache keys).
     op: u64,
     /// Store node of each part, in cut order (= the in-memory level's order).
@@ -1580,10 +1579,9 @@ impl PagedLevel {
     /// each read under a reservation) for their exact bounds.
     fn open(dir: &Path, level: u8, name: String, op: u64, cache: &Cache, threads: usize, quiet: bool) -> Result<PagedLevel> {
         let store = Store::open(dir)?;
-        crate::pipeline::check_level(&store, level)?;
-        let nodes = crate::simplify::level_cut(&store.nodes, level);
-        let slots: Vec<Slot> = nodes.iter().map(|&i| crate::pipeline::level_slot(&store.nodes[i], level).1).collect();
-        let costs: Vec<PartCost> = slots.iter().map(PartCost::of).collect();
+        store.check_level(level)?;
+        let nodes = store.level_nodes(level);
+        let costs: Vec<PartCost> = nodes.iter().map(|&i| PartCost::of(&store.nodes[i])).collect();
         let max_load = costs.iter().map(|c| c.load).max().unwrap_or(0).max(1);
         let t = threads.min((cache.budget / max_load).max(1) as usize).max(1);
         let pool = rayon::ThreadPoolBuilder::new()
@@ -1596,8 +1594,8 @@ impl PagedLevel {
                 .into_par_iter()
                 .map(|k| {
                     let _r = cache.reserve(costs[k].load);
-                    let m = crate::pipeline::read_level_mesh(&store, nodes[k], level)?;
-                    cache.scan_bytes.fetch_add(slots[k].bytes as u64, Relaxed);
+                    let m = store.read_node(nodes[k])?.mesh;
+                    cache.scan_bytes.fetch_add(store.nodes[nodes[k]].bytes as u64, Relaxed);
                     let mut b = Aabb::EMPTY;
                     for t in &m.triangles {
                         for &i in t {
@@ -1621,7 +1619,7 @@ impl PagedLevel {
             bbox.merge(b);
         }
         let tree = BoxTree::new(&boxes);
-        Ok(PagedLevel { name, store, level, op, nodes, costs, boxes, face_base, tree, bbox })
+        Ok(PagedLevel { name, store, op, nodes, costs, boxes, face_base, tree, bbox })
     }
 
     pub fn parts(&self) -> usize {
@@ -1640,8 +1638,8 @@ impl PagedLevel {
         (self.op << 40) | (role << 32) | part as u64
     }
     fn read(&self, part: usize) -> Result<(IndexedMesh, u64)> {
-        let m = crate::pipeline::read_level_mesh(&self.store, self.nodes[part], self.level)?;
-        Ok((m, crate::pipeline::level_slot(&self.store.nodes[self.nodes[part]], self.level).1.bytes as u64))
+        let m = self.store.read_node(self.nodes[part])?.mesh;
+        Ok((m, self.store.nodes[self.nodes[part]].bytes as u64))
     }
     fn get_src(&self, cache: &Cache, part: usize) -> Result<Arc<Entry>> {
         cache.get(self.key(ROLE_SRC, part), self.costs[part].src, || {
@@ -2110,7 +2108,7 @@ impl Target<'_> {
                     let mut order: Vec<(u64, u32)> = points
                         .par_iter()
                         .enumerate()
-                        .map(|(i, p)| (crate::store::morton3(q(p, 0), q(p, 1), q(p, 2)), i as u32))
+                        .map(|(i, p)| (crate::lod::partition::morton3(q(p, 0), q(p, 1), q(p, 2)), i as u32))
                         .collect();
                     order.par_sort_unstable();
                     order

@@ -1,19 +1,21 @@
-//! Whole-pipeline commands: PLY → store (`build`), store → PLY (`extract`),
-//! and the level choice behind `simplify`.
+//! Whole-pipeline commands: PLY → store (`build`), store → PLY (`extract`
+//! of a whole level or of the cut at an error), and the level choice behind
+//! `simplify`.
 //!
-//! Takes: paths and options from the CLI. Gives: a complete
-//! `NAME.octolod/` directory (written under a temporary name and renamed
-//! only when every stage succeeded) with a `store.json` manifest, or one
-//! indexed PLY of a whole level.
+//! Takes: paths and typed options from the binaries. Gives: a complete
+//! `NAME.octolod/` directory (written under a temporary name and moved into
+//! place only when every stage succeeded) with its `store.json` manifest,
+//! or one indexed PLY of a cut.
 
-use crate::error::{Error, IoContext, Result};
+use crate::error::{IoContext, Result};
 use crate::io::{AtomicDir, OutputKind};
-use crate::octree::{build_octree, OctreeOptions, OctreeReport};
+use crate::lod::{LevelReport, LodOptions};
+use crate::octree::OctreeReport;
 use crate::ply::write::{PlyWriteOptions, PlyWriter};
-use crate::simplify::{build_levels, level_cut, weld_union, LevelReport, SimplifyOptions};
 use crate::soup::{build_soup, SoupOptions, SoupReport};
-use crate::store::{read_slot, write_index, IndexedMesh, NodeRec, Slot, Store, StoreHeader};
-use std::io::Write;
+use crate::store::{write_index, Cut, IndexedMesh, Manifest, ManifestLevel, ManifestParams, ManifestSeconds, Store};
+use crate::mesh::VertexLayout;
+use std::collections::HashMap;
 use std::path::Path;
 use std::time::Instant;
 
@@ -22,7 +24,8 @@ pub struct BuildOptions {
     pub mem: u64,
     pub leaf_tris: u64,
     pub max_depth: u8,
-    pub cluster_grid: u32,
+    pub level_ratio: f64,
+    pub root_tris: u64,
     pub levels: Option<u8>,
     pub quiet: bool,
     /// Replace an existing store at the output path (`--force`).
@@ -31,7 +34,17 @@ pub struct BuildOptions {
 
 impl Default for BuildOptions {
     fn default() -> Self {
-        BuildOptions { mem: 512 << 20, leaf_tris: 16384, max_depth: 16, cluster_grid: 8, levels: None, quiet: true, force: false }
+        let l = LodOptions::default();
+        BuildOptions {
+            mem: l.mem,
+            leaf_tris: l.leaf_tris,
+            max_depth: l.max_depth,
+            level_ratio: l.level_ratio,
+            root_tris: l.root_tris,
+            levels: None,
+            quiet: true,
+            force: false,
+        }
     }
 }
 
@@ -40,7 +53,8 @@ pub struct BuildReport {
     pub soup: SoupReport,
     pub octree: OctreeReport,
     pub levels: Vec<LevelReport>,
-    /// Seconds: soup, octree, simplification, total.
+    pub nodes: u64,
+    /// Seconds: soup, level-0 partition, levels, total.
     pub seconds: [f64; 4],
     pub disk_bytes: u64,
 }
@@ -52,27 +66,46 @@ pub fn build_store(input: &Path, output: &Path, opts: &BuildOptions) -> Result<B
     let soup_path = out.path().join("input.soup");
     let soup = build_soup(input, &soup_path, &SoupOptions { mem: opts.mem, quiet: opts.quiet, ..Default::default() })?;
     let t1 = Instant::now();
-    let (sh, cube, mut nodes, octree) = build_octree(
-        &soup_path,
-        out.path(),
-        &OctreeOptions { leaf_tris: opts.leaf_tris, max_depth: opts.max_depth, mem: opts.mem, quiet: opts.quiet },
-    )?;
+    let lo = LodOptions {
+        leaf_tris: opts.leaf_tris,
+        max_depth: opts.max_depth,
+        level_ratio: opts.level_ratio,
+        root_tris: opts.root_tris,
+        levels: opts.levels,
+        mem: opts.mem,
+        quiet: opts.quiet,
+        ..Default::default()
+    };
+    let built = crate::lod::build(&soup_path, out.path(), &lo)?;
     std::fs::remove_file(&soup_path).ctx(&soup_path, "remove")?;
-    let t2 = Instant::now();
-    let levels = build_levels(
-        out.path(),
-        &cube,
-        sh.attrs,
-        &mut nodes,
-        &SimplifyOptions { cluster_grid: opts.cluster_grid, levels: opts.levels, quiet: opts.quiet, ..Default::default() },
-    )?;
-    let t3 = Instant::now();
-    let header = StoreHeader { attrs: sh.attrs, levels: levels.len() as u32 + 1, cube, nodes: nodes.len() as u64 };
-    write_index(out.path(), &header, &nodes)?;
-    let seconds = [(t1 - t0).as_secs_f64(), (t2 - t1).as_secs_f64(), (t3 - t2).as_secs_f64(), t0.elapsed().as_secs_f64()];
+    write_index(out.path(), &built.header, &built.nodes, &built.children, &built.parents)?;
+    let total = t0.elapsed().as_secs_f64();
+    let levels_s = (total - (t1 - t0).as_secs_f64() - built.octree.seconds).max(0.0);
+    let seconds = [(t1 - t0).as_secs_f64(), built.octree.seconds, levels_s, total];
     let disk_bytes = dir_bytes(out.path());
-    let report = BuildReport { soup, octree, levels, seconds, disk_bytes };
-    write_manifest(out.path(), input, opts, &header, &report)?;
+    let report = BuildReport { soup, octree: built.octree, levels: built.levels, nodes: built.nodes.len() as u64, seconds, disk_bytes };
+    let manifest = Manifest {
+        format: "octolod-store".into(),
+        version: crate::store::VERSION,
+        input: input.display().to_string(),
+        attributes: built.header.attrs.describe(),
+        quadric_dim: built.header.attrs.quadric_dim(),
+        derived_normals: built.header.derived_normals,
+        nodes: report.nodes,
+        triangles: report.soup.header.triangles,
+        params: ManifestParams {
+            mem: opts.mem,
+            leaf_tris: opts.leaf_tris,
+            max_depth: opts.max_depth,
+            level_ratio: opts.level_ratio,
+            root_tris: opts.root_tris,
+            levels: opts.levels,
+        },
+        seconds: ManifestSeconds { soup: seconds[0], partition: seconds[1], levels: seconds[2], total: seconds[3] },
+        disk_bytes,
+        levels: report.levels.iter().map(ManifestLevel::from).collect(),
+    };
+    manifest.write(out.path())?;
     out.commit()?;
     Ok(report)
 }
@@ -83,103 +116,55 @@ fn dir_bytes(d: &Path) -> u64 {
         .unwrap_or(0)
 }
 
-fn write_manifest(dir: &Path, input: &Path, o: &BuildOptions, h: &StoreHeader, r: &BuildReport) -> Result<()> {
-    let path = dir.join("store.json");
-    let levels: Vec<String> = std::iter::once(format!(
-        "    {{\"level\": 0, \"nodes\": {}, \"triangles\": {}, \"bytes\": {}, \"error_min\": 0, \"error_max\": 0, \"seconds\": {:.3}}}",
-        r.octree.leaves, r.soup.header.triangles, r.octree.pack_bytes, r.octree.seconds
-    ))
-    .chain(r.levels.iter().map(|l| {
-        format!(
-            "    {{\"level\": {}, \"nodes\": {}, \"triangles\": {}, \"bytes\": {}, \"error_min\": {:e}, \"error_max\": {:e}, \"seconds\": {:.3}}}",
-            l.level, l.nodes, l.triangles, l.bytes, l.error_min, l.error_max, l.seconds
-        )
-    }))
-    .collect();
-    let s = format!(
-        "{{\n  \"format\": \"octolod-store\",\n  \"version\": {},\n  \"input\": {:?},\n  \"attributes\": {:?},\n  \"quadric_dim\": {},\n  \"nodes\": {},\n  \"leaves\": {},\n  \"deepest\": {},\n  \"triangles\": {},\n  \"root_cube\": {{\"center\": [{}, {}, {}], \"half\": {}}},\n  \"params\": {{\"mem\": {}, \"leaf_tris\": {}, \"max_depth\": {}, \"cluster_grid\": {}, \"levels\": {}}},\n  \"seconds\": {{\"soup\": {:.3}, \"octree\": {:.3}, \"simplify\": {:.3}, \"total\": {:.3}}},\n  \"disk_bytes\": {},\n  \"levels\": [\n{}\n  ]\n}}\n",
-        crate::store::VERSION,
-        input.display().to_string(),
-        h.attrs.describe(),
-        h.attrs.quadric_dim(),
-        h.nodes,
-        r.octree.leaves,
-        r.octree.deepest,
-        r.soup.header.triangles,
-        h.cube.center[0],
-        h.cube.center[1],
-        h.cube.center[2],
-        h.cube.half,
-        o.mem,
-        o.leaf_tris,
-        o.max_depth,
-        o.cluster_grid,
-        o.levels.map(|l| l.to_string()).unwrap_or_else(|| "null".into()),
-        r.seconds[0],
-        r.seconds[1],
-        r.seconds[2],
-        r.seconds[3],
-        r.disk_bytes,
-        levels.join(",\n")
-    );
-    let mut f = std::fs::File::create(&path).ctx(&path, "create")?;
-    f.write_all(s.as_bytes()).ctx(&path, "write")
+/// Which cut to extract.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum CutSpec {
+    /// The whole level L.
+    Level(u8),
+    /// The cut at object-space error E.
+    MaxError(f64),
 }
 
-/// The mesh node `n` contributes to a whole-level view at `level`: its
-/// original triangles for level 0 (and when it has no simplified mesh),
-/// else its simplified mesh. Returns (pack level, slot).
-pub fn level_slot(n: &NodeRec, level: u8) -> (usize, Slot) {
-    if level == 0 || n.simp.is_empty() {
-        (0, n.orig)
-    } else {
-        (n.level as usize, n.simp)
+impl CutSpec {
+    pub fn cut(&self, store: &Store) -> Result<Cut> {
+        match *self {
+            CutSpec::Level(l) => {
+                store.check_level(l)?;
+                Ok(store.level_cut(l))
+            }
+            CutSpec::MaxError(e) => Ok(store.error_cut(e)),
+        }
+    }
+
+    pub fn describe(&self) -> String {
+        match self {
+            CutSpec::Level(l) => format!("level {l}"),
+            CutSpec::MaxError(e) => format!("max error {e:e}"),
+        }
     }
 }
 
-/// Reads node `i`'s mesh for a whole-level view at `level` (see [`level_slot`]).
-pub fn read_level_mesh(store: &Store, i: usize, level: u8) -> Result<IndexedMesh> {
-    let (pack, slot) = level_slot(&store.nodes[i], level);
-    read_slot(&store.dir, &store.layout, pack, &slot)
+/// The meshes a cut draws, node by node (the drawn patches of each).
+pub fn cut_meshes<'a>(store: &'a Store, cut: &'a Cut) -> impl Iterator<Item = Result<IndexedMesh>> + 'a {
+    cut.drawn.iter().map(move |&i| store.read_node(i).map(|nm| cut.drawn_mesh(&nm)))
 }
 
-/// A usage error unless the store has `level`.
-pub fn check_level(store: &Store, level: u8) -> Result<()> {
-    let top = top_level(store);
-    if level > top {
-        return Err(Error::Usage(format!("the store has levels 0..={top}; level {level} does not exist")));
-    }
-    Ok(())
-}
-
-/// Triangles a whole-level view at `level` would draw.
-pub fn level_triangles(store: &Store, level: u8) -> u64 {
-    level_cut(&store.nodes, level).iter().map(|&i| level_slot(&store.nodes[i], level).1.tris as u64).sum()
-}
-
-/// The highest level present in the store.
-pub fn top_level(store: &Store) -> u8 {
-    store.nodes.iter().filter(|n| !n.simp.is_empty()).map(|n| n.level).max().unwrap_or(0)
-}
-
-/// Writes a whole level as one indexed PLY (binary little endian, with the
-/// store's attributes). Vertices shared by neighbouring nodes are welded
+/// Writes a cut as one indexed PLY (binary little endian, with the input's
+/// attributes). Vertices shared by neighbouring nodes are welded
 /// (bit-identical vertices become one) unless `weld` is false, which
-/// streams node by node without holding the level in memory. An existing
-/// PLY octolod wrote at `out` is replaced only when `force` is set.
-pub fn extract(store: &Store, level: u8, out: &Path, weld: bool, force: bool) -> Result<(u64, u64)> {
-    check_level(store, level)?;
-    let cut = level_cut(&store.nodes, level);
-    let read = |i: usize| read_level_mesh(store, i, level);
+/// streams node by node without holding the cut in memory. An existing PLY
+/// octolod wrote at `out` is replaced only when `force` is set.
+pub fn extract(store: &Store, spec: CutSpec, out: &Path, weld: bool, force: bool) -> Result<(u64, u64)> {
+    let cut = spec.cut(store)?;
     let opts = PlyWriteOptions {
         attrs: store.header.attrs,
         index_type: crate::ply::Scalar::U32,
-        comments: vec![format!("octolod level {level} of {}", store.dir.display())],
+        comments: vec![format!("octolod {} of {}", spec.describe(), store.dir.display())],
         ..Default::default()
     };
     let mut file = crate::io::AtomicFile::create(out, OutputKind::Ply, force)?;
     let (nv, nf) = if weld {
-        let parts = cut.iter().map(|&i| read(i)).collect::<Result<Vec<_>>>()?;
+        let parts = cut_meshes(store, &cut).collect::<Result<Vec<_>>>()?;
         let m = weld_union(&store.layout, &parts);
         let mut w = PlyWriter::new(file.writer(), &opts, m.vertices.len() as u64, m.triangles.len() as u64).ctx(out, "write")?;
         for v in &m.vertices {
@@ -191,19 +176,22 @@ pub fn extract(store: &Store, level: u8, out: &Path, weld: bool, force: bool) ->
         w.finish().ctx(out, "write")?;
         (m.vertices.len() as u64, m.triangles.len() as u64)
     } else {
-        let slot = |i: usize| level_slot(&store.nodes[i], level).1;
-        let nv: u64 = cut.iter().map(|&i| slot(i).verts as u64).sum();
-        let nf: u64 = cut.iter().map(|&i| slot(i).tris as u64).sum();
-        let mut w = PlyWriter::new(file.writer(), &opts, nv, nf).ctx(out, "write")?;
         // PLY puts all vertices before all faces: two passes over the nodes.
-        for &i in &cut {
-            for v in &read(i)?.vertices {
+        let (mut nv, mut nf) = (0u64, 0u64);
+        for m in cut_meshes(store, &cut) {
+            let m = m?;
+            nv += m.vertices.len() as u64;
+            nf += m.triangles.len() as u64;
+        }
+        let mut w = PlyWriter::new(file.writer(), &opts, nv, nf).ctx(out, "write")?;
+        for m in cut_meshes(store, &cut) {
+            for v in &m?.vertices {
                 w.vertex(v).ctx(out, "write")?;
             }
         }
         let mut base = 0u32;
-        for &i in &cut {
-            let m = read(i)?;
+        for m in cut_meshes(store, &cut) {
+            let m = m?;
             for t in &m.triangles {
                 w.face(&t.map(|i| i + base)).ctx(out, "write")?;
             }
@@ -216,9 +204,34 @@ pub fn extract(store: &Store, level: u8, out: &Path, weld: bool, force: bool) ->
     Ok((nv, nf))
 }
 
+/// Concatenates meshes, welding vertices that are bit-identical in `layout`
+/// (unreferenced vertices dropped).
+pub fn weld_union(layout: &VertexLayout, parts: &[IndexedMesh]) -> IndexedMesh {
+    let mut out = IndexedMesh::default();
+    let mut map: HashMap<Vec<u8>, u32> = HashMap::new();
+    let mut buf = vec![0u8; layout.size];
+    for p in parts {
+        let mut ids = vec![u32::MAX; p.vertices.len()];
+        for t in &p.triangles {
+            let nt = t.map(|i| {
+                let i = i as usize;
+                if ids[i] == u32::MAX {
+                    layout.encode(&p.vertices[i], &mut buf);
+                    let next = out.vertices.len() as u32;
+                    ids[i] = *map.entry(buf.clone()).or_insert_with(|| {
+                        out.vertices.push(layout.decode(&buf));
+                        next
+                    });
+                }
+                ids[i]
+            });
+            out.triangles.push(nt);
+        }
+    }
+    out
+}
+
 /// The level whose whole-level triangle count is nearest `target`.
 pub fn nearest_level(store: &Store, target: u64) -> u8 {
-    (0..=top_level(store))
-        .min_by_key(|&l| level_triangles(store, l).abs_diff(target))
-        .unwrap_or(0)
+    (0..=store.top_level()).min_by_key(|&l| store.level_triangles(l).abs_diff(target)).unwrap_or(0)
 }

@@ -361,6 +361,93 @@ impl Quadric {
         &self.k[s..s + self.dim]
     }
 
+    /// The quadric `(x − p)ᵀ A (x − p)` of a point `p` (embedded, length ≥
+    /// dim) carrying the packed upper-triangular matrix `a` (`dim(dim+1)/2`
+    /// values, as [`Quadric::matrix_packed`] gives): zero error and zero
+    /// gradient at `p`. Counts `p` once for the mean; `area` is recorded as
+    /// the quadric's area.
+    pub fn at_point(dim: usize, a: &[f64], p: &[f64], area: f64) -> Quadric {
+        let mut q = Quadric::zero(dim);
+        let al = a_len(dim);
+        q.k[..al].copy_from_slice(&a[..al]);
+        let full = q.matrix();
+        let mut c = 0.0;
+        for i in 0..dim {
+            let ap: f64 = (0..dim).map(|j| full[i][j] * p[j]).sum();
+            q.k[al + i] = -ap;
+            c += ap * p[i];
+        }
+        q.k[al + dim] = c;
+        q.k[al + dim + 1] = area;
+        q.add_point(p);
+        q
+    }
+
+    /// A cheap estimate of the minimum of Q: `Q(m) − gᵀ(A + εI)⁻¹g` with m
+    /// the points' mean, g the gradient there and ε = 1e-6 × trace(A) / n
+    /// (a regularised Cholesky step instead of the eigen solve). Always
+    /// finite and ≥ 0; exact for full-rank A up to the regularisation.
+    pub fn min_estimate(&self) -> f64 {
+        let n = self.dim;
+        let m = self.mean();
+        let q0 = self.error(&m);
+        if !(q0 > 0.0) {
+            return 0.0;
+        }
+        let mut a = self.matrix();
+        let b = self.b();
+        let mut g = [0.0; MAX_DIM];
+        let mut tr = 0.0;
+        for i in 0..n {
+            g[i] = b[i] + (0..n).map(|j| a[i][j] * m[j]).sum::<f64>();
+            tr += a[i][i];
+        }
+        let eps = 1e-6 * tr / n as f64 + f64::MIN_POSITIVE;
+        for i in 0..n {
+            a[i][i] += eps;
+        }
+        // Cholesky in place (lower), then solve L Lᵀ y = g.
+        for j in 0..n {
+            let mut d = a[j][j];
+            for k in 0..j {
+                d -= a[j][k] * a[j][k];
+            }
+            if !(d > 0.0) {
+                return q0;
+            }
+            let d = d.sqrt();
+            a[j][j] = d;
+            for i in j + 1..n {
+                let mut v = a[i][j];
+                for k in 0..j {
+                    v -= a[i][k] * a[j][k];
+                }
+                a[i][j] = v / d;
+            }
+        }
+        let mut y = [0.0; MAX_DIM];
+        for i in 0..n {
+            let mut v = g[i];
+            for k in 0..i {
+                v -= a[i][k] * y[k];
+            }
+            y[i] = v / a[i][i];
+        }
+        // gᵀ(A+εI)⁻¹g = |L⁻¹g|².
+        let drop: f64 = y[..n].iter().map(|v| v * v).sum();
+        let r = q0 - drop;
+        if r.is_finite() && r > 0.0 {
+            r
+        } else {
+            0.0
+        }
+    }
+
+    /// A packed upper-triangular, row-major (`dim(dim+1)/2` values).
+    pub fn matrix_packed(&self) -> &[f64] {
+        &self.k[..a_len(self.dim)]
+    }
+
     /// Adds another quadric of the same dimension.
     #[inline]
     pub fn add(&mut self, other: &Quadric) {

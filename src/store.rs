@@ -1,30 +1,49 @@
-//! The on-disk store `NAME.octolod/`: the node index and the node payloads.
+//! The on-disk store `NAME.octolod/` (format version 2): a DAG of levels of
+//! detail, and the cut queries every reader shares.
 //!
-//! Takes: node records and indexed meshes from the octree and simplify
-//! stages. Gives: a directory any later stage (extract, viewer, metro) can
-//! open and read node by node:
+//! Takes: node records and indexed meshes from the LOD builder
+//! ([`crate::lod`]). Gives: a directory that `extract`, `metro`, `info` and
+//! the viewer open and read node by node, and the questions they ask of it:
+//! which nodes make a whole level, which make the cut at an error, which
+//! patches of a node a cut draws ([`Cut`]).
 //!
-//! * `nodes.bin` — a 64-byte header (magic `OCTLODIX`, version, attribute
-//!   set, node count, level count, root cube, Morton depth) and one fixed
-//!   [`NodeRec`] of 192 bytes per node in depth-first pre-order (so a
-//!   subtree is a contiguous id range and the root is node 0);
-//! * `level-L.pack` — the payloads of level L, each starting on a 4 KiB
-//!   page boundary and read with one sequential read of its byte range;
-//! * `store.json` — a human-readable manifest (format version, attributes,
-//!   per-level figures, build parameters and timings).
+//! Files:
+//! * `nodes.bin` — a 128-byte [`StoreHeader`] (magic `OCTLODIX`, version,
+//!   attribute set, flags, counts, root, store id, input bounds), one fixed
+//!   160-byte [`NodeRec`] per node, then the children and parents lists
+//!   (`u32` node ids) the records point into. Nodes are numbered level by
+//!   level from the finest (level 0 = the input, bit-exact); the root is
+//!   the last node.
+//! * `level-L.pack` — the payloads of level L's nodes, each on a 4 KiB page
+//!   boundary, read with one positioned read.
+//! * `store.json` — a human-readable manifest (parameters, per-level
+//!   figures, timings).
 //!
-//! Pack files rather than one file per node: a 10^9-triangle mesh has ~10^5
-//! leaves per level, and a directory of 10^5–10^6 small files costs inodes,
-//! open() calls and metadata seeks; page-aligned ranges in a few large files
-//! give the same "one node = one sequential read" with `pread`, keep
-//! sibling nodes adjacent (depth-first order) for read-ahead, and are what
-//! Nanite-style streaming does with its fixed-size pages.
+//! A node's payload is its triangles *at its level*, grouped into patches
+//! by the finer node (child) each part was simplified from:
+//! `u32 vertex count, u32 triangle count, u32 index size (2 or 4), u32
+//! patch count`, then per patch `u32 child id, u32 triangle count` (in the
+//! order of the node's children list; level-0 nodes have one patch with
+//! child [`NO_NODE`]), the vertex table in [`Store::payload_layout`] (the
+//! input's attributes, plus per-vertex normals computed at build time when
+//! the input has none — [`StoreHeader::derived_normals`]), then the
+//! triangles' indices (u16 when ≤ 65 535 vertices), all little-endian. Each
+//! payload's CRC-32C is in its record and checked on every read.
 //!
-//! A payload is an indexed mesh: `u32 vertex count, u32 triangle count,
-//! u32 index size (2 or 4), u32 reserved`, the vertex table in the store's
-//! [`VertexLayout`] (positions in the input's precision, so level 0 is
-//! exact), then the triangles' indices (u16 when the node has ≤ 65 535
-//! vertices, else u32), all little-endian.
+//! Cuts. A *selection* S is a set of nodes that holds the root and, with
+//! every node, all of its parents. It draws, for each node of S, the
+//! patches whose child is not in S (a level-0 node draws everything). A
+//! node's patches from child c are c's simplified mesh, whose boundary with
+//! its level's other nodes was kept exactly, so any such cut is closed
+//! wherever the input is (Batched Multi-Triangulation, Cignoni et al.
+//! 2005). The whole level L is S = every node of level ≥ L; the cut at
+//! object-space error E adds every node a parent of which has error > E
+//! (with its missing ancestors), so every drawn patch has error ≤ E.
+//!
+//! Pack files rather than one file per node: a 10^9-triangle mesh has
+//! ~10^5 nodes per level; page-aligned ranges in a few large files give the
+//! same "one node = one sequential read" with `pread`, keep nodes of one
+//! region adjacent for read-ahead, and cost no inodes.
 
 use crate::error::{Error, IoContext, Location, Result};
 use crate::mesh::{Aabb, AttrSet, Vertex, VertexLayout};
@@ -33,121 +52,61 @@ use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 
 pub const MAGIC: [u8; 8] = *b"OCTLODIX";
-pub const VERSION: u32 = 1;
+pub const VERSION: u32 = 2;
 pub const PAGE: u64 = 4096;
 pub const NO_NODE: u32 = u32::MAX;
-const HEADER: usize = 64;
-const NODE_REC: usize = 256;
+const HEADER: usize = 128;
+const NODE_REC: usize = 160;
+/// Flag bit: payload vertices carry normals computed at build time.
+const FLAG_DERIVED_NORMALS: u32 = 1;
 
-/// Where one level's mesh of a node lives.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct Slot {
+/// Store-wide facts.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StoreHeader {
+    /// The input's attributes (what `extract` writes, what the quadric models).
+    pub attrs: AttrSet,
+    /// Payloads carry normals computed at build time (the input had none).
+    pub derived_normals: bool,
+    /// Number of levels (top level + 1).
+    pub levels: u32,
+    pub nodes: u64,
+    /// Id of the last node: the root (the coarsest level's single node,
+    /// or one of the top level's nodes when `--levels` stopped early).
+    pub root: u32,
+    /// Random id of this build; a reader that finds another one in the
+    /// files stops (the store was rewritten under it).
+    pub store_id: u64,
+    /// Bounding box of the input.
+    pub bbox: Aabb,
+}
+
+/// One node of the DAG.
+#[derive(Clone, Debug, PartialEq)]
+pub struct NodeRec {
+    pub level: u8,
+    /// The partition cell the node's triangles' centroids lie in.
+    pub cell: Aabb,
+    /// Bounds of the node's triangles and of every descendant's (saturated,
+    /// so a parent's bounds contain its children's).
+    pub bounds: Aabb,
+    /// Object-space error of the node's triangles against the input
+    /// (measured, maxed over descendants: never below a child's).
+    pub error: f32,
+    /// Payload in `level-{level}.pack`.
     pub offset: u64,
     pub bytes: u32,
     pub tris: u32,
     pub verts: u32,
-    /// Conservative object-space error of this mesh against the original.
-    pub error: f32,
-}
-
-impl Slot {
-    pub fn is_empty(&self) -> bool {
-        self.bytes == 0
-    }
-}
-
-/// One octree node.
-#[derive(Clone, Debug, PartialEq)]
-pub struct NodeRec {
-    /// Morton path of the cell (3 bits per level from the root).
-    pub path: u64,
-    pub depth: u8,
-    pub parent: u32,
-    pub children: [u32; 8],
-    /// The node's octree cell (derivable from `path`, `depth` and the root
-    /// cube; stored so readers need not recompute it).
-    pub cell: Aabb,
-    /// Tight bounds of the original triangles under this node.
-    pub content: Aabb,
-    /// Original triangles under this node (leaf: its own).
-    pub subtree_tris: u64,
-    /// Level-0 mesh: the original triangles (leaves only), in `level-0.pack`.
-    pub orig: Slot,
-    /// The node's simplified mesh, in `level-{level}.pack`; empty when not built.
-    pub simp: Slot,
-    /// Level of `simp`: 1 for leaves, 1 + the highest child level otherwise.
-    pub level: u8,
-}
-
-impl NodeRec {
-    pub fn is_leaf(&self) -> bool {
-        self.children.iter().all(|&c| c == NO_NODE)
-    }
-}
-
-/// The root cube and Morton quantisation.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Cube {
-    pub center: [f64; 3],
-    pub half: f64,
-    /// Bits per axis of the Morton code (= maximum depth).
-    pub depth: u8,
-}
-
-impl Cube {
-    /// The smallest cube around `b`, slightly enlarged so that the maximum
-    /// corner quantises inside.
-    pub fn around(b: &Aabb, depth: u8) -> Cube {
-        let ext = (0..3).map(|k| b.max[k] - b.min[k]).fold(0.0, f64::max);
-        let half = if ext > 0.0 { ext * 0.5 * (1.0 + 1e-9) + f64::MIN_POSITIVE } else { 1.0 };
-        Cube { center: b.center(), half, depth }
-    }
-
-    /// Cell bounds of node `path` at `depth`.
-    pub fn cell(&self, path: u64, depth: u8) -> Aabb {
-        let n = 1u64 << depth;
-        let size = 2.0 * self.half / n as f64;
-        let (x, y, z) = demorton(path);
-        let lo = [0, 1, 2].map(|k| self.center[k] - self.half + [x, y, z][k] as f64 * size);
-        Aabb { min: lo, max: [0, 1, 2].map(|k| lo[k] + size) }
-    }
-
-    /// Morton code of a point at full depth.
-    pub fn morton(&self, p: [f64; 3]) -> u64 {
-        let n = 1u64 << self.depth;
-        let q = |k: usize| {
-            let t = (p[k] - (self.center[k] - self.half)) / (2.0 * self.half);
-            ((t * n as f64).floor().max(0.0) as u64).min(n - 1)
-        };
-        morton3(q(0), q(1), q(2))
-    }
-}
-
-fn spread(mut x: u64) -> u64 {
-    x &= 0x1f_ffff;
-    x = (x | x << 32) & 0x1f00000000ffff;
-    x = (x | x << 16) & 0x1f0000ff0000ff;
-    x = (x | x << 8) & 0x100f00f00f00f00f;
-    x = (x | x << 4) & 0x10c30c30c30c30c3;
-    (x | x << 2) & 0x1249249249249249
-}
-
-fn compact(mut x: u64) -> u64 {
-    x &= 0x1249249249249249;
-    x = (x ^ (x >> 2)) & 0x10c30c30c30c30c3;
-    x = (x ^ (x >> 4)) & 0x100f00f00f00f00f;
-    x = (x ^ (x >> 8)) & 0x1f0000ff0000ff;
-    x = (x ^ (x >> 16)) & 0x1f00000000ffff;
-    (x ^ (x >> 32)) & 0x1f_ffff
-}
-
-/// Interleaves x, y, z bits (x lowest).
-pub fn morton3(x: u64, y: u64, z: u64) -> u64 {
-    spread(x) | spread(y) << 1 | spread(z) << 2
-}
-
-pub fn demorton(m: u64) -> (u64, u64, u64) {
-    (compact(m), compact(m >> 1), compact(m >> 2))
+    pub crc: u32,
+    /// Triangles of the node's simplified mesh: what its parents' patches
+    /// from it hold together (0 for the root).
+    pub simp_tris: u32,
+    /// Children: `Store::children[first_child..][..child_count]`.
+    pub first_child: u32,
+    pub child_count: u32,
+    /// Parents: `Store::parents[first_parent..][..parent_count]`.
+    pub first_parent: u32,
+    pub parent_count: u32,
 }
 
 /// An indexed mesh, the content of one payload.
@@ -157,14 +116,32 @@ pub struct IndexedMesh {
     pub triangles: Vec<[u32; 3]>,
 }
 
-/// Encodes a payload (see the module doc).
-pub fn encode_payload(layout: &VertexLayout, m: &IndexedMesh, out: &mut Vec<u8>) {
+/// One patch of a node: the triangles `first..first + count` came from `child`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Patch {
+    pub child: u32,
+    pub first: u32,
+    pub count: u32,
+}
+
+/// A decoded payload.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct NodeMesh {
+    pub mesh: IndexedMesh,
+    pub patches: Vec<Patch>,
+}
+
+/// Encodes a payload (see the module doc). `patches` are (child, count) in order.
+pub fn encode_payload(layout: &VertexLayout, m: &IndexedMesh, patches: &[(u32, u32)], out: &mut Vec<u8>) {
     out.clear();
     let wide = m.vertices.len() > u16::MAX as usize;
-    out.extend_from_slice(&(m.vertices.len() as u32).to_le_bytes());
-    out.extend_from_slice(&(m.triangles.len() as u32).to_le_bytes());
-    out.extend_from_slice(&(if wide { 4u32 } else { 2u32 }).to_le_bytes());
-    out.extend_from_slice(&0u32.to_le_bytes());
+    for x in [m.vertices.len() as u32, m.triangles.len() as u32, if wide { 4 } else { 2 }, patches.len() as u32] {
+        out.extend_from_slice(&x.to_le_bytes());
+    }
+    for &(c, n) in patches {
+        out.extend_from_slice(&c.to_le_bytes());
+        out.extend_from_slice(&n.to_le_bytes());
+    }
     let at = out.len();
     out.resize(at + m.vertices.len() * layout.size, 0);
     for (k, v) in m.vertices.iter().enumerate() {
@@ -181,23 +158,42 @@ pub fn encode_payload(layout: &VertexLayout, m: &IndexedMesh, out: &mut Vec<u8>)
     }
 }
 
-/// Decodes a payload; errors name the store file and offset.
-pub fn decode_payload(layout: &VertexLayout, b: &[u8], file: &Path, offset: u64) -> Result<IndexedMesh> {
-    let bad = |msg: &str| Error::input(Location { file: file.to_path_buf(), offset: Some(offset), ..Default::default() }, msg);
+/// Decodes a payload, checking every count, index and coordinate; errors
+/// name the pack file and offset.
+pub fn decode_payload(layout: &VertexLayout, b: &[u8], file: &Path, offset: u64) -> Result<NodeMesh> {
+    let bad = |msg: String| Error::input(Location { file: file.to_path_buf(), offset: Some(offset), ..Default::default() }, msg);
     if b.len() < 16 {
-        return Err(bad("payload shorter than its header"));
+        return Err(bad("payload shorter than its header".into()));
     }
     let u = |o: usize| u32::from_le_bytes(b[o..o + 4].try_into().unwrap()) as usize;
-    let (nv, nt, isz) = (u(0), u(4), u(8));
+    let (nv, nt, isz, np) = (u(0), u(4), u(8), u(12));
     if isz != 2 && isz != 4 {
-        return Err(bad("payload index size is neither 2 nor 4"));
+        return Err(bad("payload index size is neither 2 nor 4".into()));
     }
-    let need = 16 + nv * layout.size + nt * 3 * isz;
-    if b.len() < need {
-        return Err(bad("payload truncated"));
+    let need = (np as u64) * 8 + (nv as u64) * layout.size as u64 + (nt as u64) * 3 * isz as u64 + 16;
+    if (b.len() as u64) < need {
+        return Err(bad(format!("payload truncated: {} bytes, its counts need {need}", b.len())));
     }
-    let vertices = (0..nv).map(|k| layout.decode(&b[16 + k * layout.size..])).collect();
-    let ib = &b[16 + nv * layout.size..];
+    let mut patches = Vec::with_capacity(np);
+    let mut first = 0u64;
+    for p in 0..np {
+        let (child, count) = (u(16 + 8 * p) as u32, u(20 + 8 * p) as u32);
+        patches.push(Patch { child, first: first as u32, count });
+        first += count as u64;
+    }
+    if first != nt as u64 {
+        return Err(bad(format!("patches hold {first} triangles, the payload {nt}")));
+    }
+    let vb = 16 + 8 * np;
+    let mut vertices = Vec::with_capacity(nv);
+    for k in 0..nv {
+        let v = layout.decode(&b[vb + k * layout.size..]);
+        if !v.pos.iter().all(|x| x.is_finite()) {
+            return Err(bad(format!("vertex {k} has a non-finite coordinate")));
+        }
+        vertices.push(v);
+    }
+    let ib = &b[vb + nv * layout.size..];
     let mut triangles = Vec::with_capacity(nt);
     for t in 0..nt {
         let mut tri = [0u32; 3];
@@ -209,21 +205,12 @@ pub fn decode_payload(layout: &VertexLayout, b: &[u8], file: &Path, offset: u64)
                 u16::from_le_bytes(ib[o..o + 2].try_into().unwrap()) as u32
             };
             if tri[c] as usize >= nv {
-                return Err(bad("payload index out of range"));
+                return Err(bad(format!("triangle {t} index {} out of range ({nv} vertices)", tri[c])));
             }
         }
         triangles.push(tri);
     }
-    Ok(IndexedMesh { vertices, triangles })
-}
-
-/// Store-wide facts.
-#[derive(Clone, Debug, PartialEq)]
-pub struct StoreHeader {
-    pub attrs: AttrSet,
-    pub levels: u32,
-    pub cube: Cube,
-    pub nodes: u64,
+    Ok(NodeMesh { mesh: IndexedMesh { vertices, triangles }, patches })
 }
 
 /// Appends page-aligned payloads to one level's pack file.
@@ -247,15 +234,21 @@ impl PackWriter {
             self.pos += pad;
         }
         let off = self.pos;
+        let len = u32::try_from(payload.len()).map_err(|_| Error::Usage(format!("{}: a node payload over 4 GiB", self.path.display())))?;
         self.w.write_all(payload).ctx(&self.path, "write pack file")?;
         self.pos += payload.len() as u64;
-        Ok((off, payload.len() as u32))
+        Ok((off, len))
     }
     pub fn finish(self) -> Result<u64> {
         let f = self.w.into_inner().map_err(|e| e.into_error()).ctx(&self.path, "write pack file")?;
         f.sync_all().ctx(&self.path, "sync")?;
         Ok(self.pos)
     }
+}
+
+/// The pack file of `level` in store directory `dir`.
+pub fn pack_file(dir: &Path, level: usize) -> PathBuf {
+    dir.join(format!("level-{level}.pack"))
 }
 
 fn put_aabb(b: &mut Vec<u8>, a: &Aabb) {
@@ -265,40 +258,36 @@ fn put_aabb(b: &mut Vec<u8>, a: &Aabb) {
 }
 
 /// Writes `nodes.bin`.
-pub fn write_index(dir: &Path, h: &StoreHeader, nodes: &[NodeRec]) -> Result<()> {
+pub fn write_index(dir: &Path, h: &StoreHeader, nodes: &[NodeRec], children: &[u32], parents: &[u32]) -> Result<()> {
     let path = dir.join("nodes.bin");
-    let mut b = Vec::with_capacity(HEADER + nodes.len() * NODE_REC);
+    let mut b = Vec::with_capacity(HEADER + nodes.len() * NODE_REC + 4 * (children.len() + parents.len()));
     b.extend_from_slice(&MAGIC);
-    b.extend_from_slice(&VERSION.to_le_bytes());
-    b.extend_from_slice(&h.attrs.0.to_le_bytes());
-    b.extend_from_slice(&(nodes.len() as u64).to_le_bytes());
-    b.extend_from_slice(&h.levels.to_le_bytes());
-    b.extend_from_slice(&(h.cube.depth as u32).to_le_bytes());
-    for c in h.cube.center {
-        b.extend_from_slice(&c.to_le_bytes());
+    for x in [VERSION, h.attrs.0, if h.derived_normals { FLAG_DERIVED_NORMALS } else { 0 }, h.levels] {
+        b.extend_from_slice(&x.to_le_bytes());
     }
-    b.extend_from_slice(&h.cube.half.to_le_bytes());
+    b.extend_from_slice(&(nodes.len() as u64).to_le_bytes());
+    b.extend_from_slice(&h.root.to_le_bytes());
+    b.extend_from_slice(&[0u8; 4]);
+    b.extend_from_slice(&h.store_id.to_le_bytes());
+    b.extend_from_slice(&(children.len() as u64).to_le_bytes());
+    b.extend_from_slice(&(parents.len() as u64).to_le_bytes());
+    put_aabb(&mut b, &h.bbox);
     b.resize(HEADER, 0);
     for n in nodes {
         let at = b.len();
-        b.extend_from_slice(&n.path.to_le_bytes());
-        b.extend_from_slice(&[n.depth, n.level, 0, 0]);
-        b.extend_from_slice(&n.parent.to_le_bytes());
-        for c in n.children {
-            b.extend_from_slice(&c.to_le_bytes());
-        }
-        put_aabb(&mut b, &n.content);
-        b.extend_from_slice(&n.subtree_tris.to_le_bytes());
-        for s in [&n.orig, &n.simp] {
-            b.extend_from_slice(&s.offset.to_le_bytes());
-            b.extend_from_slice(&s.bytes.to_le_bytes());
-            b.extend_from_slice(&s.tris.to_le_bytes());
-            b.extend_from_slice(&s.verts.to_le_bytes());
-            b.extend_from_slice(&s.error.to_le_bytes());
-        }
+        b.extend_from_slice(&[n.level, 0, 0, 0]);
         put_aabb(&mut b, &n.cell);
+        put_aabb(&mut b, &n.bounds);
+        b.extend_from_slice(&n.error.to_le_bytes());
+        b.extend_from_slice(&n.offset.to_le_bytes());
+        for x in [n.bytes, n.tris, n.verts, n.crc, n.first_child, n.child_count, n.first_parent, n.parent_count, n.simp_tris] {
+            b.extend_from_slice(&x.to_le_bytes());
+        }
         debug_assert!(b.len() - at <= NODE_REC);
         b.resize(at + NODE_REC, 0);
+    }
+    for &c in children.iter().chain(parents) {
+        b.extend_from_slice(&c.to_le_bytes());
     }
     let mut f = File::create(&path).ctx(&path, "create")?;
     f.write_all(&b).ctx(&path, "write")?;
@@ -310,10 +299,16 @@ pub struct Store {
     pub dir: PathBuf,
     pub header: StoreHeader,
     pub nodes: Vec<NodeRec>,
+    pub children: Vec<u32>,
+    pub parents: Vec<u32>,
+    /// Layout of the input's attributes (what extract writes).
     pub layout: VertexLayout,
+    /// Layout of payload vertices (input attributes + derived normals).
+    pub payload_layout: VertexLayout,
 }
 
 impl Store {
+    /// Opens and validates the index (see [`Store::validate`]).
     pub fn open(dir: &Path) -> Result<Store> {
         let path = dir.join("nodes.bin");
         let mut b = Vec::new();
@@ -325,81 +320,391 @@ impl Store {
         let u32_at = |o: usize| u32::from_le_bytes(b[o..o + 4].try_into().unwrap());
         let u64_at = |o: usize| u64::from_le_bytes(b[o..o + 8].try_into().unwrap());
         let f64_at = |o: usize| f64::from_le_bytes(b[o..o + 8].try_into().unwrap());
-        if u32_at(8) != VERSION {
-            return Err(bad(format!("store version {} is not supported (expected {VERSION})", u32_at(8))));
+        let aabb = |o: usize| Aabb { min: [f64_at(o), f64_at(o + 8), f64_at(o + 16)], max: [f64_at(o + 24), f64_at(o + 32), f64_at(o + 40)] };
+        let version = u32_at(8);
+        if version != VERSION {
+            return Err(bad(format!(
+                "store format version {version}; this octolod reads version {VERSION}: rebuild the store with `octolod build` (levels of detail v2 changed the format)"
+            )));
         }
         let attrs = AttrSet::from_bits(u32_at(12)).ok_or_else(|| bad("unknown attribute bits".into()))?;
-        let n = u64_at(16) as usize;
-        if b.len() != HEADER + n * NODE_REC {
-            return Err(bad(format!("index holds {} bytes, expected {} for {n} nodes", b.len(), HEADER + n * NODE_REC)));
+        let flags = u32_at(16);
+        let n = u64_at(24);
+        let (nc, np) = (u64_at(48), u64_at(56));
+        let expect = (n.checked_mul(NODE_REC as u64))
+            .and_then(|x| x.checked_add(HEADER as u64))
+            .and_then(|x| nc.checked_add(np).and_then(|l| l.checked_mul(4)).and_then(|l| x.checked_add(l)));
+        if expect != Some(b.len() as u64) {
+            return Err(bad(format!("index holds {} bytes, its header declares {n} nodes and {nc} + {np} links", b.len())));
         }
+        let n = n as usize;
         let header = StoreHeader {
             attrs,
+            derived_normals: flags & FLAG_DERIVED_NORMALS != 0,
+            levels: u32_at(20),
             nodes: n as u64,
-            levels: u32_at(24),
-            cube: Cube { center: [f64_at(32), f64_at(40), f64_at(48)], half: f64_at(56), depth: u32_at(28) as u8 },
+            root: u32_at(32),
+            store_id: u64_at(40),
+            bbox: aabb(64),
         };
         let mut nodes = Vec::with_capacity(n);
         for i in 0..n {
             let o = HEADER + i * NODE_REC;
-            let mut children = [NO_NODE; 8];
-            for (k, c) in children.iter_mut().enumerate() {
-                *c = u32_at(o + 16 + 4 * k);
-            }
-            let aabb = |o: usize| Aabb {
-                min: [f64_at(o), f64_at(o + 8), f64_at(o + 16)],
-                max: [f64_at(o + 24), f64_at(o + 32), f64_at(o + 40)],
-            };
-            let slot = |p: usize| Slot {
-                offset: u64_at(p),
-                bytes: u32_at(p + 8),
-                tris: u32_at(p + 12),
-                verts: u32_at(p + 16),
-                error: f32::from_le_bytes(b[p + 20..p + 24].try_into().unwrap()),
-            };
+            let w = |k: usize| u32_at(o + 112 + 4 * k);
             nodes.push(NodeRec {
-                path: u64_at(o),
-                depth: b[o + 8],
-                parent: u32_at(o + 12),
-                children,
-                cell: aabb(o + 152),
-                content: aabb(o + 48),
-                subtree_tris: u64_at(o + 96),
-                orig: slot(o + 104),
-                simp: slot(o + 128),
-                level: b[o + 9],
+                level: b[o],
+                cell: aabb(o + 4),
+                bounds: aabb(o + 52),
+                error: f32::from_le_bytes(b[o + 100..o + 104].try_into().unwrap()),
+                offset: u64_at(o + 104),
+                bytes: w(0),
+                tris: w(1),
+                verts: w(2),
+                crc: w(3),
+                first_child: w(4),
+                child_count: w(5),
+                first_parent: w(6),
+                parent_count: w(7),
+                simp_tris: w(8),
             });
         }
-        Ok(Store { dir: dir.to_path_buf(), layout: VertexLayout::new(attrs), header, nodes })
+        let lists = HEADER + n * NODE_REC;
+        let list = |from: usize, len: u64| (0..len as usize).map(|k| u32_at(from + 4 * k)).collect::<Vec<u32>>();
+        let children = list(lists, nc);
+        let parents = list(lists + 4 * nc as usize, np);
+        let payload_attrs = attrs.with(AttrSet::NORMAL, attrs.normal() || header.derived_normals);
+        let s = Store {
+            dir: dir.to_path_buf(),
+            layout: VertexLayout::new(attrs),
+            payload_layout: VertexLayout::new(payload_attrs),
+            header,
+            nodes,
+            children,
+            parents,
+        };
+        s.validate().map_err(|m| bad(m))?;
+        Ok(s)
+    }
+
+    /// Checks the index: ids and list ranges in range, children one level
+    /// finer and listing the node as parent (and the converse), levels
+    /// below the top, exactly one node at the top (the root), every node
+    /// reachable from the root, finite bounds and errors, errors monotone.
+    fn validate(&self) -> std::result::Result<(), String> {
+        let n = self.nodes.len();
+        if n == 0 {
+            return Err("the store has no nodes".into());
+        }
+        if self.header.root as usize != n - 1 {
+            return Err(format!("root {} is not the last node ({})", self.header.root, n - 1));
+        }
+        let top = self.header.levels.checked_sub(1).ok_or("zero levels")?;
+        for (i, nd) in self.nodes.iter().enumerate() {
+            let range_ok = |first: u32, count: u32, len: usize| (first as u64 + count as u64) <= len as u64;
+            if !range_ok(nd.first_child, nd.child_count, self.children.len()) || !range_ok(nd.first_parent, nd.parent_count, self.parents.len()) {
+                return Err(format!("node {i}: children or parents list out of range"));
+            }
+            if nd.level as u32 > top {
+                return Err(format!("node {i}: level {} above the top level {top}", nd.level));
+            }
+            if (nd.level as u32 == top) != (nd.parent_count == 0) {
+                return Err(format!("node {i}: the top level's nodes (the roots) and only they have no parent"));
+            }
+            if !(nd.error.is_finite() && nd.error >= 0.0) || !aabb_finite(&nd.bounds) {
+                return Err(format!("node {i}: non-finite error or bounds"));
+            }
+            for &c in self.children_of(i) {
+                let c = c as usize;
+                let ch = self.nodes.get(c).ok_or_else(|| format!("node {i}: child {c} out of range"))?;
+                if ch.level as u32 + 1 != nd.level as u32 {
+                    return Err(format!("node {i} (level {}): child {c} is at level {}", nd.level, ch.level));
+                }
+                if !self.parents_of(c).contains(&(i as u32)) {
+                    return Err(format!("node {i}: child {c} does not list it as a parent"));
+                }
+                if ch.error > nd.error {
+                    return Err(format!("node {i}: error {} below its child {c}'s {}", nd.error, ch.error));
+                }
+            }
+            for &p in self.parents_of(i) {
+                let pn = self.nodes.get(p as usize).ok_or_else(|| format!("node {i}: parent {p} out of range"))?;
+                if !self.children.get(pn.first_child as usize..(pn.first_child + pn.child_count) as usize).is_some_and(|l| l.contains(&(i as u32))) {
+                    return Err(format!("node {i}: parent {p} does not list it as a child"));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The last node, a root (the only one unless `--levels` stopped early).
+    pub fn root(&self) -> usize {
+        self.header.root as usize
+    }
+
+    /// The top level's nodes: every selection holds them.
+    pub fn roots(&self) -> Vec<usize> {
+        let top = self.top_level();
+        (0..self.nodes.len()).filter(|&i| self.nodes[i].level == top).collect()
+    }
+
+    /// The highest level (the root's).
+    pub fn top_level(&self) -> u8 {
+        self.nodes[self.root()].level
+    }
+
+    pub fn children_of(&self, i: usize) -> &[u32] {
+        let n = &self.nodes[i];
+        &self.children[n.first_child as usize..(n.first_child + n.child_count) as usize]
+    }
+
+    pub fn parents_of(&self, i: usize) -> &[u32] {
+        let n = &self.nodes[i];
+        &self.parents[n.first_parent as usize..(n.first_parent + n.parent_count) as usize]
     }
 
     pub fn pack_path(&self, level: usize) -> PathBuf {
         pack_file(&self.dir, level)
     }
 
-    /// Reads node `id`'s original (`simplified == false`, leaves) or
-    /// simplified mesh with one positioned read.
-    pub fn read_mesh(&self, id: usize, simplified: bool) -> Result<IndexedMesh> {
+    /// Reads node `id`'s payload with one positioned read, checking its CRC.
+    pub fn read_node(&self, id: usize) -> Result<NodeMesh> {
         let n = &self.nodes[id];
-        let (s, level) = if simplified { (n.simp, n.level as usize) } else { (n.orig, 0) };
-        read_slot(&self.dir, &self.layout, level, &s)
+        let path = self.pack_path(n.level as usize);
+        let bytes = read_range(&path, n.offset, n.bytes)?;
+        self.decode_node(id, &bytes)
+    }
+
+    /// Decodes node `id`'s payload bytes (read by the caller), checking the
+    /// CRC and that the counts match the node record.
+    pub fn decode_node(&self, id: usize, bytes: &[u8]) -> Result<NodeMesh> {
+        let n = &self.nodes[id];
+        let path = self.pack_path(n.level as usize);
+        let bad = |msg: String| Error::input(Location { file: path.clone(), offset: Some(n.offset), ..Default::default() }, format!("node {id}: {msg}"));
+        if crc32c::crc32c(bytes) != n.crc {
+            return Err(bad("payload checksum mismatch (the store is damaged or was rewritten)".into()));
+        }
+        let m = decode_payload(&self.payload_layout, bytes, &path, n.offset)?;
+        if m.mesh.vertices.len() != n.verts as usize || m.mesh.triangles.len() != n.tris as usize {
+            return Err(bad(format!(
+                "payload holds {} vertices and {} triangles, the index says {} and {}",
+                m.mesh.vertices.len(),
+                m.mesh.triangles.len(),
+                n.verts,
+                n.tris
+            )));
+        }
+        let kids = self.children_of(id);
+        let expect_child = |k: usize| if n.level == 0 { NO_NODE } else { kids[k] };
+        if m.patches.len() != if n.level == 0 { 1 } else { kids.len() } || m.patches.iter().enumerate().any(|(k, p)| p.child != expect_child(k)) {
+            return Err(bad("payload patches do not match the node's children".into()));
+        }
+        Ok(m)
+    }
+
+    /// Nodes of the whole level `level`.
+    pub fn level_nodes(&self, level: u8) -> Vec<usize> {
+        (0..self.nodes.len()).filter(|&i| self.nodes[i].level == level).collect()
+    }
+
+    /// Triangles of the whole level `level`.
+    pub fn level_triangles(&self, level: u8) -> u64 {
+        self.nodes.iter().filter(|n| n.level == level).map(|n| n.tris as u64).sum()
+    }
+
+    /// A usage error unless the store has `level`.
+    pub fn check_level(&self, level: u8) -> Result<()> {
+        let top = self.top_level();
+        if level > top {
+            return Err(Error::Usage(format!("the store has levels 0..={top}; level {level} does not exist")));
+        }
+        Ok(())
+    }
+
+    /// The whole level `level` as a cut (every node of level ≥ `level`).
+    pub fn level_cut(&self, level: u8) -> Cut {
+        let selected: Vec<bool> = self.nodes.iter().map(|n| n.level >= level).collect();
+        Cut::from_selected(self, selected)
+    }
+
+    /// The cut at object-space error `e` (see the module doc).
+    pub fn error_cut(&self, e: f64) -> Cut {
+        let mut selected = vec![false; self.nodes.len()];
+        for r in self.roots() {
+            selected[r] = true;
+        }
+        // Parents have higher ids (levels are numbered upward), so one pass
+        // from the top down sees every parent before its children.
+        for i in (0..self.nodes.len()).rev() {
+            if !selected[i] && self.parents_of(i).iter().any(|&p| self.nodes[p as usize].error as f64 > e) {
+                self.select_with_ancestors(i, &mut selected);
+            }
+        }
+        Cut::from_selected(self, selected)
+    }
+
+    /// Adds `i` and every missing ancestor to `selected`.
+    pub fn select_with_ancestors(&self, i: usize, selected: &mut [bool]) {
+        let mut stack = vec![i];
+        while let Some(j) = stack.pop() {
+            if !selected[j] {
+                selected[j] = true;
+                stack.extend(self.parents_of(j).iter().map(|&p| p as usize).filter(|&p| !selected[p]));
+            }
+        }
     }
 }
 
-/// The pack file of `level` in store directory `dir`.
-pub fn pack_file(dir: &Path, level: usize) -> PathBuf {
-    dir.join(format!("level-{level}.pack"))
+fn aabb_finite(b: &Aabb) -> bool {
+    b.is_empty() || b.min.iter().chain(b.max.iter()).all(|x| x.is_finite())
 }
 
-/// Reads one payload of `dir`'s level-`level` pack.
-pub fn read_slot(dir: &Path, layout: &VertexLayout, level: usize, s: &Slot) -> Result<IndexedMesh> {
+/// Reads `bytes` at `offset` of `path` with one positioned read.
+pub fn read_range(path: &Path, offset: u64, bytes: u32) -> Result<Vec<u8>> {
     use std::os::unix::fs::FileExt;
-    if s.is_empty() {
-        return Ok(IndexedMesh::default());
+    let f = File::open(path).ctx(path, "open pack file")?;
+    let mut b = vec![0u8; bytes as usize];
+    f.read_exact_at(&mut b, offset).ctx(path, "read pack file")?;
+    Ok(b)
+}
+
+/// A valid cut of a store: the selected nodes and, per selected node, which
+/// of its patches it draws.
+#[derive(Clone, Debug)]
+pub struct Cut {
+    pub selected: Vec<bool>,
+    /// (node, draws every patch) for the selected nodes that draw something.
+    pub drawn: Vec<usize>,
+}
+
+impl Cut {
+    pub fn from_selected(store: &Store, selected: Vec<bool>) -> Cut {
+        let drawn = (0..store.nodes.len())
+            .filter(|&i| selected[i] && (store.nodes[i].level == 0 || store.children_of(i).iter().any(|&c| !selected[c as usize])))
+            .collect();
+        Cut { selected, drawn }
     }
-    let path = pack_file(dir, level);
-    let f = File::open(&path).ctx(&path, "open pack file")?;
-    let mut b = vec![0u8; s.bytes as usize];
-    f.read_exact_at(&mut b, s.offset).ctx(&path, "read pack file")?;
-    decode_payload(layout, &b, &path, s.offset)
+
+    /// Whether node `i` draws its patch from `child` in this cut.
+    pub fn draws(&self, child: u32) -> bool {
+        child == NO_NODE || !self.selected[child as usize]
+    }
+
+    /// Triangles the cut draws: every selected node's, less, for each
+    /// selected node but the roots, its simplified mesh (the patches its
+    /// parents, all selected, no longer draw).
+    pub fn triangles(&self, store: &Store) -> u64 {
+        (0..store.nodes.len())
+            .filter(|&i| self.selected[i])
+            .map(|i| store.nodes[i].tris as i64 - if store.nodes[i].parent_count == 0 { 0 } else { store.nodes[i].simp_tris as i64 })
+            .sum::<i64>()
+            .max(0) as u64
+    }
+
+    /// The part of node `i`'s mesh this cut draws: its vertices (all) and
+    /// the triangles of the drawn patches.
+    pub fn drawn_mesh(&self, nm: &NodeMesh) -> IndexedMesh {
+        let mut out = IndexedMesh { vertices: nm.mesh.vertices.clone(), triangles: Vec::new() };
+        for p in &nm.patches {
+            if self.draws(p.child) {
+                out.triangles.extend_from_slice(&nm.mesh.triangles[p.first as usize..(p.first + p.count) as usize]);
+            }
+        }
+        out
+    }
+}
+
+/// `store.json`: what was built, how, and how long it took (for people and
+/// for `octolod info`; nothing reads it to open the store).
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Manifest {
+    /// Always `octolod-store`.
+    pub format: String,
+    pub version: u32,
+    /// The input PLY as given to `build`.
+    pub input: String,
+    /// E.g. `position(f32)+normal`.
+    pub attributes: String,
+    pub quadric_dim: usize,
+    /// Payloads carry normals computed at build time.
+    pub derived_normals: bool,
+    pub nodes: u64,
+    /// Input triangles (level 0).
+    pub triangles: u64,
+    pub params: ManifestParams,
+    pub seconds: ManifestSeconds,
+    pub disk_bytes: u64,
+    pub levels: Vec<ManifestLevel>,
+}
+
+/// Build parameters.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct ManifestParams {
+    pub mem: u64,
+    pub leaf_tris: u64,
+    pub max_depth: u8,
+    pub level_ratio: f64,
+    pub root_tris: u64,
+    pub levels: Option<u8>,
+}
+
+/// Wall-clock seconds per stage.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct ManifestSeconds {
+    pub soup: f64,
+    pub partition: f64,
+    pub levels: f64,
+    pub total: f64,
+}
+
+/// One level's figures.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct ManifestLevel {
+    pub level: u8,
+    pub nodes: u64,
+    pub triangles: u64,
+    /// Distinct vertex positions.
+    pub positions: u64,
+    pub bytes: u64,
+    /// Node errors (object space).
+    pub error_min: f64,
+    pub error_max: f64,
+    /// Share of the level's positions locked when it was simplified.
+    pub locked_fraction: f64,
+    /// Share of the previous level's locked positions still locked here.
+    pub prev_locked_still_fraction: f64,
+    /// The level's error threshold.
+    pub tau: f64,
+    pub seconds: f64,
+}
+
+impl From<&crate::lod::LevelReport> for ManifestLevel {
+    fn from(r: &crate::lod::LevelReport) -> ManifestLevel {
+        ManifestLevel {
+            level: r.level,
+            nodes: r.nodes,
+            triangles: r.triangles,
+            positions: r.positions,
+            bytes: r.bytes,
+            error_min: r.error_min,
+            error_max: r.error_max,
+            locked_fraction: r.locked_fraction(),
+            prev_locked_still_fraction: r.prev_still_fraction(),
+            tau: r.tau,
+            seconds: r.seconds,
+        }
+    }
+}
+
+impl Manifest {
+    pub fn write(&self, dir: &Path) -> Result<()> {
+        let path = dir.join("store.json");
+        let text = serde_json::to_string_pretty(self).map_err(|e| Error::Usage(format!("{}: {e}", path.display())))?;
+        std::fs::write(&path, text + "\n").ctx(&path, "write")
+    }
+
+    pub fn read(dir: &Path) -> Result<Manifest> {
+        let path = dir.join("store.json");
+        let text = std::fs::read_to_string(&path).ctx(&path, "read")?;
+        serde_json::from_str(&text).map_err(|e| Error::input(Location { file: path.clone(), ..Default::default() }, format!("bad manifest: {e}")))
+    }
 }

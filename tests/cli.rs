@@ -83,7 +83,7 @@ fn build_info_extract_and_simplify() {
     let ply = d.path().join("s.ply");
     assert!(gen(&["--shape", "sphere", "--tris", "20000", "--normals", "--quiet", "-o", ply.to_str().unwrap()]).status.success());
     let store = d.path().join("s.octolod");
-    let o = octolod(&["build", ply.to_str().unwrap(), "-o", store.to_str().unwrap(), "--mem", "1M", "--leaf-tris", "1000", "--cluster-grid", "4"]);
+    let o = octolod(&["build", ply.to_str().unwrap(), "-o", store.to_str().unwrap(), "--mem", "1M", "--leaf-tris", "1000", "--level-ratio", "2"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let g = Generator::new(&GenOptions { shape: Shape::Sphere, tris: 20000, seed: 1, attrs: AttrSet(AttrSet::NORMAL) });
     let summary = String::from_utf8_lossy(&o.stdout);
@@ -107,6 +107,12 @@ fn build_info_extract_and_simplify() {
     assert!(!bad.status.success());
     assert!(String::from_utf8_lossy(&bad.stderr).contains("levels 0..="));
     assert!(!d.path().join("x.ply").exists());
+    // The cut at an error (here 0.2 % of the diagonal): between the root and level 0.
+    let cut = d.path().join("cut.ply");
+    let o = octolod(&["extract", store.to_str().unwrap(), "--max-error", "0.2%", "-o", cut.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let (_, m, _) = octolod::ply::read::read_all(&cut).unwrap();
+    assert!(m.triangles.len() > 300 && (m.triangles.len() as u64) < g.face_count(), "{}", m.triangles.len());
     // simplify: the level nearest the target.
     let small = d.path().join("small.ply");
     let o = octolod(&["simplify", ply.to_str().unwrap(), "-o", small.to_str().unwrap(), "--target-tris", "2000", "--leaf-tris", "1000", "--mem", "1M"]);
@@ -116,7 +122,7 @@ fn build_info_extract_and_simplify() {
     // Only the outputs are left next to them (no scratch directories).
     let mut names: Vec<String> = std::fs::read_dir(d.path()).unwrap().map(|e| e.unwrap().file_name().into_string().unwrap()).collect();
     names.sort();
-    assert_eq!(names, ["l0.ply", "s.octolod", "s.ply", "small.ply"]);
+    assert_eq!(names, ["cut.ply", "l0.ply", "s.octolod", "s.ply", "small.ply"]);
 }
 
 #[test]

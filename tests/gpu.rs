@@ -4,7 +4,7 @@
 //! working rendering; set OCTOLOD_SKIP_GPU_TESTS=1 to skip them explicitly.
 
 use glam::{Mat4, Vec3};
-use octolod::view::gpu::{clear_rgba8, DrawParams, Renderer, RendererOptions, WireframeMode, AMBIENT};
+use octolod::view::gpu::{clear_rgba8, DrawParams, GpuMesh, Renderer, RendererOptions, WireframeMode, AMBIENT};
 use octolod::view::image::{background_fraction, compare};
 use octolod::view::overlay::{overlay_text, OverlayImage};
 use octolod::view::{DrawMesh, GpuBytes, GpuVertex};
@@ -48,7 +48,7 @@ fn grid(n: u32, s: f32, z: f32, normal: [f32; 3], color: [u8; 4]) -> DrawMesh {
             indices.extend_from_slice(&[a, b, d, a, d, c]);
         }
     }
-    DrawMesh { vertices, indices }
+    DrawMesh { vertices, indices, patches: Vec::new() }
 }
 
 /// Camera on the z axis at `eye_z` looking at the origin, 60° vertical field of view.
@@ -93,7 +93,7 @@ fn quad_is_lit_in_its_color_and_outside_is_clear() {
     let clear = clear_rgba8(clear());
     // Front, back (no culling) and with the normal pointing away (two-sided).
     for (eye_z, m, normal) in [(3.0, &front, "+z"), (-3.0, &front, "+z"), (3.0, &away, "-z")] {
-        let img = r.render_offscreen(&params(w, h, eye_z), &[m]).unwrap();
+        let img = r.render_offscreen(&params(w, h, eye_z), &whole(&[m])).unwrap();
         assert_eq!(img.len(), (w * h * 4) as usize);
         // Headlight on a quad facing the eye: the vertex color, unchanged.
         let c = px(&img, w, w / 2, h / 2);
@@ -115,7 +115,7 @@ fn fixed_light_at_grazing_angle_leaves_ambient_only() {
     let quad = r.upload(&grid(1, 1.0, 0.0, [0.0, 0.0, 1.0], COLOR));
     let mut p = params(w, h, 3.0);
     p.light_dir = Vec3::X; // perpendicular to the normal
-    let img = r.render_offscreen(&p, &[&quad]).unwrap();
+    let img = r.render_offscreen(&p, &whole(&[&quad])).unwrap();
     let want = [0, 1, 2].map(|k| {
         let lin = srgb_to_linear(COLOR[k] as f64 / 255.0) * AMBIENT as f64;
         (linear_to_srgb(lin) * 255.0).round() as u8
@@ -124,7 +124,7 @@ fn fixed_light_at_grazing_angle_leaves_ambient_only() {
     assert!(near(c, [want[0], want[1], want[2], 255], 2), "center {c:?}, want {want:?}");
     // Light along the normal: full color again.
     p.light_dir = Vec3::Z;
-    let img = r.render_offscreen(&p, &[&quad]).unwrap();
+    let img = r.render_offscreen(&p, &whole(&[&quad])).unwrap();
     assert!(near(px(&img, w, w / 2, h / 2), COLOR, 2));
 }
 
@@ -138,7 +138,7 @@ fn depth_test_keeps_the_nearer_surface_in_any_order() {
     let far_q = r.upload(&grid(1, 1.0, -0.5, [0.0, 0.0, 1.0], green));
     let p = params(w, h, 3.0);
     for order in [[&near_q, &far_q], [&far_q, &near_q]] {
-        let img = r.render_offscreen(&p, &order).unwrap();
+        let img = r.render_offscreen(&p, &whole(&order)).unwrap();
         assert!(near(px(&img, w, w / 2, h / 2), red, 3));
         // Outside the small near quad but inside the far one.
         assert!(near(px(&img, w, w / 2 - 7, h / 2), green, 3));
@@ -161,9 +161,9 @@ fn wireframe_covers_fewer_pixels_than_fill() {
         assert_eq!(g.gpu_bytes(), mesh.bytes() + line_bytes);
         let clear = clear_rgba8(clear());
         let mut p = params(w, h, 3.0);
-        let fill = r.render_offscreen(&p, &[&g]).unwrap();
+        let fill = r.render_offscreen(&p, &whole(&[&g])).unwrap();
         p.wireframe = true;
-        let wire = r.render_offscreen(&p, &[&g]).unwrap();
+        let wire = r.render_offscreen(&p, &whole(&[&g])).unwrap();
         let cov_fill = 1.0 - background_fraction(&fill, w, h, clear);
         let cov_wire = 1.0 - background_fraction(&wire, w, h, clear);
         eprintln!("{mode:?}: fill covers {cov_fill:.3}, wireframe {cov_wire:.3}");
@@ -195,7 +195,7 @@ fn readback_of_widths_that_are_not_multiples_of_64() {
         }
         let g = r.upload(&m);
         let p = DrawParams { view_proj: Mat4::IDENTITY, eye: Vec3::new(0.0, 0.0, -10.0), clear: clear(), ..Default::default() };
-        let img = r.render_offscreen(&p, &[&g]).unwrap();
+        let img = r.render_offscreen(&p, &whole(&[&g])).unwrap();
         assert_eq!(img.len(), (w * h * 4) as usize);
         let clear = clear_rgba8(clear());
         let edge = w / 2;
@@ -220,12 +220,12 @@ fn clear_color_reads_back_exactly_and_empty_meshes_draw_nothing() {
     for k in [0u8, 1, 7, 20, 64, 128, 200, 254, 255] {
         let c = srgb_to_linear(k as f64 / 255.0);
         let p = DrawParams { clear: [c, 1.0 - c, c, 1.0], ..Default::default() };
-        let img = r.render_offscreen(&p, &[&empty]).unwrap();
+        let img = r.render_offscreen(&p, &whole(&[&empty])).unwrap();
         assert_eq!(background_fraction(&img, w, h, clear_rgba8(p.clear)), 1.0, "clear {k}: got {:?}", px(&img, w, 0, 0));
     }
     // The headless driver's background and its expected bytes agree with the renderer.
     let p = DrawParams { clear: octolod::view::headless::CLEAR, ..Default::default() };
-    let img = r.render_offscreen(&p, &[&empty]).unwrap();
+    let img = r.render_offscreen(&p, &whole(&[&empty])).unwrap();
     assert_eq!(px(&img, w, 3, 3), octolod::view::headless::clear_rgba8(true));
     assert_eq!(px(&img, w, 3, 3), clear_rgba8(p.clear));
 }
@@ -235,7 +235,7 @@ fn overlay_is_blended_at_the_top_left_and_identical_renders_compare_equal() {
     let (w, h) = (120, 64);
     let Some(mut r) = renderer(w, h) else { return };
     let p = DrawParams { clear: [1.0, 1.0, 1.0, 1.0], ..Default::default() };
-    let plain = r.render_offscreen(&p, &[]).unwrap();
+    let plain = r.render_offscreen(&p, &whole(&[])).unwrap();
     let ov: OverlayImage = overlay_text(&["fps 60".to_string()]);
     let with = r.render_offscreen_overlay(&p, &[], Some(&ov)).unwrap();
     let again = r.render_offscreen_overlay(&p, &[], Some(&ov)).unwrap();
@@ -255,4 +255,9 @@ fn overlay_is_blended_at_the_top_left_and_identical_renders_compare_equal() {
         ov.rgba[i + 3] == 255 && px(&with, w, m + x, m + y) == [255; 4]
     });
     assert!(text);
+}
+
+/// Draw items for whole meshes.
+fn whole<'a>(ms: &[&'a GpuMesh]) -> Vec<octolod::view::DrawItem<'a, GpuMesh>> {
+    ms.iter().map(|m| octolod::view::DrawItem::whole(*m, m.triangles())).collect()
 }

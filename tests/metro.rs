@@ -453,7 +453,7 @@ fn store_level_against_the_ply_it_was_built_from() {
 
     // A simplified level: a real, bounded distance, and the same answer
     // through the library.
-    let top = octolod::pipeline::top_level(&octolod::store::Store::open(&store).unwrap());
+    let top = octolod::store::Store::open(&store).unwrap().top_level();
     assert!(top >= 2);
     let o = octolod(&["metro", &format!("{s}@1"), p, "--json"]);
     assert!(o.status.success(), "{}", text(&o.stderr));
@@ -499,7 +499,7 @@ fn paged_store_levels_equal_the_in_memory_path_under_a_tiny_budget() {
     use octolod::metro::{compare_sources, load_ply, load_store_level, MemOptions, Source};
     let d = tempfile::tempdir().unwrap();
     let (ply, store) = small_store(d.path());
-    let top = octolod::pipeline::top_level(&octolod::store::Store::open(&store).unwrap());
+    let top = octolod::store::Store::open(&store).unwrap().top_level();
     assert!(top >= 3, "{top}");
     let level = |l: u8| Source::Store(store.clone(), l);
     let load = |s: &Source| match s {

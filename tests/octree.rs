@@ -8,7 +8,7 @@ use octolod::octree::{build_octree, OctreeOptions};
 use octolod::ply::write::{write_ply, PlyWriteOptions};
 use octolod::soup::format::SoupReader;
 use octolod::soup::{build_soup, SoupOptions};
-use octolod::store::{Cube, NodeRec, Store, StoreHeader, write_index};
+use octolod::lod::partition::{LevelCube, KEY_DEPTH};
 use std::path::Path;
 
 fn make_soup(dir: &Path, shape: Shape, tris: u64, attrs: u32) -> std::path::PathBuf {
@@ -46,66 +46,54 @@ fn check(shape: Shape, tris: u64, attrs: u32, limit: u64, max_depth: u8) {
     let dir = tempfile::tempdir().unwrap();
     let soup = make_soup(dir.path(), shape, tris, attrs);
     let (sh, all) = SoupReader::read_all(&soup).unwrap();
+    let cube = LevelCube::for_level(&sh.bbox, 0);
     let mut results = Vec::new();
     for mem in [64 << 10, 64 << 20] {
-        let out = dir.path().join(format!("store-{mem}"));
-        std::fs::create_dir(&out).unwrap();
-        let (_, cube, nodes, rep) =
-            build_octree(&soup, &out, &OctreeOptions { leaf_tris: limit, max_depth, mem, quiet: true }).unwrap();
-        write_index(&out, &StoreHeader { attrs: sh.attrs, levels: 1, cube, nodes: nodes.len() as u64 }, &nodes).unwrap();
+        let l0 = build_octree(&soup, dir.path(), dir.path().join(format!("chunks-{mem}")), &cube, &OctreeOptions { leaf_tris: limit, max_depth, mem, quiet: true })
+            .unwrap();
         if mem == 64 << 10 && all.len() > 1000 {
-            assert!(rep.sort.runs > 1, "tiny budget should spill: {:?}", rep.sort);
+            assert!(l0.report.sort.runs > 1, "tiny budget should spill: {:?}", l0.report.sort);
         }
-        results.push((out, cube, nodes, rep));
+        results.push(l0);
     }
-    let (out, cube, nodes, rep) = &results[0];
-    assert_eq!(nodes, &results[1].2, "octree depends on the memory budget");
-    // Structure: pre-order, parents before children, root first.
-    assert_eq!(nodes[0].depth, 0);
-    assert_eq!(nodes[0].parent, u32::MAX);
-    for (i, n) in nodes.iter().enumerate() {
-        for &c in n.children.iter().filter(|&&c| c != u32::MAX) {
-            assert!(c as usize > i);
-            assert_eq!(nodes[c as usize].parent as usize, i);
-            assert_eq!(nodes[c as usize].depth, n.depth + 1);
-            assert_eq!(nodes[c as usize].path >> 3, n.path);
-        }
+    let l0 = &results[0];
+    let leaves = |l: &octolod::octree::Level0| -> Vec<(u64, u8, u64)> {
+        l.tiling.leaves.iter().zip(&l.leaves).filter(|(_, s)| s.tris > 0).map(|(t, s)| (t.path, t.depth, s.tris)).collect()
+    };
+    assert_eq!(leaves(l0), leaves(&results[1]), "octree depends on the memory budget");
+    // The tiling covers every key once.
+    for w in l0.tiling.leaves.windows(2) {
+        assert_eq!(w[0].end, w[1].start);
     }
     // Leaves equal the top-down reference partition.
     let mut keys: Vec<u64> = all
         .iter()
         .map(|t| {
             let c = [0, 1, 2].map(|a| t.iter().map(|v| v.pos[a] / 3.0).sum::<f64>());
-            cube.morton(c)
+            cube.key(c) >> (3 * (KEY_DEPTH - max_depth) as u32)
         })
         .collect();
     keys.sort();
     let mut want = Vec::new();
     reference(&keys, 0, 0, max_depth, limit as usize, &mut want);
-    let got: Vec<(u64, u8, usize)> =
-        nodes.iter().filter(|n| n.is_leaf()).map(|n| (n.path, n.depth, n.orig.tris as usize)).collect();
+    let got: Vec<(u64, u8, usize)> = leaves(l0).into_iter().map(|(p, d, n)| (p, d, n as usize)).collect();
     assert_eq!(got, want, "leaves differ from the top-down partition");
-    assert_eq!(rep.leaves as usize, want.len());
-    // Level 0 round trip: the union of leaf payloads is the soup, as a set;
-    // every centroid lies in its leaf's cell; internal nodes carry counts.
-    let store = Store::open(out).unwrap();
+    assert_eq!(l0.report.leaves as usize, want.len());
+    // Level 0 round trip: the union of the leaves' chunks is the soup, as a
+    // set; every centroid lies in its leaf's cell and every corner in its bounds.
     let mut got_tris = Vec::new();
-    for (i, n) in store.nodes.iter().enumerate() {
-        if !n.is_leaf() {
-            assert!(n.orig.is_empty());
-            assert!(n.subtree_tris > limit, "an internal node must hold more than leaf_tris");
-            continue;
-        }
-        let m = store.read_mesh(i, false).unwrap();
-        let cell = cube.cell(n.path, n.depth);
-        assert_eq!(n.cell, cell, "stored cell bounds");
-        for t in &m.triangles {
-            let tri = t.map(|k| m.vertices[k as usize]);
+    for (i, (t, st)) in l0.tiling.leaves.iter().zip(&l0.leaves).enumerate() {
+        let g = l0.chunks.gather(i).unwrap();
+        assert_eq!(g.mesh.triangles.len() as u64, st.tris);
+        let cell = cube.cell(t.path, t.depth);
+        for tri in &g.mesh.triangles {
+            let tri = tri.map(|k| g.mesh.vertices[k as usize]);
             let c = [0, 1, 2].map(|a| tri.iter().map(|v| v.pos[a] / 3.0).sum::<f64>());
             for a in 0..3 {
-                let slack = 1e-9 * cube.half;
+                let slack = 1e-9 * cube.size;
                 assert!(c[a] >= cell.min[a] - slack && c[a] <= cell.max[a] + slack, "centroid outside its leaf cell");
-                assert!(tri.iter().all(|v| v.pos[a] >= n.content.min[a] && v.pos[a] <= n.content.max[a]));
+                assert!(tri.iter().all(|v| v.pos[a] >= st.bounds.min[a] && v.pos[a] <= st.bounds.max[a]));
+                assert!(tri.iter().all(|v| (v.pos[a] - c[a]).abs() <= st.reach));
             }
             got_tris.push(tri_key(&tri));
         }
@@ -114,9 +102,6 @@ fn check(shape: Shape, tris: u64, attrs: u32, limit: u64, max_depth: u8) {
     got_tris.sort();
     want_tris.sort();
     assert!(got_tris == want_tris, "level 0 is not exactly the input triangles");
-    assert_eq!(store.nodes[0].subtree_tris, all.len() as u64);
-    let _: &Cube = cube;
-    let _: &Vec<NodeRec> = nodes;
 }
 
 #[test]

@@ -91,7 +91,7 @@ fn file_outputs_are_checked_before_work_and_foreign_files_are_kept() {
     let ply = d.path().join("a.ply");
     gen("sphere", 3000, &ply);
     let st = d.path().join("a.octolod");
-    assert!(octolod(&["build", s(&ply), "-o", s(&st), "--quiet"]).status.success());
+    assert!(octolod(&["build", s(&ply), "-o", s(&st), "--quiet", "--root-tris", "500"]).status.success());
     let dir = d.path().join("dir");
     std::fs::create_dir(&dir).unwrap();
     for args in [vec!["soup", s(&ply), "-o", s(&dir)], vec!["extract", s(&st), "--level", "1", "-o", s(&dir)]] {

@@ -1,7 +1,10 @@
 //! The viewer's CPU side, without a GPU (meshes "upload" to themselves):
-//! the RAM budget holds on every frame, frames never wait on disk, the cut
-//! covers every visible leaf exactly once, refinement converges, and the
-//! hysteresis keeps the cut still when the camera jitters at a threshold.
+//! the RAM budget holds on every frame, frames never wait on disk, the
+//! selection is always a valid cut of the DAG whose surface is closed,
+//! refinement converges, and the hysteresis keeps the cut still when the
+//! camera jitters at a threshold.
+
+mod common;
 
 use glam::DVec3;
 use octolod::gen::{GenOptions, Generator, Shape};
@@ -15,13 +18,17 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 fn store(dir: &Path, shape: Shape, tris: u64, leaf: u64) -> PathBuf {
+    store_and_input(dir, shape, tris, leaf).0
+}
+
+fn store_and_input(dir: &Path, shape: Shape, tris: u64, leaf: u64) -> (PathBuf, octolod::store::IndexedMesh) {
     let g = Generator::new(&GenOptions { shape, tris, seed: 5, attrs: AttrSet::POSITION_ONLY });
     let (v, f) = g.mesh();
     let ply = dir.join("in.ply");
     write_ply(&ply, &PlyWriteOptions::default(), &v, &f).unwrap();
     let out = dir.join("s.octolod");
-    build_store(&ply, &out, &BuildOptions { leaf_tris: leaf, cluster_grid: 4, ..BuildOptions::default() }).unwrap();
-    out
+    build_store(&ply, &out, &BuildOptions { leaf_tris: leaf, ..BuildOptions::default() }).unwrap();
+    (out, octolod::store::IndexedMesh { vertices: v, triangles: f })
 }
 
 fn opts(ram: u64) -> ViewOptions {
@@ -34,24 +41,21 @@ fn up(m: &DrawMesh) -> DrawMesh {
     m.clone()
 }
 
-/// Leaves under the cut, with multiplicity: every leaf of the model must
-/// appear exactly once when the whole model is in view.
-fn leaf_cover(v: &Viewer<DrawMesh>) -> Vec<u32> {
-    let nodes = &v.store.nodes;
-    let mut count = vec![0u32; nodes.len()];
-    fn mark(nodes: &[octolod::store::NodeRec], i: usize, count: &mut [u32]) {
-        if nodes[i].is_leaf() {
-            count[i] += 1;
-        } else {
-            for &c in nodes[i].children.iter().filter(|&&c| c != octolod::store::NO_NODE) {
-                mark(nodes, c as usize, count);
-            }
+/// The viewer's selection as a store cut: closed under parents, and (the
+/// whole model in view) its surface welded by position has no open edge.
+fn check_closed_cut(v: &Viewer<DrawMesh>, input: &octolod::store::IndexedMesh, what: &str) {
+    let sel = v.selection();
+    let st = &v.store;
+    for i in 0..st.nodes.len() {
+        if sel.selected[i] {
+            assert!(st.parents_of(i).iter().all(|&p| sel.selected[p as usize]), "{what}: selection not closed under parents");
         }
     }
-    for &u in v.cut() {
-        mark(nodes, (u / 2) as usize, &mut count);
-    }
-    nodes.iter().enumerate().filter(|(_, n)| n.is_leaf() && n.subtree_tris > 0).map(|(i, _)| count[i]).collect()
+    let cut = octolod::store::Cut::from_selected(st, sel.selected.clone());
+    let ((pos, tris), shared) = common::cut_mesh_parts(st, &cut);
+    let r = common::crack_report(input, &pos, &tris, &shared);
+    assert_eq!((r.cracks, r.open), (0, 0), "{what}: {r:?}");
+    assert_eq!(tris.len() as u64, sel.triangles, "{what}: triangle count");
 }
 
 fn run_until_settled(v: &mut Viewer<DrawMesh>, cam: &Camera, vp: (u32, u32)) -> octolod::view::FrameStats {
@@ -130,9 +134,9 @@ fn frames_never_wait_for_slow_reads() {
 }
 
 #[test]
-fn cut_covers_every_leaf_once_and_converges() {
+fn cuts_are_valid_and_closed_and_converge() {
     let dir = tempfile::tempdir().unwrap();
-    let s = store(dir.path(), Shape::Sphere, 60_000, 1024);
+    let (s, input) = store_and_input(dir.path(), Shape::Sphere, 60_000, 1024);
     let mut v: Viewer<DrawMesh> = Viewer::open(&s, opts(256 << 20)).unwrap();
     let b = v.bounds();
     // Far away: the whole model in view, coarse.
@@ -140,17 +144,17 @@ fn cut_covers_every_leaf_once_and_converges() {
     cam.fit_clip(&b);
     let far = run_until_settled(&mut v, &cam, (96, 72));
     assert!(far.nodes_per_level.iter().skip(1).sum::<u32>() > 0, "a 96×72 view is coarse: {:?}", far.nodes_per_level);
-    assert!(leaf_cover(&v).iter().all(|&c| c == 1), "far cut: {:?}", leaf_cover(&v));
+    check_closed_cut(&v, &input, "far");
     assert!(far.max_error_px <= 1.0 + 1e-9);
     // Large viewport + tight threshold: refines to level 0 everywhere visible.
     v.selector.opts.max_error_px = 1e-9;
     let fine = run_until_settled(&mut v, &cam, (4000, 3000));
-    assert!(leaf_cover(&v).iter().all(|&c| c == 1));
-    // Everything is refined to level 0, except simplified units whose error
-    // bound is exactly 0 (nothing moved), which are as exact.
+    check_closed_cut(&v, &input, "fine");
+    // Everything is refined to level 0, except nodes whose error is
+    // exactly 0 (nothing moved), which are as exact.
     for &u in v.cut() {
-        let i = &v.hierarchy.units[&u];
-        assert!(i.level == 0 || i.error == 0.0, "unit {u} at level {} with error {}", i.level, i.error);
+        let i = v.hierarchy.info(u);
+        assert!(i.level == 0 || i.error == 0.0, "node {u} at level {} with error {}", i.level, i.error);
     }
     assert!(fine.nodes_per_level[0] > 0);
     assert!(fine.triangles > far.triangles);
@@ -159,8 +163,13 @@ fn cut_covers_every_leaf_once_and_converges() {
     let mut near = Camera::look_at(DVec3::from(b.center()) + DVec3::new(0.0, -0.62, 0.0) * b.diagonal(), DVec3::from(b.center()), DVec3::Z, 50.0);
     near.fit_clip(&b);
     let st = run_until_settled(&mut v, &near, (1280, 720));
+    assert!(st.triangles > far.triangles && st.triangles < fine.triangles, "{} vs {} / {}", st.triangles, far.triangles, fine.triangles);
+    check_closed_cut(&v, &input, "near");
+    // Nearer still, looking along the surface: near parts fine, far parts coarse.
+    let mut graze = Camera::look_at(DVec3::from(b.center()) + DVec3::new(0.0, -0.36, 0.0) * b.diagonal(), DVec3::from(b.center()) + DVec3::new(0.0, 0.0, 0.4) * b.diagonal(), DVec3::Z, 50.0);
+    graze.fit_clip(&b);
+    let st = run_until_settled(&mut v, &graze, (1280, 720));
     assert!(st.nodes_per_level.iter().filter(|&&n| n > 0).count() >= 2, "{:?}", st.nodes_per_level);
-    assert!(leaf_cover(&v).iter().all(|&c| c <= 1), "a leaf drawn twice");
 }
 
 #[test]

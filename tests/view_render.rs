@@ -30,7 +30,7 @@ fn store(dir: &Path, shape: Shape, tris: u64, leaf: u64, attrs: u32) -> PathBuf 
     let ply = dir.join("in.ply");
     write_ply(&ply, &PlyWriteOptions { attrs: AttrSet(attrs), ..Default::default() }, &v, &f).unwrap();
     let out = dir.join("s.octolod");
-    build_store(&ply, &out, &BuildOptions { leaf_tris: leaf, cluster_grid: 4, ..BuildOptions::default() }).unwrap();
+    build_store(&ply, &out, &BuildOptions { leaf_tris: leaf, ..BuildOptions::default() }).unwrap();
     out
 }
 
@@ -188,13 +188,14 @@ fn streamed_full_res_reference_equals_drawing_everything_at_once() {
     let (w, h) = (160, 120);
     let mut r = Renderer::headless(w, h).unwrap();
     let (all, tris) = octolod::view::viewer::load_all_originals(&st, &mut |m| r.upload(m)).unwrap();
-    assert_eq!(tris, st.nodes[0].subtree_tris);
-    let b = st.nodes[0].content;
+    assert_eq!(tris, st.level_triangles(0));
+    let b = st.nodes[st.root()].bounds;
     let mut cam = octolod::view::camera::Camera::frame_all(&b, glam::DVec3::Z, 50.0);
     cam.dolly(0.6);
     cam.fit_clip(&b);
-    let p = draw_params(&cam, glam::DVec3::from(st.header.cube.center), w, h, false);
-    let one = r.render_offscreen(&p, &all.iter().collect::<Vec<_>>()).unwrap();
+    let p = draw_params(&cam, glam::DVec3::from(st.header.bbox.center()), w, h, false);
+    let items: Vec<_> = all.iter().map(|(m, t)| octolod::view::DrawItem::whole(m, *t)).collect();
+    let one = r.render_offscreen(&p, &items).unwrap();
     // ~20 KB batches: dozens of passes sharing colour and depth.
     let many = full_res_frame(&mut r, &st, &cam, &p, (w, h), 20 << 10).unwrap();
     let d = octolod::view::image::compare(&one, &many, w, h, 0);

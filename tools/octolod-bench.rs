@@ -10,8 +10,8 @@
 //!     --out out/bench-report [--samples 200000] [--repeat 3] [--attr-sweep 2000000]
 //! ```
 //!
-//! Takes: indexed PLYs; octolod settings (`--settings LEAFxGRID,...`, default
-//! `16384x8,16384x16,65536x16`) and budget (`--mem`); a metro sample count
+//! Takes: indexed PLYs; octolod settings (`--settings LEAFxRATIO,...`, default
+//! `16384x2,65536x2`) and budget (`--mem`); a metro sample count
 //! (`--samples`, default metro's own: 10 × the larger face count).
 //!
 //! Gives, under `--out`: `report.md` (tables), `report.json` (every raw
@@ -87,7 +87,7 @@ use anyhow::{anyhow, bail, Context, Result};
 use clap::{Parser, Subcommand, ValueEnum};
 use octolod::gen::{GenOptions, Shape};
 use octolod::mesh::{Aabb, AttrSet, Vertex};
-use octolod::pipeline::{build_store, extract, top_level, BuildOptions};
+use octolod::pipeline::{build_store, extract, BuildOptions, CutSpec};
 use octolod::ply::read::{read_all, read_body, BodySink, CollectSink};
 use octolod::ply::write::{write_ply, PlyWriteOptions};
 use octolod::progress::Progress;
@@ -125,8 +125,8 @@ struct BenchArgs {
     /// Metro samples per direction (default: metro's, 10 × the larger face count).
     #[arg(long, value_parser = parse_count)]
     samples: Option<u64>,
-    /// octolod settings, LEAF_TRISxCLUSTER_GRID, comma separated.
-    #[arg(long, default_value = "16384x8,16384x16,65536x16", value_delimiter = ',')]
+    /// octolod settings, LEAF_TRISxLEVEL_RATIO, comma separated.
+    #[arg(long, default_value = "16384x2,65536x2", value_delimiter = ',')]
     settings: Vec<String>,
     /// octolod memory budget.
     #[arg(long, default_value = "512M")]
@@ -186,8 +186,8 @@ struct RunOne {
     target: u64,
     #[arg(long, default_value_t = 16384)]
     leaf_tris: u64,
-    #[arg(long, default_value_t = 8)]
-    cluster_grid: u32,
+    #[arg(long, default_value_t = 2)]
+    level_ratio: u32,
     #[arg(long, default_value = "512M")]
     mem: String,
     /// octolod: build only, extract nothing.
@@ -233,10 +233,10 @@ fn parse_count(s: &str) -> std::result::Result<u64, String> {
     Ok((v * mul).round() as u64)
 }
 
-/// `LEAFxGRID` → (leaf_tris, cluster_grid).
+/// `LEAFxRATIO` → (leaf_tris, level_ratio).
 fn parse_setting(s: &str) -> Result<(u64, u32)> {
-    let (a, b) = s.trim().split_once(['x', 'X']).ok_or_else(|| anyhow!("setting {s:?} is not LEAF_TRISxCLUSTER_GRID"))?;
-    Ok((parse_count(a).map_err(|e| anyhow!(e))?, b.trim().parse().with_context(|| format!("cluster grid in {s:?}"))?))
+    let (a, b) = s.trim().split_once(['x', 'X']).ok_or_else(|| anyhow!("setting {s:?} is not LEAF_TRISxLEVEL_RATIO"))?;
+    Ok((parse_count(a).map_err(|e| anyhow!(e))?, b.trim().parse().with_context(|| format!("level ratio in {s:?}"))?))
 }
 
 fn main() {
@@ -672,7 +672,8 @@ fn run_octolod(a: &RunOne) -> Result<J> {
         mem: octolod::mem::parse_size(&a.mem)?,
         leaf_tris: a.leaf_tris,
         max_depth: 16,
-        cluster_grid: a.cluster_grid,
+        level_ratio: a.level_ratio as f64,
+        root_tris: 4096,
         levels: None,
         quiet: true,
         // The bench's own store from an earlier run (refused if it is anything else).
@@ -688,9 +689,9 @@ fn run_octolod(a: &RunOne) -> Result<J> {
     let mut levels = Vec::new();
     if !a.no_extract {
         let store = Store::open(&store_dir)?;
-        for l in 1..=top_level(&store) {
+        for l in 1..=store.top_level() {
             let path = PathBuf::from(format!("{}-L{l}.ply", a.output.display()));
-            let (nv, nf) = extract(&store, l, &path, true, true)?;
+            let (nv, nf) = extract(&store, CutSpec::Level(l), &path, true, true)?;
             let lr = r.levels.iter().find(|x| x.level == l);
             levels.push(obj([
                 ("level", u32::from(l).into()),
@@ -706,7 +707,7 @@ fn run_octolod(a: &RunOne) -> Result<J> {
     Ok(obj([
         ("method", "octolod".into()),
         ("leaf_tris", a.leaf_tris.into()),
-        ("cluster_grid", a.cluster_grid.into()),
+        ("level_ratio", a.level_ratio.into()),
         ("mem", opts.mem.into()),
         ("input_triangles", r.soup.header.triangles.into()),
         ("attributes", r.soup.header.attrs.describe().into()),
@@ -716,7 +717,7 @@ fn run_octolod(a: &RunOne) -> Result<J> {
         ("octree_seconds", r.seconds[1].into()),
         ("simplify_seconds", r.seconds[2].into()),
         ("soup_external", r.soup.external.into()),
-        ("nodes", (r.octree.nodes).into()),
+        ("nodes", r.nodes.into()),
         ("leaves", r.octree.leaves.into()),
         ("deepest", u32::from(r.octree.deepest).into()),
         ("disk_bytes", r.disk_bytes.into()),
@@ -1438,7 +1439,7 @@ fn read_report(j: &J, suffix: &str, rerendered: Option<String>) -> Result<Report
             scan_seconds: inp.f("scan_seconds").unwrap_or(f64::NAN),
         };
         for b in inp.arr("builds") {
-            let setting = format!("{}x{}", b.f("leaf_tris").unwrap_or(0.0), b.f("cluster_grid").unwrap_or(0.0));
+            let setting = format!("{}x{}", b.f("leaf_tris").unwrap_or(0.0), b.f("level_ratio").unwrap_or(0.0));
             builds.push((ii, setting, b.clone()));
         }
         for r in inp.arr("rows") {
@@ -1530,7 +1531,7 @@ fn bench_input(
             "octolod".into(),
             "--leaf-tris".into(),
             leaf.to_string(),
-            "--cluster-grid".into(),
+            "--level-ratio".into(),
             grid.to_string(),
             "--mem".into(),
             b.args.mem.clone(),
@@ -1695,7 +1696,7 @@ fn attr_sweep(b: &Bench, n: u64, (leaf, grid): (u64, u32), failures: &mut Vec<St
             "octolod".into(),
             "--leaf-tris".into(),
             leaf.to_string(),
-            "--cluster-grid".into(),
+            "--level-ratio".into(),
             grid.to_string(),
             "--mem".into(),
             b.args.mem.clone(),
@@ -2652,7 +2653,7 @@ mod tests {
             err_note: None,
             child,
         };
-        let build = obj([("leaf_tris", 16384u64.into()), ("cluster_grid", 8u32.into()), ("seconds", 0.5.into()), ("other_cpu_cores", 0.1.into())]);
+        let build = obj([("leaf_tris", 16384u64.into()), ("level_ratio", 8u32.into()), ("seconds", 0.5.into()), ("other_cpu_cores", 0.1.into())]);
         let rows = vec![
             row(Method::Octolod, "16384x8", Some(1), None, J::Null),
             row(Method::Oocs, "", None, Some(40), obj([("grid", 7u32.into()), ("other_cpu_cores", 0.0.into())])),

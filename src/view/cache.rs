@@ -1,7 +1,7 @@
 //! The viewer's node cache under a hard byte budget, and its I/O threads.
 //!
 //! Takes: load requests in priority order from the selection, and the GPU
-//! upload function. Gives: units resident on the GPU, with every byte the
+//! upload function. Gives: nodes resident on the GPU, with every byte the
 //! viewer holds for node data counted against `--ram`: a load reserves its
 //! read buffer, its decoded form and its GPU-ready form *before* it is
 //! issued; the reservation shrinks to the GPU-ready mesh when the load
@@ -11,29 +11,46 @@
 //! loaded at start) nor used by the current frame's traversal.
 //!
 //! Loads run on background threads: one positioned read of the node's
-//! page-aligned byte range in its pack file, then decoding and normal
-//! computation. The render thread only polls a channel, so a frame never
+//! page-aligned byte range in its pack file, the checksum check, then
+//! decoding and conversion to GPU form. The render thread only polls a channel, so a frame never
 //! waits on disk; `io_delay` slows every read (tests and demos of slow
 //! disks).
 
 use super::select::{Hierarchy, Unit};
-use super::{draw_mesh, DrawMesh, GpuBytes};
-use crate::error::{IoContext, Result};
-use crate::mesh::AttrSet;
-use crate::mesh::VertexLayout;
-use crate::store::decode_payload;
+use super::{draw_node, DrawMesh, GpuBytes};
+use crate::error::{Error, IoContext, Location, Result};
+use crate::mesh::{AttrSet, VertexLayout};
+use crate::store::{decode_payload, Patch};
 use std::collections::HashMap;
 use std::path::Path;
 use std::sync::mpsc::{channel, Receiver, Sender};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-/// A load job: unit, pack level, byte range.
+/// A load job: node, pack level, byte range, checksum.
 struct Job {
     unit: Unit,
     pack: u8,
     offset: u64,
     bytes: u32,
+    crc: u32,
+}
+
+impl Job {
+    fn of(h: &Hierarchy, u: Unit) -> Job {
+        let i = h.info(u);
+        Job { unit: u, pack: i.level, offset: i.offset, bytes: i.bytes, crc: i.crc }
+    }
+}
+
+/// What the I/O threads need to turn bytes into a GPU-ready mesh.
+#[derive(Clone, Copy)]
+pub struct LoadCtx {
+    /// Layout of payload vertices.
+    pub layout: VertexLayout,
+    /// Attributes of payload vertices (normals present when stored).
+    pub attrs: AttrSet,
+    pub origin: [f64; 3],
 }
 
 type Done = (Unit, std::result::Result<DrawMesh, String>);
@@ -46,7 +63,7 @@ pub struct IoPool {
 }
 
 impl IoPool {
-    pub fn new(dir: &Path, attrs: AttrSet, origin: [f64; 3], threads: usize, delay: Duration) -> IoPool {
+    pub fn new(dir: &Path, ctx: LoadCtx, threads: usize, delay: Duration) -> IoPool {
         let (jtx, jrx) = channel::<Job>();
         let (dtx, drx) = channel::<Done>();
         let jrx = Arc::new(Mutex::new(jrx));
@@ -63,7 +80,7 @@ impl IoPool {
                         if !delay.is_zero() {
                             std::thread::sleep(delay);
                         }
-                        let r = load(&dir, &mut files, attrs, origin, &job).map_err(|e| e.to_string());
+                        let r = load(&dir, &mut files, ctx, &job).map_err(|e| e.to_string());
                         if dtx.send((job.unit, r)).is_err() {
                             return;
                         }
@@ -84,8 +101,8 @@ impl Drop for IoPool {
     }
 }
 
-/// Reads and decodes one unit (used by the I/O threads and for pinned units).
-fn load(dir: &Path, files: &mut HashMap<u8, std::fs::File>, attrs: AttrSet, origin: [f64; 3], job: &Job) -> Result<DrawMesh> {
+/// Reads, checks and decodes one node (used by the I/O threads and for pinned nodes).
+fn load(dir: &Path, files: &mut HashMap<u8, std::fs::File>, ctx: LoadCtx, job: &Job) -> Result<DrawMesh> {
     use std::os::unix::fs::FileExt;
     let path = crate::store::pack_file(dir, job.pack as usize);
     let f = match files.entry(job.pack) {
@@ -94,9 +111,15 @@ fn load(dir: &Path, files: &mut HashMap<u8, std::fs::File>, attrs: AttrSet, orig
     };
     let mut b = vec![0u8; job.bytes as usize];
     f.read_exact_at(&mut b, job.offset).ctx(&path, "read pack file")?;
-    let m = decode_payload(&VertexLayout::new(attrs), &b, &path, job.offset)?;
+    if crc32c::crc32c(&b) != job.crc {
+        return Err(Error::input(
+            Location { file: path.clone(), offset: Some(job.offset), ..Default::default() },
+            format!("node {}: payload checksum mismatch (the store is damaged or was rewritten)", job.unit),
+        ));
+    }
+    let m = decode_payload(&ctx.layout, &b, &path, job.offset)?;
     drop(b);
-    Ok(draw_mesh(&m, attrs, origin))
+    Ok(draw_node(&m, ctx.attrs, ctx.origin))
 }
 
 enum State<M> {
@@ -108,6 +131,8 @@ enum State<M> {
 
 struct Entry<M> {
     state: State<M>,
+    /// The node's patches (kept once the mesh is on the GPU).
+    patches: Vec<Patch>,
     /// Bytes charged against the budget now.
     charged: u64,
     last_used: u64,
@@ -128,7 +153,7 @@ pub struct CacheCounters {
     pub misses: u64,
 }
 
-/// The budgeted cache of draw units.
+/// The budgeted cache of nodes.
 pub struct Cache<M> {
     entries: HashMap<Unit, Entry<M>>,
     budget: u64,
@@ -145,18 +170,18 @@ pub struct Cache<M> {
 /// Bytes a load holds at its peak: read buffer, decoded vertices and
 /// triangles, and the GPU-ready mesh.
 fn load_reservation(h: &Hierarchy, u: Unit, vertex_size: u64) -> u64 {
-    let s = &h.units[&u].slot;
+    let s = h.info(u);
     s.bytes as u64 + s.verts as u64 * vertex_size + s.tris as u64 * 12 + h.draw_bytes(u)
 }
 
 impl<M: GpuBytes> Cache<M> {
-    pub fn new(dir: &Path, attrs: AttrSet, origin: [f64; 3], budget: u64, io_threads: usize, io_delay: Duration) -> Cache<M> {
+    pub fn new(dir: &Path, ctx: LoadCtx, budget: u64, io_threads: usize, io_delay: Duration) -> Cache<M> {
         Cache {
             entries: HashMap::new(),
             budget,
             charged: 0,
             peak: 0,
-            io: IoPool::new(dir, attrs, origin, io_threads, io_delay),
+            io: IoPool::new(dir, ctx, io_threads, io_delay),
             in_flight: 0,
             max_in_flight: 8 * io_threads.max(1) + 8,
             vertex_size: std::mem::size_of::<crate::mesh::Vertex>() as u64,
@@ -197,7 +222,7 @@ impl<M: GpuBytes> Cache<M> {
 
     /// Loads `units` synchronously and pins them (start-up only, before
     /// the first frame). Fails when they do not fit the budget.
-    pub fn pin(&mut self, h: &Hierarchy, dir: &Path, attrs: AttrSet, origin: [f64; 3], units: &[Unit]) -> Result<()> {
+    pub fn pin(&mut self, h: &Hierarchy, dir: &Path, ctx: LoadCtx, units: &[Unit]) -> Result<()> {
         let need: u64 = units.iter().map(|&u| h.draw_bytes(u)).sum();
         if need > self.budget {
             return Err(crate::Error::Usage(format!(
@@ -208,14 +233,14 @@ impl<M: GpuBytes> Cache<M> {
         }
         let mut files = HashMap::new();
         for &u in units {
-            let i = &h.units[&u];
-            let job = Job { unit: u, pack: i.pack, offset: i.slot.offset, bytes: i.slot.bytes };
-            let m = load(dir, &mut files, attrs, origin, &job)?;
-            self.counters.read_bytes += i.slot.bytes as u64;
+            let job = Job::of(h, u);
+            let m = load(dir, &mut files, ctx, &job)?;
+            self.counters.read_bytes += job.bytes as u64;
             self.counters.loads_done += 1;
             let b = m.bytes();
             self.charge(b, 0);
-            self.entries.insert(u, Entry { state: State::Cpu(m), charged: b, last_used: 0, pinned: true });
+            let patches = m.patches.clone();
+            self.entries.insert(u, Entry { state: State::Cpu(m), patches, charged: b, last_used: 0, pinned: true });
         }
         Ok(())
     }
@@ -234,6 +259,7 @@ impl<M: GpuBytes> Cache<M> {
         match r {
             Ok(m) => {
                 let b = m.bytes();
+                e.patches = m.patches.clone();
                 e.state = State::Cpu(m);
                 e.charged = b;
                 self.counters.loads_done += 1;
@@ -289,6 +315,11 @@ impl<M: GpuBytes> Cache<M> {
             Some(State::Gpu(g)) => Some(g),
             _ => None,
         }
+    }
+
+    /// The patches of a resident node.
+    pub fn patches(&self, u: Unit) -> &[Patch] {
+        self.entries.get(&u).map_or(&[], |e| &e.patches)
     }
 
     /// Marks units as used by frame `frame` (they will not be evicted now).
@@ -348,17 +379,17 @@ impl<M: GpuBytes> Cache<M> {
                     continue;
                 }
             }
-            let i = &h.units[&u];
-            let job = Job { unit: u, pack: i.pack, offset: i.slot.offset, bytes: i.slot.bytes };
+            let job = Job::of(h, u);
+            let read = job.bytes as u64;
             if self.io.jobs.as_ref().map(|j| j.send(job).is_ok()) != Some(true) {
                 left += 1;
                 continue;
             }
             self.counters.loads_issued += 1;
-            self.counters.read_bytes += i.slot.bytes as u64;
+            self.counters.read_bytes += read;
             self.in_flight += 1;
             self.charge(need, 0);
-            self.entries.insert(u, Entry { state: State::Loading, charged: need, last_used: frame, pinned: false });
+            self.entries.insert(u, Entry { state: State::Loading, patches: Vec::new(), charged: need, last_used: frame, pinned: false });
         }
         left
     }

@@ -30,7 +30,7 @@
 
 use crate::error::{Error, Result};
 use crate::view::overlay::OverlayImage;
-use crate::view::{DrawMesh, GpuBytes, GpuVertex};
+use crate::view::{DrawItem, DrawMesh, GpuBytes, GpuVertex};
 use glam::{Mat4, Vec3};
 use std::sync::Arc;
 use wgpu::util::DeviceExt;
@@ -557,13 +557,13 @@ impl Renderer {
         wgpu::Color { r: c(clear[0]), g: c(clear[1]), b: c(clear[2]), a: clear[3].clamp(0.0, 1.0) }
     }
 
-    fn encode_scene(&self, enc: &mut wgpu::CommandEncoder, view: &wgpu::TextureView, p: &DrawParams, meshes: &[&GpuMesh]) {
+    fn encode_scene(&self, enc: &mut wgpu::CommandEncoder, view: &wgpu::TextureView, p: &DrawParams, meshes: &[DrawItem<GpuMesh>]) {
         self.encode_scene_pass(enc, view, p, meshes, true)
     }
 
     /// One scene pass; `clear` false draws over what the target holds
     /// (colour and depth), for frames drawn in several batches.
-    fn encode_scene_pass(&self, enc: &mut wgpu::CommandEncoder, view: &wgpu::TextureView, p: &DrawParams, meshes: &[&GpuMesh], clear: bool) {
+    fn encode_scene_pass(&self, enc: &mut wgpu::CommandEncoder, view: &wgpu::TextureView, p: &DrawParams, meshes: &[DrawItem<GpuMesh>], clear: bool) {
         let color_load = if clear { wgpu::LoadOp::Clear(self.clear_color(p.clear)) } else { wgpu::LoadOp::Load };
         let depth_load = if clear { wgpu::LoadOp::Clear(1.0) } else { wgpu::LoadOp::Load };
         let mut pass = enc.begin_render_pass(&wgpu::RenderPassDescriptor {
@@ -584,19 +584,26 @@ impl Renderer {
         });
         pass.set_pipeline(if p.wireframe { &self.wire } else { &self.fill });
         pass.set_bind_group(0, &self.globals_bind, &[]);
-        for m in meshes {
+        for item in meshes {
+            let m = item.mesh;
             let (Some(vb), Some(ib)) = (&m.vertices, &m.indices) else { continue };
-            let (ib, count) = match (p.wireframe, self.wire_mode, &m.lines) {
-                (true, WireframeMode::LineList, Some(lb)) => (lb, m.line_index_count),
+            // Indices per triangle: 3, or 6 in a line list (three edges).
+            let (ib, count, per) = match (p.wireframe, self.wire_mode, &m.lines) {
+                (true, WireframeMode::LineList, Some(lb)) => (lb, m.line_index_count, 6),
                 (true, WireframeMode::LineList, None) => continue,
-                _ => (ib, m.index_count),
+                _ => (ib, m.index_count, 3),
             };
             if count == 0 {
                 continue;
             }
             pass.set_vertex_buffer(0, vb.slice(..));
             pass.set_index_buffer(ib.slice(..), wgpu::IndexFormat::Uint32);
-            pass.draw_indexed(0..count, 0, 0..1);
+            for r in &item.ranges {
+                let (a, b) = ((r.start * per).min(count), (r.end * per).min(count));
+                if a < b {
+                    pass.draw_indexed(a..b, 0, 0..1);
+                }
+            }
         }
     }
 
@@ -637,7 +644,7 @@ impl Renderer {
 
     /// Renders offscreen and returns the frame as tightly packed RGBA8,
     /// `width * height * 4` bytes, top row first.
-    pub fn render_offscreen(&mut self, p: &DrawParams, meshes: &[&GpuMesh]) -> Result<Vec<u8>> {
+    pub fn render_offscreen(&mut self, p: &DrawParams, meshes: &[DrawItem<GpuMesh>]) -> Result<Vec<u8>> {
         self.render_offscreen_overlay(p, meshes, None)
     }
 
@@ -659,7 +666,7 @@ impl Renderer {
             if done && !first {
                 break;
             }
-            let refs: Vec<&GpuMesh> = meshes.iter().collect();
+            let refs: Vec<DrawItem<GpuMesh>> = meshes.iter().map(|m| DrawItem::whole(m, m.triangles())).collect();
             let mut enc = self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("batch") });
             self.encode_scene_pass(&mut enc, &view, p, &refs, first);
             self.queue.submit([enc.finish()]);
@@ -680,13 +687,13 @@ impl Renderer {
     }
 
     /// [`Renderer::render_offscreen`] with an optional overlay on top.
-    pub fn render_offscreen_overlay(&mut self, p: &DrawParams, meshes: &[&GpuMesh], overlay: Option<&OverlayImage>) -> Result<Vec<u8>> {
+    pub fn render_offscreen_overlay(&mut self, p: &DrawParams, meshes: &[DrawItem<GpuMesh>], overlay: Option<&OverlayImage>) -> Result<Vec<u8>> {
         self.write_globals(p);
         self.readback_frame(Some((p, meshes, overlay)))
     }
 
     /// Draws (when given a scene) and reads the offscreen target back.
-    fn readback_frame(&mut self, scene: Option<(&DrawParams, &[&GpuMesh], Option<&OverlayImage>)>) -> Result<Vec<u8>> {
+    fn readback_frame(&mut self, scene: Option<(&DrawParams, &[DrawItem<GpuMesh>], Option<&OverlayImage>)>) -> Result<Vec<u8>> {
         let Some(color) = &self.color else {
             return Err(Error::Usage("render_offscreen needs a headless renderer".into()));
         };
@@ -756,7 +763,7 @@ impl Renderer {
     /// transient surface error (lost/outdated surfaces are reconfigured for
     /// the next frame; timeouts are skipped). Only running out of memory is
     /// an error.
-    pub fn render_to_surface(&mut self, p: &DrawParams, meshes: &[&GpuMesh], overlay: Option<&OverlayImage>) -> Result<bool> {
+    pub fn render_to_surface(&mut self, p: &DrawParams, meshes: &[DrawItem<GpuMesh>], overlay: Option<&OverlayImage>) -> Result<bool> {
         let Some((surface, config)) = &self.surface else {
             return Err(Error::Usage("render_to_surface needs a window renderer".into()));
         };

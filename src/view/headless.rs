@@ -19,6 +19,7 @@
 
 use super::camera::{Camera, CameraPath};
 use super::gpu::{DrawParams, GpuMesh, Renderer};
+use super::DrawItem;
 use super::viewer::{load_all_originals, FrameStats, ViewOptions, Viewer};
 use crate::error::{IoContext, Result};
 use crate::io::AtomicDir;
@@ -108,7 +109,7 @@ pub fn render(o: &RenderOptions) -> Result<RenderReport> {
     };
     let reference = if o.brute_force {
         let (meshes, tris) = load_all_originals(&viewer.store, &mut |m| renderer.upload(m))?;
-        let bytes: u64 = meshes.iter().map(super::GpuBytes::gpu_bytes).sum();
+        let bytes: u64 = meshes.iter().map(|(m, _)| super::GpuBytes::gpu_bytes(m)).sum();
         Some((meshes, tris, bytes))
     } else {
         None
@@ -127,7 +128,7 @@ pub fn render(o: &RenderOptions) -> Result<RenderReport> {
         }
         let mut cam = path.camera(i);
         cam.fit_clip(&bounds);
-        let (mut stats, meshes): (FrameStats, Vec<&GpuMesh>) = if o.brute_force {
+        let (mut stats, meshes): (FrameStats, Vec<DrawItem<GpuMesh>>) = if o.brute_force {
             let (r, tris, bytes) = reference.as_ref().unwrap();
             let (tris, bytes) = (*tris, *bytes);
             let s = FrameStats {
@@ -142,7 +143,7 @@ pub fn render(o: &RenderOptions) -> Result<RenderReport> {
                 settled: true,
                 ..FrameStats::default()
             };
-            (s, r.iter().collect())
+            (s, r.iter().map(|(m, t)| DrawItem::whole(m, *t)).collect())
         } else {
             let s = viewer.frame(&cam, (o.width, o.height), &mut |m| renderer.upload(m));
             (s, viewer.draw_list())
@@ -180,19 +181,13 @@ pub fn render(o: &RenderOptions) -> Result<RenderReport> {
     Ok(RenderReport { frames, out: o.out.clone() })
 }
 
-/// Every leaf's original triangles in view, drawn in batches of at most
+/// Every level-0 (input) triangle in view, drawn in batches of at most
 /// `batch_bytes` (default [`REFERENCE_BATCH`]) read in store order: the full-resolution
 /// reference without holding level 0 in memory.
 pub fn full_res_frame(renderer: &mut Renderer, store: &crate::store::Store, cam: &Camera, p: &DrawParams, size: (u32, u32), batch_bytes: u64) -> Result<Vec<u8>> {
     let frustum = cam.frustum(size.0 as f64 / size.1.max(1) as f64);
-    let leaves: Vec<usize> = store
-        .nodes
-        .iter()
-        .enumerate()
-        .filter(|(_, n)| n.is_leaf() && !n.orig.is_empty() && !frustum.culls(&n.content))
-        .map(|(i, _)| i)
-        .collect();
-    let origin = store.header.cube.center;
+    let leaves: Vec<usize> = store.level_nodes(0).into_iter().filter(|&i| !frustum.culls(&store.nodes[i].bounds)).collect();
+    let ctx = super::viewer::load_ctx(store);
     let mut next = 0usize;
     renderer.render_offscreen_batched(p, &mut |r: &Renderer| {
         if next >= leaves.len() {
@@ -200,7 +195,7 @@ pub fn full_res_frame(renderer: &mut Renderer, store: &crate::store::Store, cam:
         }
         let (mut batch, mut bytes) = (Vec::new(), 0u64);
         while next < leaves.len() && bytes < batch_bytes {
-            let m = super::draw_mesh(&store.read_mesh(leaves[next], false)?, store.header.attrs, origin);
+            let m = super::draw_node(&store.read_node(leaves[next])?, ctx.attrs, ctx.origin);
             bytes += m.bytes();
             batch.push(r.upload(&m));
             next += 1;

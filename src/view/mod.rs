@@ -45,6 +45,21 @@ pub struct GpuVertex {
 pub struct DrawMesh {
     pub vertices: Vec<GpuVertex>,
     pub indices: Vec<u32>,
+    /// The node's patches (triangle ranges by child), in index order.
+    pub patches: Vec<crate::store::Patch>,
+}
+
+/// One mesh to draw and the triangle ranges of it to draw.
+pub struct DrawItem<'a, M> {
+    pub mesh: &'a M,
+    pub ranges: Vec<std::ops::Range<u32>>,
+}
+
+impl<'a, M> DrawItem<'a, M> {
+    /// All of a mesh with `tris` triangles.
+    pub fn whole(mesh: &'a M, tris: u32) -> DrawItem<'a, M> {
+        DrawItem { mesh, ranges: vec![0..tris] }
+    }
 }
 
 /// Color used when the store has no vertex colors.
@@ -63,9 +78,10 @@ impl DrawMesh {
 /// Converts a decoded payload to GPU form. Positions become f32 relative to
 /// `origin` (the same subtraction for every node, so vertices shared by
 /// neighbouring nodes stay bit-identical and the surface stays watertight).
-/// Normals are the input's when it has them, else area-weighted vertex
-/// normals of this mesh (computed per node, so shading can show a faint
-/// seam along node borders; the geometry has none); colors the input's, else [`DEFAULT_COLOR`].
+/// Normals are the payload's when it has them (the input's, or computed at
+/// build time from each vertex's whole neighbourhood, so both sides of a
+/// node seam shade alike), else area-weighted vertex normals of this mesh;
+/// colors the input's, else [`DEFAULT_COLOR`].
 pub fn draw_mesh(m: &IndexedMesh, attrs: AttrSet, origin: [f64; 3]) -> DrawMesh {
     let mut vertices: Vec<GpuVertex> = m
         .vertices
@@ -110,7 +126,14 @@ pub fn draw_mesh(m: &IndexedMesh, attrs: AttrSet, origin: [f64; 3]) -> DrawMesh 
         }
     }
     let indices = m.triangles.iter().flat_map(|t| t.iter().copied()).collect();
-    DrawMesh { vertices, indices }
+    DrawMesh { vertices, indices, patches: Vec::new() }
+}
+
+/// [`draw_mesh`] of a decoded node payload, keeping its patches.
+pub fn draw_node(nm: &crate::store::NodeMesh, attrs: AttrSet, origin: [f64; 3]) -> DrawMesh {
+    let mut d = draw_mesh(&nm.mesh, attrs, origin);
+    d.patches = nm.patches.clone();
+    d
 }
 
 fn normalize(a: [f64; 3]) -> [f32; 3] {

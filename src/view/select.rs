@@ -1,153 +1,143 @@
-//! Per-frame cut selection: which node meshes to draw for a camera.
+//! Per-frame cut selection on the LOD DAG: which nodes to hold and which of
+//! their patches to draw for a camera.
 //!
-//! Takes: the store's node index turned into a hierarchy of *draw units*
-//! (a node's simplified mesh, and for a leaf also its original triangles
-//! one step finer), a camera, the viewport, and which units are ready on
-//! the GPU. Gives: the cut to draw (an antichain covering every visible
-//! part of the surface exactly once, hence crack-free: units share their
-//! node-boundary edges bit for bit), the units it visited (to keep
-//! resident), and the loads it wants, in priority order.
+//! Takes: the store's node index ([`Hierarchy`]: bounds, errors, children,
+//! parents, triangle counts), a camera, the viewport, and which nodes are
+//! ready on the GPU. Gives: the selection S — the roots and, with every
+//! node, all its parents — the nodes to draw with the patches whose child
+//! is not in S (a valid cut, hence crack-free: see [`crate::store`]), the
+//! loads it wants, in priority order, and what to prefetch.
 //!
-//! The traversal is best-first from the always-resident roots: the unit
-//! with the largest projected error (stored object-space error × pixels per
-//! unit at the distance to the nearest point of its tight box) is refined
-//! first, as long as its error exceeds `--max-error-px` and the triangle
-//! budget can pay for the children's triangles minus its own. A unit whose
-//! visible children are not all ready stays in the cut (the nearest
-//! resident ancestor is drawn) and its children are requested. Boxes are
-//! culled only when entirely outside one frustum plane. Units refined in the
-//! previous frame use a lower threshold (hysteresis) so a cut does not pop
-//! back and forth at the threshold. `--distance-lod F` replaces the
-//! projected-error test by the original design's distance rule: refine
-//! while the eye is nearer than F × the node's cell diagonal.
+//! The traversal is best-first from the roots: the selected node with the
+//! largest projected error (stored object-space error × pixels per unit at
+//! the distance to the nearest point of its bounds) is expanded first, as
+//! long as its error exceeds `--max-error-px`. Expanding a node adds its
+//! children to S, each with whatever ancestors it is missing (a child is
+//! drawn only once every parent has handed it its part), provided they are
+//! all resident and the triangle budget pays for them (a node costs its
+//! triangles less its simplified mesh, which its parents stop drawing).
+//! Otherwise the node keeps drawing its patch for that child — the coarser
+//! geometry stays on screen while the finer loads — and the missing nodes
+//! are requested. Errors are saturated upward and bounds contain children,
+//! so the projected error never increases from a node to its parent and
+//! the order is consistent. Boxes are culled only when entirely outside
+//! one frustum plane. A node expanded in the previous frame keeps expanding
+//! down to `hysteresis × max_error_px`, so a cut does not pop back and forth
+//! at the threshold. `--distance-lod F` replaces the projected-error test
+//! by the original design's distance rule: expand while the eye is nearer
+//! than F × the node's cell diagonal.
 
 use super::camera::{box_distance, Camera, Frustum};
 use crate::mesh::Aabb;
-use crate::store::{NodeRec, Slot, Store};
+use crate::store::Store;
 use glam::DVec3;
-use std::collections::{BinaryHeap, HashSet};
+use std::collections::BinaryHeap;
 
-/// A draw unit id: `2 × node + 1` for a leaf's original triangles, `2 × node`
-/// for a node's simplified mesh.
+/// A node id (the viewer's draw and load unit).
 pub type Unit = u32;
 
-pub fn unit_of(node: usize, orig: bool) -> Unit {
-    (2 * node + orig as usize) as Unit
-}
-
-/// What a unit is and where its payload lives.
+/// What the selection needs to know of a node.
 #[derive(Clone, Debug)]
 pub struct UnitInfo {
-    pub node: u32,
-    /// Pack file level (0 for originals).
-    pub pack: u8,
-    /// Level shown in statistics: 0 original, else the simplified level.
     pub level: u8,
-    pub slot: Slot,
-    /// Object-space error bound against the original (0 for originals).
+    pub tris: u32,
+    /// Triangles of its simplified mesh (what its parents draw for it).
+    pub simp_tris: u32,
+    pub verts: u32,
+    pub bytes: u32,
+    pub offset: u64,
+    pub crc: u32,
+    /// Object-space error of the node's triangles (0 at level 0).
     pub error: f64,
-    /// Tight bounds of the node's original triangles.
+    /// Bounds of the node and its descendants.
     pub bounds: Aabb,
-    /// Diagonal of the node's octree cell (distance-only mode).
+    /// Diagonal of the node's cell (distance-only mode).
     pub cell_diag: f64,
-    /// Children units (indices into `Hierarchy::child_list`).
-    pub first_child: u32,
-    pub child_count: u32,
 }
 
-/// Draw units of a store and their refinement tree.
+/// The DAG as the viewer sees it.
 pub struct Hierarchy {
-    pub units: std::collections::HashMap<Unit, UnitInfo>,
-    pub child_list: Vec<Unit>,
+    pub units: Vec<UnitInfo>,
+    children: Vec<u32>,
+    parents: Vec<u32>,
+    /// (first, count) into `children` / `parents` per node.
+    child_at: Vec<(u32, u32)>,
+    parent_at: Vec<(u32, u32)>,
+    /// The top level's nodes (one unless the build stopped early).
     pub roots: Vec<Unit>,
     pub bounds: Aabb,
 }
 
 impl Hierarchy {
     pub fn new(store: &Store) -> Hierarchy {
-        let nodes = &store.nodes;
-        let mut h = Hierarchy { units: Default::default(), child_list: Vec::new(), roots: Vec::new(), bounds: Aabb::EMPTY };
-        if nodes.is_empty() {
-            return h;
+        let units = store
+            .nodes
+            .iter()
+            .map(|n| UnitInfo {
+                level: n.level,
+                tris: n.tris,
+                simp_tris: n.simp_tris,
+                verts: n.verts,
+                bytes: n.bytes,
+                offset: n.offset,
+                crc: n.crc,
+                error: n.error as f64,
+                bounds: n.bounds,
+                cell_diag: n.cell.diagonal(),
+            })
+            .collect();
+        let roots: Vec<Unit> = store.roots().into_iter().map(|r| r as Unit).collect();
+        let mut bounds = Aabb::EMPTY;
+        for &r in &roots {
+            bounds.merge(&store.nodes[r as usize].bounds);
         }
-        h.bounds = nodes[0].content;
-        h.roots = reps(nodes, 0);
-        for (i, n) in nodes.iter().enumerate() {
-            if n.subtree_tris == 0 {
-                continue;
-            }
-            let info = |orig: bool, first_child: u32, child_count: u32| {
-                let (slot, level) = if orig { (n.orig, 0) } else { (n.simp, n.level) };
-                UnitInfo {
-                    node: i as u32,
-                    pack: level,
-                    level,
-                    slot,
-                    error: slot.error as f64,
-                    bounds: n.content,
-                    cell_diag: n.cell.diagonal(),
-                    first_child,
-                    child_count,
-                }
-            };
-            if !n.simp.is_empty() {
-                // A leaf refines to its own originals, an inner node to its children.
-                let kids: Vec<Unit> = if n.is_leaf() { leaf_original(n, i) } else { child_reps(nodes, n) };
-                let first_child = h.child_list.len() as u32;
-                h.child_list.extend(&kids);
-                h.units.insert(unit_of(i, false), info(false, first_child, kids.len() as u32));
-            }
-            if n.is_leaf() && !n.orig.is_empty() {
-                h.units.insert(unit_of(i, true), info(true, 0, 0));
-            }
+        Hierarchy {
+            units,
+            children: store.children.clone(),
+            parents: store.parents.clone(),
+            child_at: store.nodes.iter().map(|n| (n.first_child, n.child_count)).collect(),
+            parent_at: store.nodes.iter().map(|n| (n.first_parent, n.parent_count)).collect(),
+            roots,
+            bounds,
         }
-        h
     }
 
     pub fn children(&self, u: Unit) -> &[Unit] {
-        let i = &self.units[&u];
-        &self.child_list[i.first_child as usize..(i.first_child + i.child_count) as usize]
+        let (f, c) = self.child_at[u as usize];
+        &self.children[f as usize..(f + c) as usize]
     }
 
-    /// Every original-triangle unit (level 0), for brute-force rendering.
+    pub fn parents(&self, u: Unit) -> &[Unit] {
+        let (f, c) = self.parent_at[u as usize];
+        &self.parents[f as usize..(f + c) as usize]
+    }
+
+    pub fn info(&self, u: Unit) -> &UnitInfo {
+        &self.units[u as usize]
+    }
+
+    /// Every level-0 node (the input), for brute-force rendering.
     pub fn leaves(&self) -> Vec<Unit> {
-        let mut v: Vec<Unit> = self.units.keys().copied().filter(|u| u & 1 == 1).collect();
-        v.sort_unstable();
-        v
+        (0..self.units.len() as Unit).filter(|&u| self.units[u as usize].level == 0).collect()
     }
 
-    /// Estimated bytes of a unit's GPU-ready mesh (see `DrawMesh::bytes`).
+    /// Estimated bytes of a node's GPU-ready mesh (see `DrawMesh::bytes`).
     pub fn draw_bytes(&self, u: Unit) -> u64 {
-        let s = &self.units[&u].slot;
+        let s = self.info(u);
         s.verts as u64 * std::mem::size_of::<super::GpuVertex>() as u64 + s.tris as u64 * 12
     }
-}
 
-/// The units standing for node `i`: its simplified mesh, or (no simplified
-/// mesh) its original triangles for a leaf, or its children's units.
-fn reps(nodes: &[NodeRec], i: usize) -> Vec<Unit> {
-    let n = &nodes[i];
-    if n.subtree_tris == 0 {
-        vec![]
-    } else if !n.simp.is_empty() {
-        vec![unit_of(i, false)]
-    } else if n.is_leaf() {
-        leaf_original(n, i)
-    } else {
-        child_reps(nodes, n)
+    /// Bytes the index takes in memory (charged against the budget).
+    pub fn bytes(&self) -> u64 {
+        (self.units.len() * (std::mem::size_of::<UnitInfo>() + 16) + (self.children.len() + self.parents.len()) * 4) as u64
     }
-}
 
-fn leaf_original(n: &NodeRec, i: usize) -> Vec<Unit> {
-    if n.orig.is_empty() {
-        vec![]
-    } else {
-        vec![unit_of(i, true)]
+    /// Triangles a node adds when it joins a selection (its own, less its
+    /// simplified mesh that its parents stop drawing).
+    fn cost(&self, u: Unit) -> i64 {
+        let i = self.info(u);
+        i.tris as i64 - if self.parents(u).is_empty() { 0 } else { i.simp_tris as i64 }
     }
-}
-
-fn child_reps(nodes: &[NodeRec], n: &NodeRec) -> Vec<Unit> {
-    n.children.iter().filter(|&&c| c != crate::store::NO_NODE).flat_map(|&c| reps(nodes, c as usize)).collect()
 }
 
 /// Selection parameters.
@@ -160,10 +150,10 @@ pub struct SelectOptions {
     /// Distance-only mode: refine while the eye is nearer than this × the
     /// node's cell diagonal (None: projected error).
     pub distance_lod: Option<f64>,
-    /// A unit refined last frame stays refined until its error falls below
+    /// A node expanded last frame stays expanded until its error falls below
     /// `hysteresis × max_error_px` (≤ 1).
     pub hysteresis: f64,
-    /// Prefetch children of cut units whose error is within this factor of
+    /// Prefetch children of nodes whose error is within this factor of
     /// the threshold (at the eye predicted from camera motion too).
     pub prefetch: f64,
 }
@@ -177,20 +167,30 @@ impl Default for SelectOptions {
 /// One frame's selection.
 #[derive(Clone, Debug, Default)]
 pub struct Selection {
-    /// Units to draw, in traversal order.
+    /// Membership of S per node.
+    pub selected: Vec<bool>,
+    /// Nodes to draw (selected, visible, with at least one drawn patch),
+    /// in traversal order.
     pub cut: Vec<Unit>,
-    /// Every unit the traversal went through (cut and refined ancestors).
+    /// Every selected node (all resident; kept from eviction).
     pub visited: Vec<Unit>,
-    /// Loads wanted now, highest priority first: (unit, priority).
+    /// Loads wanted now, highest priority first: (node, priority).
     pub wanted: Vec<(Unit, f64)>,
     /// Loads worth doing if memory is free (prefetch), after `wanted`.
     pub prefetch: Vec<(Unit, f64)>,
-    /// Triangles in the cut.
+    /// Triangles the cut draws (all selected nodes' patches, visible or not).
     pub triangles: u64,
     /// Largest projected error left in the cut (pixels; distance mode: 0/1).
     pub max_error_px: f64,
-    /// Refinements stopped by the triangle budget.
+    /// Expansions stopped by the triangle budget.
     pub budget_limited: u32,
+}
+
+impl Selection {
+    /// Whether node `u` draws its patch from `child`.
+    pub fn draws(&self, child: u32) -> bool {
+        child == crate::store::NO_NODE || !self.selected.get(child as usize).copied().unwrap_or(false)
+    }
 }
 
 #[derive(PartialEq)]
@@ -207,26 +207,26 @@ impl Ord for Cand {
     }
 }
 
-/// Per-frame selection state (the previous cut, for hysteresis).
+/// Per-frame selection state (the previous selection, for hysteresis).
 pub struct Selector {
     pub opts: SelectOptions,
-    prev_refined: HashSet<Unit>,
+    prev_expanded: Vec<bool>,
     prev_eye: Option<DVec3>,
 }
 
 impl Selector {
     pub fn new(opts: SelectOptions) -> Selector {
-        Selector { opts, prev_refined: HashSet::new(), prev_eye: None }
+        Selector { opts, prev_expanded: Vec::new(), prev_eye: None }
     }
 
     /// The refinement priority of `u` seen from `eye` (pixels of projected
     /// error, or in distance mode the ratio cell size·F / distance).
     pub fn priority(&self, h: &Hierarchy, u: Unit, cam: &Camera, eye: DVec3, height_px: f64) -> f64 {
-        let i = &h.units[&u];
+        let i = h.info(u);
         let d = box_distance(&i.bounds, eye);
         match self.opts.distance_lod {
             Some(f) => {
-                if i.child_count == 0 {
+                if i.level == 0 {
                     0.0
                 } else {
                     f * i.cell_diag / d.max(1e-12)
@@ -244,99 +244,122 @@ impl Selector {
         }
     }
 
-    /// Selects the cut for `cam`. `ready(u)` says whether unit `u` can be
+    /// Selects the cut for `cam`. `ready(u)` says whether node `u` can be
     /// drawn now (resident on the GPU). Never waits for anything.
-    pub fn select(
-        &mut self,
-        h: &Hierarchy,
-        cam: &Camera,
-        viewport: (u32, u32),
-        ready: &dyn Fn(Unit) -> bool,
-    ) -> Selection {
+    pub fn select(&mut self, h: &Hierarchy, cam: &Camera, viewport: (u32, u32), ready: &dyn Fn(Unit) -> bool) -> Selection {
+        let n = h.units.len();
         let aspect = viewport.0 as f64 / viewport.1.max(1) as f64;
         let height = viewport.1.max(1) as f64;
         let frustum: Frustum = cam.frustum(aspect);
         let visible = |u: Unit| {
-            let b = &h.units[&u].bounds;
+            let b = &h.info(u).bounds;
             box_distance(b, cam.eye) == 0.0 || !frustum.culls(b)
         };
-        // Camera motion: predict where the eye will be a few frames ahead.
         let predicted = match self.prev_eye {
             Some(p) => cam.eye + (cam.eye - p) * 8.0,
             None => cam.eye,
         };
         self.prev_eye = Some(cam.eye);
+        if self.prev_expanded.len() != n {
+            self.prev_expanded = vec![false; n];
+        }
         let thr = self.threshold();
-        let mut sel = Selection::default();
-        let mut refined = HashSet::new();
+        let mut sel = Selection { selected: vec![false; n], ..Default::default() };
+        let mut expanded = vec![false; n];
         let mut heap = BinaryHeap::new();
-        for &r in &h.roots {
-            if visible(r) {
-                sel.triangles += h.units[&r].slot.tris as u64;
-                heap.push(Cand(self.priority(h, r, cam, cam.eye, height), r));
-            }
+        let mut tris: i64 = 0;
+        if h.roots.iter().any(|&r| !ready(r)) {
+            sel.wanted.extend(h.roots.iter().filter(|&&r| !ready(r)).map(|&r| (r, f64::INFINITY)));
+            self.prev_expanded = expanded;
+            return sel;
         }
+        let mut order: Vec<Unit> = Vec::new();
+        for &root in &h.roots {
+            sel.selected[root as usize] = true;
+            tris += h.cost(root);
+            heap.push(Cand(self.priority(h, root, cam, cam.eye, height), root));
+            order.push(root);
+        }
+        let mut missing: Vec<Unit> = Vec::new();
         while let Some(Cand(p, u)) = heap.pop() {
-            sel.visited.push(u);
-            let t = if self.prev_refined.contains(&u) { thr * self.opts.hysteresis } else { thr };
-            let kids = h.children(u);
-            if p <= t || kids.is_empty() {
-                self.leave_in_cut(h, u, p, cam, predicted, height, &mut sel, ready);
+            let t = if self.prev_expanded[u as usize] { thr * self.opts.hysteresis } else { thr };
+            if p <= t || h.children(u).is_empty() || !visible(u) {
                 continue;
             }
-            let vis: Vec<Unit> = kids.iter().copied().filter(|&c| visible(c)).collect();
-            let extra: i64 = vis.iter().map(|&c| h.units[&c].slot.tris as i64).sum::<i64>() - h.units[&u].slot.tris as i64;
-            if sel.triangles as i64 + extra > self.opts.tri_budget as i64 {
-                sel.budget_limited += 1;
-                self.leave_in_cut(h, u, p, cam, predicted, height, &mut sel, ready);
-                continue;
-            }
-            let missing: Vec<Unit> = vis.iter().copied().filter(|&c| !ready(c)).collect();
-            if !missing.is_empty() {
-                for c in missing {
-                    sel.wanted.push((c, p));
+            expanded[u as usize] = true;
+            for &c in h.children(u) {
+                if sel.selected[c as usize] || !visible(c) {
+                    continue;
                 }
-                sel.cut.push(u);
-                sel.max_error_px = sel.max_error_px.max(p);
-                continue;
-            }
-            sel.triangles = (sel.triangles as i64 + extra) as u64;
-            refined.insert(u);
-            for c in vis {
-                heap.push(Cand(self.priority(h, c, cam, cam.eye, height), c));
+                // c with every ancestor it lacks, nearest first.
+                missing.clear();
+                let mut stack = vec![c];
+                while let Some(x) = stack.pop() {
+                    if sel.selected[x as usize] || missing.contains(&x) {
+                        continue;
+                    }
+                    missing.push(x);
+                    stack.extend(h.parents(x).iter().copied().filter(|&q| !sel.selected[q as usize]));
+                }
+                let not_ready: Vec<Unit> = missing.iter().copied().filter(|&x| !ready(x)).collect();
+                if !not_ready.is_empty() {
+                    for x in not_ready {
+                        sel.wanted.push((x, p));
+                    }
+                    continue;
+                }
+                let cost: i64 = missing.iter().map(|&x| h.cost(x)).sum();
+                if tris + cost > self.opts.tri_budget as i64 {
+                    sel.budget_limited += 1;
+                    continue;
+                }
+                tris += cost;
+                // Ancestors first, so S stays closed under parents.
+                for &x in missing.iter().rev() {
+                    sel.selected[x as usize] = true;
+                    order.push(x);
+                    heap.push(Cand(self.priority(h, x, cam, cam.eye, height), x));
+                }
             }
         }
-        // Nearest / largest error first.
-        sel.wanted.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
-        sel.prefetch.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
-        self.prev_refined = refined;
-        sel
-    }
-
-    #[allow(clippy::too_many_arguments)]
-    fn leave_in_cut(
-        &self,
-        h: &Hierarchy,
-        u: Unit,
-        p: f64,
-        cam: &Camera,
-        predicted: DVec3,
-        height: f64,
-        sel: &mut Selection,
-        ready: &dyn Fn(Unit) -> bool,
-    ) {
-        sel.cut.push(u);
-        if !h.children(u).is_empty() {
-            sel.max_error_px = sel.max_error_px.max(p);
-            // Prefetch: close to the threshold now or at the predicted eye.
-            let pp = p.max(self.priority(h, u, cam, predicted, height));
-            if pp > self.threshold() * self.opts.prefetch {
-                for &c in h.children(u) {
-                    if !ready(c) {
-                        sel.prefetch.push((c, pp));
+        sel.triangles = tris.max(0) as u64;
+        for &u in &order {
+            let kids = h.children(u);
+            let draws_some = kids.is_empty() || kids.iter().any(|&c| !sel.selected[c as usize]);
+            sel.visited.push(u);
+            if !draws_some {
+                continue;
+            }
+            if visible(u) {
+                sel.cut.push(u);
+            }
+            if !kids.is_empty() {
+                let p = self.priority(h, u, cam, cam.eye, height);
+                if visible(u) {
+                    sel.max_error_px = sel.max_error_px.max(p);
+                }
+                // Prefetch: close to the threshold now or at the predicted eye.
+                let pp = p.max(self.priority(h, u, cam, predicted, height));
+                if pp > thr * self.opts.prefetch {
+                    for &c in kids {
+                        if !sel.selected[c as usize] && !ready(c) {
+                            sel.prefetch.push((c, pp));
+                        }
                     }
                 }
             }
         }
+        // Nearest / largest error first; each node once.
+        sel.wanted.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
+        dedup_keep_first(&mut sel.wanted);
+        sel.prefetch.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
+        dedup_keep_first(&mut sel.prefetch);
+        self.prev_expanded = expanded;
+        sel
     }
+}
+
+fn dedup_keep_first(v: &mut Vec<(Unit, f64)>) {
+    let mut seen = std::collections::HashSet::new();
+    v.retain(|(u, _)| seen.insert(*u));
 }

@@ -6,10 +6,10 @@
 //! the cut → issue loads in priority order (evicting LRU units outside the
 //! cut). No step waits on disk.
 
-use super::cache::Cache;
+use super::cache::{Cache, LoadCtx};
 use super::camera::{dvec, Camera};
 use super::select::{Hierarchy, SelectOptions, Selection, Selector, Unit};
-use super::{DrawMesh, GpuBytes};
+use super::{DrawItem, DrawMesh, GpuBytes};
 use crate::error::{Error, Result};
 use crate::store::Store;
 use std::path::Path;
@@ -54,7 +54,7 @@ pub struct FrameStats {
     pub draw_ms: f64,
     pub triangles: u64,
     pub nodes: u32,
-    /// Units drawn per level (index = level; 0 = original triangles).
+    /// Nodes drawn per level (index = level; 0 = the input's triangles).
     pub nodes_per_level: Vec<u32>,
     pub resident_bytes: u64,
     pub peak_resident_bytes: u64,
@@ -163,7 +163,7 @@ pub struct Viewer<M> {
     pub cache: Cache<M>,
     pub selector: Selector,
     pub opts: ViewOptions,
-    /// Vertices are uploaded relative to this point (the root cube centre).
+    /// Vertices are uploaded relative to this point (the input's bbox centre).
     pub origin: [f64; 3],
     /// Bytes of the in-memory index counted against the budget.
     pub index_bytes: u64,
@@ -176,14 +176,12 @@ impl<M: GpuBytes> Viewer<M> {
     /// levels (the only synchronous reads, before the first frame).
     pub fn open(dir: &Path, opts: ViewOptions) -> Result<Viewer<M>> {
         let store = Store::open(dir)?;
-        if store.nodes.is_empty() || store.nodes[0].subtree_tris == 0 {
+        if store.level_triangles(0) == 0 {
             return Err(Error::Usage(format!("{}: the store holds no triangles", dir.display())));
         }
         let hierarchy = Hierarchy::new(&store);
-        let origin = store.header.cube.center;
-        let index_bytes = (store.nodes.len() * std::mem::size_of::<crate::store::NodeRec>()
-            + hierarchy.units.len() * (std::mem::size_of::<super::select::UnitInfo>() + 16)
-            + hierarchy.child_list.len() * 4) as u64;
+        let origin = store.header.bbox.center();
+        let index_bytes = (store.nodes.len() * std::mem::size_of::<crate::store::NodeRec>()) as u64 + hierarchy.bytes();
         if opts.ram <= index_bytes {
             return Err(Error::Usage(format!(
                 "--ram {} does not even hold the node index ({}): raise it",
@@ -192,14 +190,17 @@ impl<M: GpuBytes> Viewer<M> {
             )));
         }
         let budget = opts.ram - index_bytes;
-        let mut cache = Cache::new(dir, store.header.attrs, origin, budget, opts.io_threads, opts.io_delay);
-        // Pin whole top tiers of the hierarchy while they fit the share.
+        let ctx = load_ctx(&store);
+        let mut cache = Cache::new(dir, ctx, budget, opts.io_threads, opts.io_delay);
+        // Pin whole top levels of the hierarchy while they fit the share.
         let mut pinned: Vec<Unit> = hierarchy.roots.clone();
-        let mut tier = hierarchy.roots.clone();
+        let mut tier = pinned.clone();
         let share = (budget as f64 * opts.pin_share) as u64;
         let mut bytes: u64 = pinned.iter().map(|&u| hierarchy.draw_bytes(u)).sum();
         loop {
-            let next: Vec<Unit> = tier.iter().flat_map(|&u| hierarchy.children(u).to_vec()).collect();
+            let mut next: Vec<Unit> = tier.iter().flat_map(|&u| hierarchy.children(u).to_vec()).collect();
+            next.sort_unstable();
+            next.dedup();
             let nb: u64 = next.iter().map(|&u| hierarchy.draw_bytes(u)).sum();
             if next.is_empty() || bytes + nb > share {
                 break;
@@ -208,7 +209,7 @@ impl<M: GpuBytes> Viewer<M> {
             pinned.extend(&next);
             tier = next;
         }
-        cache.pin(&hierarchy, dir, store.header.attrs, origin, &pinned)?;
+        cache.pin(&hierarchy, dir, ctx, &pinned)?;
         Ok(Viewer {
             store,
             hierarchy,
@@ -251,7 +252,7 @@ impl<M: GpuBytes> Viewer<M> {
         let t2 = Instant::now();
         let mut per_level = vec![0u32; self.store.header.levels.max(1) as usize + 1];
         for &u in &sel.cut {
-            let l = self.hierarchy.units[&u].level as usize;
+            let l = self.hierarchy.info(u).level as usize;
             if l >= per_level.len() {
                 per_level.resize(l + 1, 0);
             }
@@ -280,12 +281,36 @@ impl<M: GpuBytes> Viewer<M> {
         stats
     }
 
-    /// What the last frame draws (all resident on the GPU).
-    pub fn draw_list(&self) -> Vec<&M> {
-        self.last.cut.iter().filter_map(|&u| self.cache.gpu(u)).collect()
+    /// What the last frame draws (all resident on the GPU): each node of
+    /// the cut with the triangle ranges of its patches whose child is not
+    /// selected.
+    pub fn draw_list(&self) -> Vec<DrawItem<'_, M>> {
+        self.last
+            .cut
+            .iter()
+            .filter_map(|&u| {
+                let mesh = self.cache.gpu(u)?;
+                let mut ranges: Vec<std::ops::Range<u32>> = Vec::new();
+                for p in self.cache.patches(u) {
+                    if p.count == 0 || !self.last.draws(p.child) {
+                        continue;
+                    }
+                    match ranges.last_mut() {
+                        Some(r) if r.end == p.first => r.end = p.first + p.count,
+                        _ => ranges.push(p.first..p.first + p.count),
+                    }
+                }
+                (!ranges.is_empty()).then_some(DrawItem { mesh, ranges })
+            })
+            .collect()
     }
 
-    /// Units of the last frame's cut.
+    /// The last frame's selection.
+    pub fn selection(&self) -> &Selection {
+        &self.last
+    }
+
+    /// Nodes of the last frame's cut.
     pub fn cut(&self) -> &[Unit] {
         &self.last.cut
     }
@@ -296,19 +321,22 @@ impl<M: GpuBytes> Viewer<M> {
     }
 }
 
-/// Brute force: every original triangle loaded and uploaded at once,
+/// How the viewer turns a store's payloads into GPU form.
+pub fn load_ctx(store: &Store) -> LoadCtx {
+    LoadCtx { layout: store.payload_layout, attrs: store.payload_layout.attrs, origin: store.header.bbox.center() }
+}
+
+/// Brute force: every level-0 (input) triangle loaded and uploaded at once,
 /// ignoring the budget (the baseline and the full-resolution reference).
-pub fn load_all_originals<M>(store: &Store, upload: &mut dyn FnMut(&DrawMesh) -> M) -> Result<(Vec<M>, u64)> {
-    let origin = store.header.cube.center;
+/// Gives the meshes with their triangle counts.
+pub fn load_all_originals<M>(store: &Store, upload: &mut dyn FnMut(&DrawMesh) -> M) -> Result<(Vec<(M, u32)>, u64)> {
+    let ctx = load_ctx(store);
     let mut out = Vec::new();
     let mut tris = 0u64;
-    for (i, n) in store.nodes.iter().enumerate() {
-        if n.is_leaf() && !n.orig.is_empty() {
-            let m = store.read_mesh(i, false)?;
-            let d = super::draw_mesh(&m, store.header.attrs, origin);
-            tris += d.triangles() as u64;
-            out.push(upload(&d));
-        }
+    for i in store.level_nodes(0) {
+        let d = super::draw_node(&store.read_node(i)?, ctx.attrs, ctx.origin);
+        tris += d.triangles() as u64;
+        out.push((upload(&d), d.triangles() as u32));
     }
     Ok((out, tris))
 }

@@ -1,0 +1,279 @@
+//! The stream between levels: *chunks*, each the part of one node's output
+//! that falls in one cell of the next level, as a small indexed mesh.
+//!
+//! Takes: triangles routed to leaves of a [`super::partition::Tiling`] —
+//! from the octree cut (level 0: one chunk per leaf, the input's
+//! triangles) or from a node's simplified mesh (level L + 1). Gives: for
+//! each leaf, its triangles welded into one indexed mesh with, per vertex,
+//! its propagated quadric matrix and whether it was locked one level below,
+//! grouped into patches by source node ([`ChunkFile::gather`]).
+//!
+//! Format (temp file, little-endian): per chunk `u32 target leaf, u32
+//! source node, u32 vertex count, u32 triangle count`, then per vertex the
+//! vertex in the store's input layout, `a_len` f32 of its quadric matrix
+//! (packed upper triangle, attribute dimensions unweighted) and one flag
+//! byte (bit 0: locked at the source's level), then `3 × u32` per triangle.
+//!
+//! Why chunks rather than a triangle soup sorted again for every level:
+//! a soup repeats each vertex in about six triangles, and with a quadric
+//! per vertex (24 bytes for positions) that would be ~120 bytes per
+//! triangle through an external sort per level; chunks are indexed
+//! (~30 bytes per triangle) and need no sort, because the next level's
+//! cells are decided before the nodes are simplified (predicted from a
+//! histogram, [`super::partition`]). A leaf's chunks come from the few
+//! nodes of the level below that overlap it; they are read with one
+//! positioned read each, in the next level's Morton order.
+
+use crate::error::{Error, IoContext, Location, Result};
+use crate::mesh::VertexLayout;
+use crate::store::IndexedMesh;
+use std::collections::HashMap;
+use std::fs::File;
+use std::io::Write;
+use std::path::PathBuf;
+
+/// Where one chunk lives.
+#[derive(Clone, Copy, Debug)]
+pub struct ChunkRef {
+    pub target: u32,
+    pub offset: u64,
+    pub bytes: u32,
+}
+
+/// A chunk file being written, then read by target.
+pub struct ChunkFile {
+    path: PathBuf,
+    w: Option<std::io::BufWriter<File>>,
+    pos: u64,
+    layout: VertexLayout,
+    /// Quadric matrix values per vertex (0: none stored, level 0).
+    a_len: usize,
+    refs: Vec<ChunkRef>,
+    /// After `finish`: `refs` sorted by target, and each target's first ref.
+    by_target: Vec<u32>,
+    reader: Option<File>,
+}
+
+/// One leaf's gathered triangles.
+#[derive(Clone, Debug, Default)]
+pub struct Gathered {
+    pub mesh: IndexedMesh,
+    /// Quadric matrix per vertex (`a_len` each; empty when none were stored).
+    pub a: Vec<f64>,
+    /// Vertex was locked one level below.
+    pub was_locked: Vec<bool>,
+    /// (source node, triangle count), in triangle order.
+    pub patches: Vec<(u32, u32)>,
+}
+
+impl ChunkFile {
+    pub fn create(path: PathBuf, layout: VertexLayout, a_len: usize) -> Result<ChunkFile> {
+        let f = File::create(&path).ctx(&path, "create chunk file")?;
+        Ok(ChunkFile {
+            w: Some(std::io::BufWriter::with_capacity(crate::io::SEQ_BUF, f)),
+            path,
+            pos: 0,
+            layout,
+            a_len,
+            refs: Vec::new(),
+            by_target: Vec::new(),
+            reader: None,
+        })
+    }
+
+    pub fn a_len(&self) -> usize {
+        self.a_len
+    }
+
+    /// Encodes one chunk into `out` (see the module doc). `a` holds
+    /// `a_len` values per vertex, `locked` one flag per vertex.
+    pub fn encode(&self, target: u32, source: u32, m: &IndexedMesh, a: &[f32], locked: &[bool], out: &mut Vec<u8>) {
+        out.clear();
+        for x in [target, source, m.vertices.len() as u32, m.triangles.len() as u32] {
+            out.extend_from_slice(&x.to_le_bytes());
+        }
+        let vs = self.layout.size;
+        let mut buf = vec![0u8; vs];
+        for (k, v) in m.vertices.iter().enumerate() {
+            self.layout.encode(v, &mut buf);
+            out.extend_from_slice(&buf);
+            for x in &a[k * self.a_len..(k + 1) * self.a_len] {
+                out.extend_from_slice(&x.to_le_bytes());
+            }
+            out.push(locked[k] as u8);
+        }
+        for t in &m.triangles {
+            for &i in t {
+                out.extend_from_slice(&i.to_le_bytes());
+            }
+        }
+    }
+
+    /// Appends an encoded chunk.
+    pub fn append(&mut self, target: u32, bytes: &[u8]) -> Result<()> {
+        let w = self.w.as_mut().expect("chunk file already finished");
+        w.write_all(bytes).ctx(&self.path, "write chunk file")?;
+        self.refs.push(ChunkRef { target, offset: self.pos, bytes: bytes.len() as u32 });
+        self.pos += bytes.len() as u64;
+        Ok(())
+    }
+
+    /// Renumbers the targets of the chunks written so far (`map[old]`).
+    pub fn retarget(&mut self, map: &[u32]) {
+        for r in &mut self.refs {
+            r.target = map[r.target as usize];
+        }
+    }
+
+    /// Ends writing; chunks become readable by target (`targets` leaves).
+    pub fn finish(&mut self, targets: usize) -> Result<()> {
+        if let Some(w) = self.w.take() {
+            let f = w.into_inner().map_err(|e| e.into_error()).ctx(&self.path, "write chunk file")?;
+            drop(f);
+        }
+        self.refs.sort_by_key(|r| (r.target, r.offset));
+        self.by_target = vec![0; targets + 1];
+        for r in &self.refs {
+            self.by_target[r.target as usize + 1] += 1;
+        }
+        for i in 0..targets {
+            self.by_target[i + 1] += self.by_target[i];
+        }
+        self.reader = Some(File::open(&self.path).ctx(&self.path, "open chunk file")?);
+        Ok(())
+    }
+
+    /// Bytes written.
+    pub fn bytes(&self) -> u64 {
+        self.pos
+    }
+
+    /// Chunks of leaf `t`.
+    pub fn refs_of(&self, t: usize) -> &[ChunkRef] {
+        &self.refs[self.by_target[t] as usize..self.by_target[t + 1] as usize]
+    }
+
+    /// Reads leaf `t`'s chunks and welds them: vertices with identical
+    /// bytes become one (their quadric matrices add up, as each chunk
+    /// carries its share of the vertex's fan), triangles stay in chunk
+    /// order, one patch per chunk.
+    pub fn gather(&self, t: usize) -> Result<Gathered> {
+        use std::os::unix::fs::FileExt;
+        let f = self.reader.as_ref().expect("chunk file not finished");
+        let refs = self.refs_of(t);
+        let mut g = Gathered::default();
+        let vs = self.layout.size;
+        let rec = vs + 4 * self.a_len + 1;
+        let mut map: HashMap<Vec<u8>, u32> = HashMap::new();
+        for r in refs {
+            let mut b = vec![0u8; r.bytes as usize];
+            f.read_exact_at(&mut b, r.offset).ctx(&self.path, "read chunk file")?;
+            let bad = || Error::input(Location { file: self.path.clone(), offset: Some(r.offset), ..Default::default() }, "damaged chunk");
+            if b.len() < 16 {
+                return Err(bad());
+            }
+            let u = |o: usize| u32::from_le_bytes(b[o..o + 4].try_into().unwrap());
+            let (source, nv, nt) = (u(4), u(8) as usize, u(12) as usize);
+            if b.len() != 16 + nv * rec + nt * 12 {
+                return Err(bad());
+            }
+            let mut ids = Vec::with_capacity(nv);
+            for k in 0..nv {
+                let v = &b[16 + k * rec..16 + (k + 1) * rec];
+                let next = g.mesh.vertices.len() as u32;
+                let id = *map.entry(v[..vs].to_vec()).or_insert_with(|| {
+                    g.mesh.vertices.push(self.layout.decode(&v[..vs]));
+                    g.a.extend(std::iter::repeat_n(0.0, self.a_len));
+                    g.was_locked.push(false);
+                    next
+                });
+                for j in 0..self.a_len {
+                    g.a[id as usize * self.a_len + j] += f32::from_le_bytes(v[vs + 4 * j..vs + 4 * j + 4].try_into().unwrap()) as f64;
+                }
+                g.was_locked[id as usize] |= v[rec - 1] & 1 != 0;
+                ids.push(id);
+            }
+            let tb = 16 + nv * rec;
+            for k in 0..nt {
+                let c = |j: usize| u32::from_le_bytes(b[tb + 12 * k + 4 * j..tb + 12 * k + 4 * j + 4].try_into().unwrap()) as usize;
+                let tri = [c(0), c(1), c(2)];
+                if tri.iter().any(|&i| i >= nv) {
+                    return Err(bad());
+                }
+                g.mesh.triangles.push(tri.map(|i| ids[i]));
+            }
+            g.patches.push((source, nt as u32));
+        }
+        Ok(g)
+    }
+
+    /// Removes the file.
+    pub fn remove(self) {
+        drop(self.reader);
+        let _ = std::fs::remove_file(&self.path);
+    }
+}
+
+/// Splits a node's simplified mesh into chunks by target leaf, dividing
+/// each vertex's quadric matrix among the chunks that hold it in
+/// proportion to its triangles in each (so sums over chunks are kept).
+/// `leaf_of[t]` is triangle t's target. Returns (target, mesh, a, locked)
+/// per chunk, in target order.
+pub fn split_by_target(
+    m: &IndexedMesh,
+    a: &[f64],
+    a_len: usize,
+    locked: &[bool],
+    leaf_of: &[u32],
+) -> Vec<(u32, IndexedMesh, Vec<f32>, Vec<bool>)> {
+    let nv = m.vertices.len();
+    let mut order: Vec<usize> = (0..m.triangles.len()).collect();
+    order.sort_by_key(|&t| leaf_of[t]);
+    // Triangles per vertex overall, for the shares.
+    let mut deg = vec![0u32; nv];
+    for t in &m.triangles {
+        for &v in t {
+            deg[v as usize] += 1;
+        }
+    }
+    let mut out = Vec::new();
+    let mut map = vec![u32::MAX; nv];
+    let mut local_deg: Vec<u32> = Vec::new();
+    let mut i = 0;
+    while i < order.len() {
+        let target = leaf_of[order[i]];
+        let mut j = i;
+        let mut cm = IndexedMesh::default();
+        let mut src: Vec<usize> = Vec::new();
+        local_deg.clear();
+        while j < order.len() && leaf_of[order[j]] == target {
+            let t = m.triangles[order[j]];
+            let nt = t.map(|v| {
+                let v = v as usize;
+                if map[v] == u32::MAX {
+                    map[v] = cm.vertices.len() as u32;
+                    cm.vertices.push(m.vertices[v]);
+                    src.push(v);
+                    local_deg.push(0);
+                }
+                local_deg[map[v] as usize] += 1;
+                map[v]
+            });
+            cm.triangles.push(nt);
+            j += 1;
+        }
+        let mut ca = vec![0f32; src.len() * a_len];
+        let mut cl = vec![false; src.len()];
+        for (k, &v) in src.iter().enumerate() {
+            let share = local_deg[k] as f64 / deg[v].max(1) as f64;
+            for q in 0..a_len {
+                ca[k * a_len + q] = (a[v * a_len + q] * share) as f32;
+            }
+            cl[k] = locked[v];
+            map[v] = u32::MAX;
+        }
+        out.push((target, cm, ca, cl));
+        i = j;
+    }
+    out
+}

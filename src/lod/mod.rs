@@ -1,0 +1,744 @@
+//! LOD stage (levels of detail v2): a DAG of levels that halve, each level
+//! partitioned afresh so the previous level's seams are simplified, every
+//! cut crack-free.
+//!
+//! Takes: the input's triangle soup (`.soup`), the memory budget and the
+//! hierarchy's parameters ([`LodOptions`]). Gives: the store's payloads
+//! (`level-L.pack`), its node records and children/parents lists, and a
+//! report per level ([`LevelReport`]).
+//!
+//! Per level L (level 0 is the input):
+//! 1. **Partition.** Level L's triangles are cut into the leaves of an
+//!    adaptive octree (`--leaf-tris`, `--max-depth`) over level L's cube,
+//!    which is shifted by a third of its size from level L−1's, so that no
+//!    face of level L lies on (or near) a face of level L−1
+//!    ([`partition`]'s doc proves the third). Level 0 comes from the
+//!    external Morton sort of the soup ([`crate::octree`]); level L+1's
+//!    leaves are decided *before* level L is simplified, from the
+//!    histogram of level L's centroids scaled by the predicted reduction,
+//!    so each simplified node can route its triangles straight to them as
+//!    indexed [`chunks`] — one streaming pass, no sort per level.
+//! 2. **Shared vertices, exactly.** A node locks the positions it shares
+//!    with another node of the level and nothing else — never the mesh's
+//!    own open border ([`shared`]: band positions through an external
+//!    sort). Positions where a node holds several attribute variants
+//!    (uv/normal/color seams) are locked too, so seams are never torn.
+//! 3. **Levels that halve.** Each node is simplified by adaptive quadric
+//!    clustering ([`cluster`]) down to one error threshold τ for the whole
+//!    level, chosen so the level holds 1/`--level-ratio` of the triangles
+//!    below it (τ from the split curves of a sample of nodes). A single
+//!    threshold, rather than a fixed share per node, spends the reduction
+//!    where it costs least: a small node that is mostly seam is not
+//!    crushed to meet its share.
+//! 4. **Quadrics from the input.** Every vertex carries the quadric of the
+//!    input surface it stands for (a representative: the sum of its
+//!    members'), so level L's representatives minimise the distance to the
+//!    input's planes, not to level L−1's (whose chords lie inside curved
+//!    surfaces): errors do not pile up from level to level. Only the
+//!    matrix is carried (the solve's gradient and residual are zero or
+//!    constant at a representative).
+//! 5. **Error and bounds monotone on the DAG.** A node's error is the
+//!    largest of its children's and their measured simplification errors
+//!    (two-sided, vertex-sampled: input vertices to the simplified surface,
+//!    representatives to the input surface); its bounds hold its triangles
+//!    and its children's bounds. Projected error therefore never grows from
+//!    a node to its parent, along any path.
+//! 6. **Patches.** Node N of level L+1 stores its triangles grouped by the
+//!    level-L node (child) each came from; a cut draws, per selected node,
+//!    the patches whose child is not selected ([`crate::store`]).
+//! 7. **Normals without node patches.** When the input has no normals,
+//!    each level's vertices get area-weighted normals from their whole
+//!    neighbourhood at that level: shared positions sum the partial normals
+//!    of every node that holds them (carried by the same sort that finds
+//!    them), so both sides of a seam shade alike.
+//!
+//! Levels stop at a single node of at most `--root-tris` triangles (or at
+//! `--levels`). A level that barely shrinks (everything locked) doubles the
+//! next level's leaf size, so nodes merge until nothing is shared.
+
+pub mod chunks;
+pub mod cluster;
+pub mod partition;
+pub mod shared;
+
+use crate::error::{Error, Result};
+use crate::mesh::{Aabb, AttrSet, VertexLayout};
+use crate::octree::{build_octree, OctreeOptions, OctreeReport};
+use crate::progress::Progress;
+use crate::store::{encode_payload, IndexedMesh, NodeRec, PackWriter, StoreHeader, NO_NODE};
+use chunks::{split_by_target, ChunkFile, Gathered};
+use cluster::Splits;
+use partition::{Histogram, LevelCube, Tiling, KEY_DEPTH};
+use rayon::prelude::*;
+use shared::{pos_bits, Band, SharedSort, WAS_LOCKED};
+use std::collections::HashMap;
+use std::path::Path;
+use std::time::Instant;
+
+/// Parameters of the hierarchy.
+#[derive(Clone, Debug)]
+pub struct LodOptions {
+    pub leaf_tris: u64,
+    pub max_depth: u8,
+    /// Each level holds about 1/ratio of the triangles below it.
+    pub level_ratio: f64,
+    /// The root holds at most this many triangles.
+    pub root_tris: u64,
+    /// Build levels up to this one only (its nodes are then the roots).
+    pub levels: Option<u8>,
+    pub mem: u64,
+    /// Eigenvalue cut-off of the representatives' solve.
+    pub rel_tol: f64,
+    pub quiet: bool,
+}
+
+impl Default for LodOptions {
+    fn default() -> Self {
+        LodOptions {
+            leaf_tris: 16384,
+            max_depth: 16,
+            level_ratio: 2.0,
+            root_tris: 4096,
+            levels: None,
+            mem: 512 << 20,
+            rel_tol: 1e-3,
+            quiet: true,
+        }
+    }
+}
+
+/// Per leaf of a level's tiling: what its triangles add up to.
+#[derive(Clone, Debug)]
+pub struct LeafStats {
+    pub tris: u64,
+    pub bounds: Aabb,
+    /// Largest distance per axis from a triangle's centroid to its corners.
+    pub reach: f64,
+}
+
+impl Default for LeafStats {
+    fn default() -> Self {
+        LeafStats { tris: 0, bounds: Aabb::EMPTY, reach: 0.0 }
+    }
+}
+
+/// Figures of one built level.
+#[derive(Clone, Debug, Default)]
+pub struct LevelReport {
+    pub level: u8,
+    pub nodes: u64,
+    pub triangles: u64,
+    /// Distinct vertex positions of the level.
+    pub positions: u64,
+    pub bytes: u64,
+    pub error_min: f64,
+    pub error_max: f64,
+    /// Positions locked when this level was simplified (shared or seams).
+    pub locked: u64,
+    /// Positions that were locked one level below, and how many of them
+    /// are still locked here.
+    pub prev_locked: u64,
+    pub prev_locked_still: u64,
+    /// The level's error threshold (0 for the top level).
+    pub tau: f64,
+    pub clamped: u64,
+    pub seconds: f64,
+}
+
+impl LevelReport {
+    /// Share of the level's positions that are locked.
+    pub fn locked_fraction(&self) -> f64 {
+        self.locked as f64 / self.positions.max(1) as f64
+    }
+    /// Share of the previous level's locked positions still locked.
+    pub fn prev_still_fraction(&self) -> f64 {
+        if self.prev_locked == 0 {
+            0.0
+        } else {
+            self.prev_locked_still as f64 / self.prev_locked as f64
+        }
+    }
+}
+
+/// What the builder gives the store.
+pub struct Built {
+    pub header: StoreHeader,
+    pub nodes: Vec<NodeRec>,
+    pub children: Vec<u32>,
+    pub parents: Vec<u32>,
+    pub levels: Vec<LevelReport>,
+    pub octree: OctreeReport,
+}
+
+/// Most levels built (a guard; halving from 2^40 triangles takes 30).
+const MAX_LEVELS: u8 = 64;
+
+/// Builds every level from `soup` into store directory `dir`.
+pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
+    if !(opts.level_ratio > 1.0 && opts.level_ratio.is_finite()) {
+        return Err(Error::Usage("--level-ratio must be above 1".into()));
+    }
+    if opts.root_tris == 0 {
+        return Err(Error::Usage("--root-tris must be at least 1".into()));
+    }
+    let scratch = crate::io::scratch_dir(dir)?;
+    let sh = crate::soup::format::SoupReader::open(soup)?.header;
+    let attrs = sh.attrs;
+    let bbox = sh.bbox;
+    let layout = VertexLayout::new(attrs);
+    let derived = !attrs.normal();
+    let payload_layout = VertexLayout::new(attrs.with(AttrSet::NORMAL, true));
+    let dim = attrs.quadric_dim();
+    let a_len = dim * (dim + 1) / 2;
+    let hist_cap = (opts.mem / 256).max(1 << 16) as usize;
+    let cube = |l: u32| LevelCube::for_level(&bbox, l);
+    let oo = OctreeOptions { leaf_tris: opts.leaf_tris, max_depth: opts.max_depth, mem: opts.mem, quiet: opts.quiet };
+    let l0 = build_octree(soup, scratch.path(), scratch.path().join("chunks-0.bin"), &cube(0), &oo)?;
+    let octree = l0.report.clone();
+    let mut tiling = l0.tiling;
+    let mut leaves = l0.leaves;
+    let mut chunks = l0.chunks;
+
+    let mut nodes: Vec<NodeRec> = Vec::new();
+    let mut node_children: Vec<Vec<u32>> = Vec::new();
+    // Per node: measured simplification error.
+    let mut simp_err: Vec<f64> = Vec::new();
+    let mut reports = Vec::new();
+    let mut leaf_scale = 1u64;
+    let threads = rayon::current_num_threads().max(1);
+    let batch = threads * 4;
+
+    for level in 0..=MAX_LEVELS {
+        let t0 = Instant::now();
+        let lc = cube(level as u32);
+        let nc = cube(level as u32 + 1);
+        let ids: Vec<usize> = (0..tiling.leaves.len()).filter(|&i| leaves[i].tris > 0 || !chunks.refs_of(i).is_empty()).collect();
+        let base = nodes.len();
+        let total: u64 = ids.iter().map(|&i| leaves[i].tris).sum();
+        let is_final = (ids.len() == 1 && total <= opts.root_tris) || opts.levels == Some(level) || level == MAX_LEVELS;
+        let cell_of = |i: usize| lc.cell(tiling.leaves[i].path, tiling.leaves[i].depth);
+        let band = Band::new(&ids.iter().map(|&i| (cell_of(i), leaves[i].reach)).collect::<Vec<_>>());
+        let mut rep = LevelReport { level, nodes: ids.len() as u64, triangles: total, error_min: f64::INFINITY, ..Default::default() };
+
+        // Pass 1: band positions (shared candidates, partial normals) and
+        // the next level's histogram.
+        let progress = Progress::items(2 * ids.len() as u64, &format!("level {level}"), opts.quiet);
+        let mut sorter = SharedSort::new((opts.mem / 4) as usize, scratch.path());
+        let mut hist = Histogram::new(KEY_DEPTH, hist_cap);
+        let stride = (ids.len() / 96).max(1);
+        let mut samples: Vec<Curve> = Vec::new();
+        let mut positions_total = 0u64;
+        for (bi, group) in ids.chunks(batch).enumerate() {
+            let done: Vec<Result<Pass1>> = group
+                .par_iter()
+                .enumerate()
+                .map(|(j, &leaf)| {
+                    let k = bi * batch + j;
+                    let g = chunks.gather(leaf)?;
+                    let w = Welded::new(&g.mesh);
+                    let test = band.tester(k, &leaves[leaf].bounds);
+                    let mut records = Vec::new();
+                    for (pi, p) in w.pos.iter().enumerate() {
+                        if test.may_share(*p) {
+                            let flags = if w.was_locked(&g, pi) { WAS_LOCKED } else { 0 };
+                            records.push((*p, w.normal[pi].map(|x| x as f32), flags));
+                        }
+                    }
+                    let mut h = Histogram::new(KEY_DEPTH, hist_cap);
+                    if !is_final {
+                        for t in &g.mesh.triangles {
+                            h.add(nc.key(tri_centroid(&g.mesh, t)), 1);
+                        }
+                    }
+                    Ok(Pass1 { records, hist: h, positions: w.pos.len() as u64 })
+                })
+                .collect();
+            for (j, r) in done.into_iter().enumerate() {
+                let r = r?;
+                let node = (base + bi * batch + j) as u32;
+                for (p, n, f) in r.records {
+                    sorter.push(node, p, n, f)?;
+                }
+                hist.merge(r.hist);
+                positions_total += r.positions;
+                progress.inc(1);
+            }
+        }
+        let (mut resolved, sstats) = sorter.resolve((opts.mem / 4) as usize, scratch.path(), scratch.path().join("shared.bin"))?;
+
+        // Split curves of a sample of nodes, with their exact locks.
+        if !is_final {
+            let picked: Vec<usize> = (0..ids.len()).filter(|k| k % stride == 0).collect();
+            let mut reader = resolved.reopen()?;
+            let sets = picked.iter().map(|&k| reader.take((base + k) as u32)).collect::<Result<Vec<_>>>()?;
+            let curves: Vec<Result<Curve>> = picked
+                .par_iter()
+                .zip(sets.par_iter())
+                .map(|(&k, set)| {
+                    let g = chunks.gather(ids[k])?;
+                    let w = Welded::new(&g.mesh);
+                    let locked = w.locks(set);
+                    let a = (level > 0).then_some(&g.a[..]);
+                    let sp = Splits::new(&g.mesh, a, &locked, attrs, usize::MAX, 0.0);
+                    Ok(Curve::of(&sp, g.mesh.triangles.len()))
+                })
+                .collect();
+            for c in curves {
+                samples.push(c?);
+            }
+        }
+
+        // The level's threshold and the next level's leaves.
+        let (tau, predicted) = if is_final { (0.0, 1.0) } else { choose_tau(&samples, 1.0 / opts.level_ratio) };
+        let next_tiling = if is_final {
+            Tiling::default()
+        } else {
+            let leaf = opts.leaf_tris.saturating_mul(leaf_scale);
+            // One node when everything fits one leaf (the cut's root).
+            Tiling::from_histogram(&hist, predicted, leaf, opts.max_depth)
+        };
+        let mut next_leaves = vec![LeafStats::default(); next_tiling.leaves.len()];
+        let mut next_chunks =
+            if is_final { None } else { Some(ChunkFile::create(scratch.path().join(format!("chunks-{}.bin", level + 1)), layout, a_len)?) };
+        rep.tau = tau;
+
+        // Pass 2: final normals and payloads, simplification, routing.
+        let mut pack = PackWriter::create(dir, level as usize)?;
+        let mut shared_occurrences = 0u64;
+        let mut seam_only = 0u64;
+        let mut prev_freed = 0u64;
+        let mut next_total = 0u64;
+        let mut buf = Vec::new();
+        for (bi, group) in ids.chunks(batch).enumerate() {
+            let sets = group
+                .iter()
+                .enumerate()
+                .map(|(j, _)| resolved.take((base + bi * batch + j) as u32))
+                .collect::<Result<Vec<_>>>()?;
+            let done: Vec<Result<Pass2>> = group
+                .par_iter()
+                .zip(sets.par_iter())
+                .map(|(&leaf, set)| {
+                    let g = chunks.gather(leaf)?;
+                    let w = Welded::new(&g.mesh);
+                    let mut p2 = Pass2::default();
+                    // Locks: shared positions and attribute seams.
+                    let locked = w.locks(set);
+                    for pi in 0..w.pos.len() {
+                        let sh = set.contains_key(&pos_bits(w.pos[pi]));
+                        p2.shared += sh as u64;
+                        p2.seam_only += (w.seam[pi] && !sh) as u64;
+                        p2.prev_freed += (w.was_locked(&g, pi) && !sh) as u64;
+                    }
+                    // The stored mesh, with normals from the whole neighbourhood.
+                    let mut stored = g.mesh.clone();
+                    if derived {
+                        for (v, x) in stored.vertices.iter_mut().enumerate() {
+                            let pi = w.pos_of[v] as usize;
+                            let n = match set.get(&pos_bits(w.pos[pi])) {
+                                Some((n, _)) => n.map(|c| c as f64),
+                                None => w.normal[pi],
+                            };
+                            x.normal = unit(n);
+                        }
+                    }
+                    let patches: Vec<(u32, u32)> = if level == 0 { vec![(NO_NODE, g.mesh.triangles.len() as u32)] } else { g.patches.clone() };
+                    encode_payload(if derived { &payload_layout } else { &layout }, &stored, &patches, &mut p2.payload);
+                    p2.content = w.bounds;
+                    p2.tris = g.mesh.triangles.len() as u32;
+                    p2.verts = g.mesh.vertices.len() as u32;
+                    p2.children = if level == 0 { Vec::new() } else { g.patches.iter().map(|p| p.0).collect() };
+                    if !is_final {
+                        let a = (level > 0).then_some(&g.a[..]);
+                        let sp = Splits::new(&g.mesh, a, &locked, attrs, usize::MAX, tau);
+                        let (mut out, qa, out_locked, st) = sp.build(sp.steps(), opts.rel_tol);
+                        p2.clamped = st.clamped;
+                        // Positions as stored, so errors and welding see the same bits.
+                        let mut vb = vec![0u8; layout.size];
+                        for v in out.vertices.iter_mut() {
+                            layout.encode(v, &mut vb);
+                            *v = layout.decode(&vb);
+                        }
+                        p2.error = node_error(&g.mesh, &out);
+                        let leaf_of: Vec<u32> =
+                            out.triangles.iter().map(|t| next_tiling.locate(nc.key(tri_centroid(&out, t))) as u32).collect();
+                        p2.simp_tris = out.triangles.len() as u32;
+                        p2.routed = split_by_target(&out, &qa, a_len, &out_locked, &leaf_of)
+                            .into_iter()
+                            .map(|(target, m, a, l)| {
+                                let st = leaf_stats(&m);
+                                (target, m, a, l, st)
+                            })
+                            .collect();
+                        if p2.routed.is_empty() {
+                            // Everything collapsed: still give the node a parent.
+                            let c = w.bounds.center();
+                            p2.routed.push((next_tiling.locate(nc.key(c)) as u32, IndexedMesh::default(), Vec::new(), Vec::new(), LeafStats::default()));
+                        }
+                    }
+                    Ok(p2)
+                })
+                .collect();
+            for (j, r) in done.into_iter().enumerate() {
+                let r = r?;
+                let leaf = group[j];
+                let id = base + bi * batch + j;
+                let (offset, bytes) = pack.append(&r.payload)?;
+                let mut bounds = r.content;
+                let mut error = 0.0f64;
+                for &c in &r.children {
+                    bounds.merge(&nodes[c as usize].bounds);
+                    error = error.max(nodes[c as usize].error as f64).max(simp_err[c as usize]);
+                }
+                let error32 = next_up_f32(error);
+                rep.error_min = rep.error_min.min(error32 as f64);
+                rep.error_max = rep.error_max.max(error32 as f64);
+                rep.bytes += bytes as u64;
+                rep.clamped += r.clamped;
+                nodes.push(NodeRec {
+                    level,
+                    cell: cell_of(leaf),
+                    bounds,
+                    error: error32,
+                    offset,
+                    bytes,
+                    tris: r.tris,
+                    verts: r.verts,
+                    crc: crc32c::crc32c(&r.payload),
+                    simp_tris: r.simp_tris,
+                    first_child: 0,
+                    child_count: 0,
+                    first_parent: 0,
+                    parent_count: 0,
+                });
+                node_children.push(r.children);
+                simp_err.push(r.error);
+                shared_occurrences += r.shared;
+                seam_only += r.seam_only;
+                prev_freed += r.prev_freed;
+                if let Some(nc_file) = next_chunks.as_mut() {
+                    for (target, m, a, l, st) in &r.routed {
+                        nc_file.encode(*target, id as u32, m, a, l, &mut buf);
+                        nc_file.append(*target, &buf)?;
+                        let s = &mut next_leaves[*target as usize];
+                        s.tris += st.tris;
+                        s.bounds.merge(&st.bounds);
+                        s.reach = s.reach.max(st.reach);
+                        next_total += st.tris;
+                    }
+                }
+                progress.inc(1);
+            }
+        }
+        progress.finish();
+        pack.finish()?;
+        resolved.remove();
+        rep.positions = positions_total - (shared_occurrences - sstats.shared);
+        rep.locked = sstats.shared + seam_only;
+        rep.prev_locked = prev_freed + sstats.shared_was_locked;
+        rep.prev_locked_still = sstats.shared_was_locked;
+        if rep.nodes == 0 {
+            rep.error_min = 0.0;
+        }
+        rep.seconds = t0.elapsed().as_secs_f64();
+        reports.push(rep);
+        let old = std::mem::replace(&mut chunks, match next_chunks {
+            Some(mut c) => {
+                c.finish(next_tiling.leaves.len())?;
+                c
+            }
+            None => {
+                chunks.remove();
+                break;
+            }
+        });
+        old.remove();
+        if next_total as f64 > 0.9 * total as f64 {
+            leaf_scale = leaf_scale.saturating_mul(2);
+        }
+        tiling = next_tiling;
+        leaves = next_leaves;
+    }
+
+    // Children lists (patch order) and their inverse.
+    let mut children = Vec::new();
+    let mut parent_lists: Vec<Vec<u32>> = vec![Vec::new(); nodes.len()];
+    for (i, kids) in node_children.iter().enumerate() {
+        nodes[i].first_child = children.len() as u32;
+        nodes[i].child_count = kids.len() as u32;
+        children.extend_from_slice(kids);
+        for &c in kids {
+            parent_lists[c as usize].push(i as u32);
+        }
+    }
+    let mut parents = Vec::new();
+    for (i, ps) in parent_lists.iter().enumerate() {
+        nodes[i].first_parent = parents.len() as u32;
+        nodes[i].parent_count = ps.len() as u32;
+        parents.extend_from_slice(ps);
+    }
+    let header = StoreHeader {
+        attrs,
+        derived_normals: derived,
+        levels: reports.len() as u32,
+        nodes: nodes.len() as u64,
+        root: nodes.len().saturating_sub(1) as u32,
+        store_id: random_id(),
+        bbox,
+    };
+    Ok(Built { header, nodes, children, parents, levels: reports, octree })
+}
+
+/// Pass-1 result of one node.
+struct Pass1 {
+    records: Vec<([f64; 3], [f32; 3], u32)>,
+    hist: Histogram,
+    positions: u64,
+}
+
+/// Pass-2 result of one node.
+#[derive(Default)]
+struct Pass2 {
+    payload: Vec<u8>,
+    content: Aabb,
+    tris: u32,
+    verts: u32,
+    simp_tris: u32,
+    children: Vec<u32>,
+    error: f64,
+    clamped: u64,
+    shared: u64,
+    seam_only: u64,
+    prev_freed: u64,
+    routed: Vec<(u32, IndexedMesh, Vec<f32>, Vec<bool>, LeafStats)>,
+}
+
+/// A node's vertices welded by position: per position its point, the
+/// area-weighted normal of its triangles in the node, whether several
+/// vertex variants sit there (an attribute seam), its bounds.
+struct Welded {
+    pos: Vec<[f64; 3]>,
+    pos_of: Vec<u32>,
+    normal: Vec<[f64; 3]>,
+    seam: Vec<bool>,
+    /// Vertices per position: `members[first[p]..first[p+1]]`.
+    first: Vec<u32>,
+    members: Vec<u32>,
+    bounds: Aabb,
+}
+
+impl Welded {
+    fn new(m: &IndexedMesh) -> Welded {
+        let mut map: HashMap<[u64; 3], u32> = HashMap::with_capacity(m.vertices.len());
+        let mut pos = Vec::new();
+        let mut bounds = Aabb::EMPTY;
+        let pos_of: Vec<u32> = m
+            .vertices
+            .iter()
+            .map(|v| {
+                let n = pos.len() as u32;
+                *map.entry(pos_bits(v.pos)).or_insert_with(|| {
+                    pos.push(v.pos);
+                    n
+                })
+            })
+            .collect();
+        let mut count = vec![0u32; pos.len() + 1];
+        for &p in &pos_of {
+            count[p as usize + 1] += 1;
+        }
+        let seam = (0..pos.len()).map(|p| count[p + 1] > 1).collect();
+        for i in 0..pos.len() {
+            count[i + 1] += count[i];
+        }
+        let mut members = vec![0u32; pos_of.len()];
+        let mut next = count.clone();
+        for (v, &p) in pos_of.iter().enumerate() {
+            members[next[p as usize] as usize] = v as u32;
+            next[p as usize] += 1;
+        }
+        let mut normal = vec![[0.0; 3]; pos.len()];
+        for t in &m.triangles {
+            let c = t.map(|v| m.vertices[v as usize].pos);
+            for p in c {
+                bounds.add(p);
+            }
+            let n = cross(sub(c[1], c[0]), sub(c[2], c[0]));
+            let mut seen = [u32::MAX; 3];
+            for (k, &v) in t.iter().enumerate() {
+                let p = pos_of[v as usize];
+                if !seen[..k].contains(&p) {
+                    for a in 0..3 {
+                        normal[p as usize][a] += n[a];
+                    }
+                }
+                seen[k] = p;
+            }
+        }
+        Welded { pos, pos_of, normal, seam, first: count, members, bounds }
+    }
+
+    /// Per vertex: locked (its position is shared, or an attribute seam).
+    fn locks(&self, shared: &shared::SharedSet) -> Vec<bool> {
+        let at: Vec<bool> = (0..self.pos.len()).map(|p| self.seam[p] || shared.contains_key(&pos_bits(self.pos[p]))).collect();
+        self.pos_of.iter().map(|&p| at[p as usize]).collect()
+    }
+
+    fn verts_at(&self, p: usize) -> &[u32] {
+        &self.members[self.first[p] as usize..self.first[p + 1] as usize]
+    }
+
+    fn was_locked(&self, g: &Gathered, p: usize) -> bool {
+        !g.was_locked.is_empty() && self.verts_at(p).iter().any(|&v| g.was_locked[v as usize])
+    }
+}
+
+/// Split curve of one sampled node: its triangles, and for split prefixes
+/// (priority of the next split, triangles after the prefix).
+struct Curve {
+    tris: u64,
+    prio: Vec<f64>,
+    /// (steps, triangles) at sampled step counts, increasing.
+    counts: Vec<(u32, f64)>,
+}
+
+impl Curve {
+    fn of(sp: &Splits, tris: usize) -> Curve {
+        let n = sp.steps();
+        let mut steps: Vec<u32> = (0..=48).map(|j| ((n as u64 * j as u64 * j as u64) / (48 * 48)) as u32).collect();
+        steps.dedup();
+        let counts = steps.iter().map(|&s| (s, sp.count_at(s) as f64)).collect();
+        Curve { tris: tris as u64, prio: sp.priorities().to_vec(), counts }
+    }
+
+    /// Triangles at threshold `tau`.
+    fn at(&self, tau: f64) -> f64 {
+        let s = self.prio.iter().position(|&p| !(p > tau)).unwrap_or(self.prio.len()) as u32;
+        let k = self.counts.partition_point(|c| c.0 < s);
+        if k == 0 {
+            return self.counts[0].1;
+        }
+        if k >= self.counts.len() {
+            return self.counts.last().unwrap().1;
+        }
+        let (a, b) = (self.counts[k - 1], self.counts[k]);
+        let f = if b.0 > a.0 { (s - a.0) as f64 / (b.0 - a.0) as f64 } else { 1.0 };
+        a.1 + f * (b.1 - a.1)
+    }
+}
+
+/// The threshold at which the sampled nodes keep `share` of their
+/// triangles, and the share they actually keep there.
+fn choose_tau(samples: &[Curve], share: f64) -> (f64, f64) {
+    let total: f64 = samples.iter().map(|c| c.tris as f64).sum();
+    if total == 0.0 {
+        return (0.0, 1.0);
+    }
+    let kept = |t: f64| samples.iter().map(|c| c.at(t)).sum::<f64>() / total;
+    let hi0 = samples.iter().flat_map(|c| c.prio.first().copied()).fold(0.0, f64::max);
+    if !(hi0 > 0.0) {
+        return (0.0, kept(0.0));
+    }
+    let (mut lo, mut hi) = (hi0 * 1e-30, hi0 * 2.0);
+    if kept(lo) <= share {
+        return (0.0, kept(0.0));
+    }
+    for _ in 0..100 {
+        let m = (lo * hi).sqrt();
+        if kept(m) > share {
+            lo = m;
+        } else {
+            hi = m;
+        }
+        if hi / lo < 1.0 + 1e-6 {
+            break;
+        }
+    }
+    (hi, kept(hi))
+}
+
+fn leaf_stats(m: &IndexedMesh) -> LeafStats {
+    let mut s = LeafStats { tris: m.triangles.len() as u64, ..Default::default() };
+    for t in &m.triangles {
+        let c = tri_centroid(m, t);
+        for &v in t {
+            let p = m.vertices[v as usize].pos;
+            s.bounds.add(p);
+            for a in 0..3 {
+                s.reach = s.reach.max((p[a] - c[a]).abs());
+            }
+        }
+    }
+    s
+}
+
+#[inline]
+fn tri_centroid(m: &IndexedMesh, t: &[u32; 3]) -> [f64; 3] {
+    let c = t.map(|v| m.vertices[v as usize].pos);
+    [0, 1, 2].map(|k| (c[0][k] + c[1][k] + c[2][k]) / 3.0)
+}
+
+/// The node's simplification error: the largest distance from an input
+/// vertex to the output surface, and from an output vertex to the input
+/// surface (both exact closest points through BVHs; vertices only).
+pub fn node_error(input: &IndexedMesh, output: &IndexedMesh) -> f64 {
+    use crate::metro::{Bvh, Mesh};
+    if input.triangles.is_empty() {
+        return 0.0;
+    }
+    let mi = Mesh::from_vertices(&input.vertices, input.triangles.clone());
+    if output.triangles.is_empty() {
+        // Everything collapsed: the input's extent is the error.
+        return mi.bbox().diagonal();
+    }
+    let mo = Mesh::from_vertices(&output.vertices, output.triangles.clone());
+    let to_out = Bvh::new(&mo);
+    let mut d2 = mi.referenced_vertices().iter().map(|&i| to_out.closest(input.vertices[i as usize].pos).map_or(0.0, |c| c.dist2)).fold(0.0, f64::max);
+    let inputs: std::collections::HashSet<[u64; 3]> = input.vertices.iter().map(|v| pos_bits(v.pos)).collect();
+    let to_in = Bvh::new(&mi);
+    for &i in &mo.referenced_vertices() {
+        let p = output.vertices[i as usize].pos;
+        if !inputs.contains(&pos_bits(p)) {
+            d2 = d2.max(to_in.closest(p).map_or(0.0, |c| c.dist2));
+        }
+    }
+    d2.sqrt()
+}
+
+/// The smallest f32 not below `x` (errors are stored as f32 and must stay conservative).
+pub fn next_up_f32(x: f64) -> f32 {
+    let f = x as f32;
+    if (f as f64) < x {
+        f32::from_bits(f.to_bits() + 1)
+    } else {
+        f
+    }
+}
+
+fn random_id() -> u64 {
+    use std::hash::{BuildHasher, Hasher};
+    let mut h = std::collections::hash_map::RandomState::new().build_hasher();
+    h.write_u128(std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_nanos()).unwrap_or(0));
+    h.write_u32(std::process::id());
+    h.finish()
+}
+
+#[inline]
+fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+#[inline]
+fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+}
+
+/// A unit f32 normal ((0, 0, 1) when the sum vanishes).
+fn unit(n: [f64; 3]) -> [f32; 3] {
+    let l = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+    if l > 0.0 && l.is_finite() {
+        n.map(|c| (c / l) as f32)
+    } else {
+        [0.0, 0.0, 1.0]
+    }
+}

@@ -1,0 +1,302 @@
+//! Where each level's cells are: one octree per level over a cube that
+//! moves by a third of its size from one level to the next, the adaptive
+//! leaf tiling of that cube, and the histogram that predicts it.
+//!
+//! Takes: the input's bounding box, the level number, triangle centroids.
+//! Gives: [`LevelCube`] (Morton keys and cell boxes of level L's octree),
+//! [`Histogram`] (centroid counts at a fine depth, coarsened to fit memory)
+//! and [`Tiling`] (the leaves of the adaptive cut "split while a cell holds
+//! more than `leaf_tris` and is shallower than `max_depth`", tiling the
+//! whole cube so that every point has a leaf).
+//!
+//! Why a third. All cubes have side `S = 1.5 R` (R: the input's largest
+//! extent); even levels put their corner at `b − S/3`, odd levels at `b`
+//! (b: the input's minimum corner), so both contain the input and
+//! consecutive levels differ by `S/3` on every axis. A face of a depth-d
+//! cell lies at `corner + k S / 2^d`; since `S/3 mod S/2^d` is `S/2^d × 1/3`
+//! or `× 2/3` (the binary expansion of 1/3 is 0.0101…), every face of level
+//! L's octree lies at least a third of the finer cell's side away from
+//! every face of level L−1's, at any pair of depths. Level L−1's seams
+//! (vertices shared by two of its nodes, within about one level-(L−1)
+//! triangle of a level-(L−1) face) therefore lie inside level-L cells —
+//! a third of a cell, i.e. dozens of triangles, from any level-L face —
+//! except where a level-L face crosses them along a line; they are
+//! simplified at level L. This is the regular-grid variant of Nexus's
+//! per-level KD-trees with alternating split quantiles, made adaptive by
+//! the octree.
+
+use crate::mesh::Aabb;
+use std::collections::HashMap;
+
+/// Bits per axis of full-depth keys.
+pub const KEY_DEPTH: u8 = 21;
+
+/// Level L's octree cube.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LevelCube {
+    pub origin: [f64; 3],
+    pub size: f64,
+}
+
+impl LevelCube {
+    /// The cube of `level` for an input with bounding box `b` (see the module doc).
+    pub fn for_level(b: &Aabb, level: u32) -> LevelCube {
+        let ext = (0..3).map(|k| b.max[k] - b.min[k]).fold(0.0, f64::max);
+        let r = if ext > 0.0 && ext.is_finite() { ext * (1.0 + 1e-9) } else { 1.0 };
+        let size = 1.5 * r;
+        let shift = if level % 2 == 0 { size / 3.0 } else { 0.0 };
+        LevelCube { origin: [0, 1, 2].map(|k| b.min[k] - shift), size }
+    }
+
+    /// Morton key of a point at [`KEY_DEPTH`] bits per axis (clamped into the cube).
+    #[inline]
+    pub fn key(&self, p: [f64; 3]) -> u64 {
+        let n = (1u64 << KEY_DEPTH) as f64;
+        let q = |k: usize| {
+            let t = ((p[k] - self.origin[k]) / self.size * n).floor();
+            if t > 0.0 {
+                (t as u64).min((1 << KEY_DEPTH) - 1)
+            } else {
+                0
+            }
+        };
+        morton3(q(0), q(1), q(2))
+    }
+
+    /// The box of cell `path` at `depth`.
+    pub fn cell(&self, path: u64, depth: u8) -> Aabb {
+        let side = self.size / (1u64 << depth) as f64;
+        let (x, y, z) = demorton(path);
+        let lo = [0, 1, 2].map(|k| self.origin[k] + [x, y, z][k] as f64 * side);
+        Aabb { min: lo, max: [0, 1, 2].map(|k| lo[k] + side) }
+    }
+}
+
+fn spread(mut x: u64) -> u64 {
+    x &= 0x1f_ffff;
+    x = (x | x << 32) & 0x1f00000000ffff;
+    x = (x | x << 16) & 0x1f0000ff0000ff;
+    x = (x | x << 8) & 0x100f00f00f00f00f;
+    x = (x | x << 4) & 0x10c30c30c30c30c3;
+    (x | x << 2) & 0x1249249249249249
+}
+
+fn compact(mut x: u64) -> u64 {
+    x &= 0x1249249249249249;
+    x = (x ^ (x >> 2)) & 0x10c30c30c30c30c3;
+    x = (x ^ (x >> 4)) & 0x100f00f00f00f00f;
+    x = (x ^ (x >> 8)) & 0x1f0000ff0000ff;
+    x = (x ^ (x >> 16)) & 0x1f00000000ffff;
+    (x ^ (x >> 32)) & 0x1f_ffff
+}
+
+/// Interleaves x, y, z bits (x lowest).
+pub fn morton3(x: u64, y: u64, z: u64) -> u64 {
+    spread(x) | spread(y) << 1 | spread(z) << 2
+}
+
+pub fn demorton(m: u64) -> (u64, u64, u64) {
+    (compact(m), compact(m >> 1), compact(m >> 2))
+}
+
+/// Counts of full-depth keys at a coarser depth, coarsened further when
+/// the map outgrows its entry cap (memory stays bounded whatever the input).
+pub struct Histogram {
+    depth: u8,
+    cap: usize,
+    map: HashMap<u64, u64>,
+}
+
+impl Histogram {
+    /// Starts at `depth` (≤ [`KEY_DEPTH`]) with at most `cap` cells.
+    pub fn new(depth: u8, cap: usize) -> Histogram {
+        Histogram { depth: depth.min(KEY_DEPTH), cap: cap.max(64), map: HashMap::new() }
+    }
+
+    #[inline]
+    pub fn add(&mut self, key: u64, n: u64) {
+        *self.map.entry(key >> (3 * (KEY_DEPTH - self.depth) as u32)).or_insert(0) += n;
+        if self.map.len() > self.cap {
+            self.coarsen();
+        }
+    }
+
+    /// Adds another histogram's counts (e.g. from a worker thread).
+    pub fn merge(&mut self, o: Histogram) {
+        let mut o = o;
+        while o.depth > self.depth {
+            o.coarsen();
+        }
+        while self.depth > o.depth {
+            self.coarsen();
+        }
+        for (k, n) in o.map {
+            *self.map.entry(k).or_insert(0) += n;
+        }
+        while self.map.len() > self.cap {
+            self.coarsen();
+        }
+    }
+
+    fn coarsen(&mut self) {
+        if self.depth == 0 {
+            return;
+        }
+        self.depth -= 1;
+        let old = std::mem::take(&mut self.map);
+        for (k, n) in old {
+            *self.map.entry(k >> 3).or_insert(0) += n;
+        }
+    }
+
+    pub fn total(&self) -> u64 {
+        self.map.values().sum()
+    }
+}
+
+/// One leaf of a tiling: the full-depth keys `start..end`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct TileLeaf {
+    pub path: u64,
+    pub depth: u8,
+    pub start: u64,
+    pub end: u64,
+}
+
+/// The leaves of an adaptive octree cut, tiling the whole cube, in Morton order.
+#[derive(Clone, Debug, Default)]
+pub struct Tiling {
+    pub leaves: Vec<TileLeaf>,
+}
+
+impl Tiling {
+    fn leaf(path: u64, depth: u8) -> TileLeaf {
+        let sh = 3 * (KEY_DEPTH - depth) as u32;
+        TileLeaf { path, depth, start: path << sh, end: (path + 1) << sh }
+    }
+
+    /// The cut "split while the predicted count (histogram × `scale`)
+    /// exceeds `leaf_tris` and the depth is below `max_depth` and the
+    /// histogram's resolution".
+    pub fn from_histogram(h: &Histogram, scale: f64, leaf_tris: u64, max_depth: u8) -> Tiling {
+        let mut cells: Vec<(u64, u64)> = h.map.iter().map(|(&k, &n)| (k, n)).collect();
+        cells.sort_unstable();
+        let max_depth = max_depth.min(h.depth);
+        let mut t = Tiling::default();
+        // Recursive descent over the sorted cells.
+        fn go(t: &mut Tiling, cells: &[(u64, u64)], hd: u8, path: u64, depth: u8, scale: f64, leaf: u64, max_depth: u8) {
+            let n: u64 = cells.iter().map(|c| c.1).sum();
+            if depth >= max_depth || (n as f64 * scale) <= leaf as f64 {
+                t.leaves.push(Tiling::leaf(path, depth));
+                return;
+            }
+            let sh = 3 * (hd - depth - 1) as u32;
+            let mut rest = cells;
+            for o in 0..8u64 {
+                let child = path << 3 | o;
+                let k = rest.partition_point(|c| c.0 >> sh == child);
+                let (mine, tail) = rest.split_at(k);
+                go(t, mine, hd, child, depth + 1, scale, leaf, max_depth);
+                rest = tail;
+            }
+        }
+        go(&mut t, &cells, h.depth, 0, 0, scale, leaf_tris, max_depth);
+        t
+    }
+
+    /// A tiling given by its (non-empty) leaves, e.g. from the level-0 cut;
+    /// the gaps between them are filled with the largest aligned cells.
+    pub fn from_leaves(given: &[(u64, u8)]) -> Tiling {
+        let mut t = Tiling::default();
+        let mut at = 0u64;
+        let end_all = 1u64 << (3 * KEY_DEPTH as u32);
+        let fill = |t: &mut Tiling, from: u64, to: u64| {
+            let mut a = from;
+            while a < to {
+                // Largest aligned block at `a` that fits before `to`.
+                let mut d = 0u8;
+                loop {
+                    let sh = 3 * (KEY_DEPTH - d) as u32;
+                    let size = 1u64 << sh;
+                    if a % size == 0 && a + size <= to {
+                        t.leaves.push(Tiling::leaf(a >> sh, d));
+                        a += size;
+                        break;
+                    }
+                    d += 1;
+                }
+            }
+        };
+        for &(path, depth) in given {
+            let l = Tiling::leaf(path, depth);
+            fill(&mut t, at, l.start);
+            t.leaves.push(l);
+            at = l.end;
+        }
+        fill(&mut t, at, end_all);
+        t
+    }
+
+    /// The leaf holding full-depth key `key`.
+    #[inline]
+    pub fn locate(&self, key: u64) -> usize {
+        self.leaves.partition_point(|l| l.end <= key)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn consecutive_level_faces_are_a_third_of_a_cell_apart() {
+        let b = Aabb { min: [-1.0, 2.0, 0.5], max: [3.0, 2.5, 1.0] };
+        for level in 0..4u32 {
+            let (a, c) = (LevelCube::for_level(&b, level), LevelCube::for_level(&b, level + 1));
+            for k in 0..3 {
+                assert!(a.origin[k] <= b.min[k] && a.origin[k] + a.size >= b.max[k]);
+            }
+            // Faces at depths da (level L) and dc (level L+1) along x.
+            for da in 0..8u8 {
+                for dc in 0..8u8 {
+                    let fine = a.size / (1u64 << da.max(dc)) as f64;
+                    let (sa, sc) = (a.size / (1u64 << da) as f64, c.size / (1u64 << dc) as f64);
+                    for i in 0..=(1u64 << da) {
+                        let fa = a.origin[0] + i as f64 * sa;
+                        // Nearest level-(L+1) face.
+                        let j = ((fa - c.origin[0]) / sc).round();
+                        let d = (fa - (c.origin[0] + j * sc)).abs();
+                        assert!(d >= fine / 3.0 - 1e-9 * a.size, "level {level} depths {da}/{dc}: faces {d} apart, cell {fine}");
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn tilings_cover_every_key_once() {
+        let mut h = Histogram::new(6, 1 << 20);
+        let cube = LevelCube::for_level(&Aabb { min: [0.0; 3], max: [1.0; 3] }, 0);
+        let mut s = 1u64;
+        for _ in 0..20000 {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            let p = [(s >> 11) as f64 / (1u64 << 53) as f64, 0.5, ((s >> 7) & 0xffff) as f64 / 65536.0];
+            h.add(cube.key(p), 1);
+        }
+        let t = Tiling::from_histogram(&h, 1.0, 500, 10);
+        assert!(t.leaves.len() > 8);
+        assert_eq!(t.leaves[0].start, 0);
+        assert_eq!(t.leaves.last().unwrap().end, 1u64 << 63);
+        for w in t.leaves.windows(2) {
+            assert_eq!(w[0].end, w[1].start);
+        }
+        assert_eq!(t.locate(0), 0);
+        assert_eq!(t.locate((1u64 << 63) - 1), t.leaves.len() - 1);
+        let f = Tiling::from_leaves(&[(5, 1), (8 * 6 + 3, 2)]);
+        for w in f.leaves.windows(2) {
+            assert_eq!(w[0].end, w[1].start);
+        }
+        assert_eq!(f.leaves.last().unwrap().end, 1u64 << 63);
+        assert!(f.leaves.contains(&Tiling::leaf(5, 1)));
+    }
+}

@@ -1,0 +1,218 @@
+//! Fixtures shared by the integration tests: generated meshes written as
+//! PLY, stores built from them, and the crack checks for cuts.
+#![allow(dead_code)]
+
+use octolod::gen::{GenOptions, Generator, Shape};
+use octolod::mesh::{AttrSet, Vertex};
+use octolod::pipeline::{build_store, BuildOptions};
+use octolod::ply::write::{write_ply, PlyWriteOptions};
+use octolod::store::{Cut, IndexedMesh, Store};
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+/// Generates `shape` with `tris` triangles and `attrs`, writes it as
+/// `dir/NAME.ply`; gives the path and the mesh.
+pub fn gen_ply(dir: &Path, shape: Shape, tris: u64, attrs: u32) -> (PathBuf, IndexedMesh) {
+    let g = Generator::new(&GenOptions { shape, tris, seed: 5, attrs: AttrSet(attrs) });
+    let (v, f) = g.mesh();
+    let ply = dir.join(format!("{}-{tris}-{attrs}.ply", shape.name()));
+    write_ply(&ply, &PlyWriteOptions { attrs: AttrSet(attrs), ..Default::default() }, &v, &f).unwrap();
+    (ply, IndexedMesh { vertices: v, triangles: f })
+}
+
+/// Builds a store from a PLY with small nodes (`leaf` triangles) under a small budget.
+pub fn build_from(dir: &Path, ply: &Path, leaf: u64) -> Store {
+    let out = dir.join(format!("{}.octolod", ply.file_stem().unwrap().to_string_lossy()));
+    build_store(ply, &out, &BuildOptions { mem: 4 << 20, leaf_tris: leaf, max_depth: 12, root_tris: 256, ..Default::default() })
+        .unwrap_or_else(|e| panic!("{}: {e}", ply.display()));
+    Store::open(&out).unwrap()
+}
+
+/// Generates and builds; gives the store and the input.
+pub fn build(dir: &Path, shape: Shape, tris: u64, attrs: u32, leaf: u64) -> (Store, IndexedMesh) {
+    let (ply, m) = gen_ply(dir, shape, tris, attrs);
+    (build_from(dir, &ply, leaf), m)
+}
+
+/// A small xorshift generator for reproducible random choices.
+pub struct Rng(pub u64);
+impl Rng {
+    pub fn next(&mut self) -> u64 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        self.0
+    }
+    pub fn unit(&mut self) -> f64 {
+        (self.next() >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
+/// A random valid selection: from the root down, a node joins with
+/// probability `p` once all its parents are in.
+pub fn random_cut(s: &Store, seed: u64, p: f64) -> Cut {
+    let mut rng = Rng(seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) | 1);
+    let mut sel = vec![false; s.nodes.len()];
+    for r in s.roots() {
+        sel[r] = true;
+    }
+    for i in (0..s.nodes.len()).rev() {
+        if !sel[i] && s.parents_of(i).iter().all(|&q| sel[q as usize]) && !s.parents_of(i).is_empty() && rng.unit() < p {
+            sel[i] = true;
+        }
+    }
+    Cut::from_selected(s, sel)
+}
+
+/// The triangles a cut draws, welded by position.
+pub fn cut_mesh(s: &Store, cut: &Cut) -> (Vec<[f64; 3]>, Vec<[u32; 3]>) {
+    cut_mesh_parts(s, cut).0
+}
+
+/// [`cut_mesh`], and per welded position whether two or more drawn nodes hold it.
+pub fn cut_mesh_parts(s: &Store, cut: &Cut) -> ((Vec<[f64; 3]>, Vec<[u32; 3]>), Vec<bool>) {
+    let parts: Vec<IndexedMesh> = octolod::pipeline::cut_meshes(s, cut).collect::<Result<_, _>>().unwrap();
+    let (pos, tris) = weld_positions(parts.iter().map(|m| (&m.vertices[..], &m.triangles[..])));
+    let index: HashMap<[u64; 3], usize> = pos.iter().enumerate().map(|(i, p)| (p.map(f64::to_bits), i)).collect();
+    let mut owner = vec![usize::MAX; pos.len()];
+    let mut shared = vec![false; pos.len()];
+    for (k, m) in parts.iter().enumerate() {
+        for t in &m.triangles {
+            for &v in t {
+                let i = index[&m.vertices[v as usize].pos.map(f64::to_bits)];
+                if owner[i] == usize::MAX {
+                    owner[i] = k;
+                } else if owner[i] != k {
+                    shared[i] = true;
+                }
+            }
+        }
+    }
+    ((pos, tris), shared)
+}
+
+/// Meshes welded by exact position.
+pub fn weld_positions<'a>(parts: impl Iterator<Item = (&'a [Vertex], &'a [[u32; 3]])>) -> (Vec<[f64; 3]>, Vec<[u32; 3]>) {
+    let mut map: HashMap<[u64; 3], u32> = HashMap::new();
+    let (mut pos, mut tris) = (Vec::new(), Vec::new());
+    for (v, t) in parts {
+        let ids: Vec<u32> = v
+            .iter()
+            .map(|x| {
+                let n = pos.len() as u32;
+                *map.entry(x.pos.map(f64::to_bits)).or_insert_with(|| {
+                    pos.push(x.pos);
+                    n
+                })
+            })
+            .collect();
+        tris.extend(t.iter().map(|t| t.map(|i| ids[i as usize])));
+    }
+    (pos, tris)
+}
+
+/// Uses of each undirected edge; triangles with repeated corners skipped.
+pub fn edge_counts(tris: &[[u32; 3]]) -> HashMap<(u32, u32), u32> {
+    let mut c = HashMap::new();
+    for t in tris.iter().filter(|t| t[0] != t[1] && t[1] != t[2] && t[0] != t[2]) {
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            *c.entry((a.min(b), a.max(b))).or_insert(0) += 1;
+        }
+    }
+    c
+}
+
+fn seg_dist2(p: [f64; 3], a: [f64; 3], b: [f64; 3]) -> f64 {
+    let ab = [0, 1, 2].map(|k| b[k] - a[k]);
+    let ap = [0, 1, 2].map(|k| p[k] - a[k]);
+    let l = ab.iter().map(|x| x * x).sum::<f64>();
+    let t = if l > 0.0 { (ab.iter().zip(&ap).map(|(x, y)| x * y).sum::<f64>() / l).clamp(0.0, 1.0) } else { 0.0 };
+    (0..3).map(|k| (a[k] + t * ab[k] - p[k]).powi(2)).sum()
+}
+
+/// What a crack check found in one cut.
+#[derive(Debug, Default)]
+pub struct CrackReport {
+    /// Edges used an odd number of times away from the input's border.
+    pub cracks: usize,
+    /// Edges used once (open) in the cut.
+    pub open: usize,
+    /// Edges used more often than the input's most-used edge (and than 2).
+    pub excess: usize,
+    pub edges: usize,
+    /// The first crack edge found.
+    pub first: Option<([f64; 3], [f64; 3])>,
+}
+
+/// Checks a cut against the input: welded by position, an edge used an odd
+/// number of times is a crack unless it lies on the input's own border
+/// (within 3× its own length: its corners stand for clusters of border
+/// vertices) or is a node's own simplified border (neither corner held by
+/// two drawn nodes: a seam that failed to close has such corners at its
+/// ends). On closed inputs no odd edge at all is allowed (`open` = 0).
+/// `shared[v]`: position v is held by two or more drawn nodes.
+pub fn crack_report(input: &IndexedMesh, pos: &[[f64; 3]], tris: &[[u32; 3]], shared: &[bool]) -> CrackReport {
+    let (ip, it) = weld_positions(std::iter::once((&input.vertices[..], &input.triangles[..])));
+    let ic = edge_counts(&it);
+    let border: Vec<([f64; 3], [f64; 3])> = ic.iter().filter(|(_, &n)| n % 2 == 1).map(|(&(a, b), _)| (ip[a as usize], ip[b as usize])).collect();
+    let max_in = ic.values().copied().max().unwrap_or(2).max(2);
+    let c = edge_counts(tris);
+    let mut r = CrackReport { edges: c.len(), ..Default::default() };
+    // A coarse grid over the border edges for nearest-edge queries.
+    let mut bb = octolod::mesh::Aabb::EMPTY;
+    for p in &ip {
+        bb.add(*p);
+    }
+    let cell = (bb.diagonal() / 64.0).max(1e-300);
+    let key = |p: [f64; 3]| p.map(|x| (x / cell).floor() as i64);
+    let mut grid: HashMap<[i64; 3], Vec<usize>> = HashMap::new();
+    for (i, (a, b)) in border.iter().enumerate() {
+        let (ka, kb) = (key(*a), key(*b));
+        for x in ka[0].min(kb[0])..=ka[0].max(kb[0]) {
+            for y in ka[1].min(kb[1])..=ka[1].max(kb[1]) {
+                for z in ka[2].min(kb[2])..=ka[2].max(kb[2]) {
+                    grid.entry([x, y, z]).or_default().push(i);
+                }
+            }
+        }
+    }
+    for (&(a, b), &n) in &c {
+        if n == 1 {
+            r.open += 1;
+        }
+        if n > max_in {
+            r.excess += 1;
+        }
+        if n % 2 == 1 {
+            let (pa, pb) = (pos[a as usize], pos[b as usize]);
+            let len = (0..3).map(|k| (pa[k] - pb[k]).powi(2)).sum::<f64>().sqrt();
+            let tol = 3.0 * len + 1e-9 * bb.diagonal();
+            let near = |p: [f64; 3]| {
+                let k = key(p);
+                let reach = (tol / cell).ceil() as i64 + 1;
+                if ((2 * reach + 1) as f64).powi(3) > border.len() as f64 {
+                    return border.iter().any(|e| seg_dist2(p, e.0, e.1) <= tol * tol);
+                }
+                for x in -reach..=reach {
+                    for y in -reach..=reach {
+                        for z in -reach..=reach {
+                            for &e in grid.get(&[k[0] + x, k[1] + y, k[2] + z]).into_iter().flatten() {
+                                if seg_dist2(p, border[e].0, border[e].1) <= tol * tol {
+                                    return true;
+                                }
+                            }
+                        }
+                    }
+                }
+                false
+            };
+            let own_border = !shared[a as usize] && !shared[b as usize];
+            if !own_border && !(near(pa) && near(pb)) {
+                r.cracks += 1;
+                r.first.get_or_insert((pa, pb));
+            }
+        }
+    }
+    r
+}

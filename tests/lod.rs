@@ -1,0 +1,251 @@
+//! Levels of detail v2 (issue 9): every valid cut of the DAG is closed
+//! where the input is, on smooth and hard inputs; DAG invariants; levels
+//! halve; seams of one level are free at the next; level 0 is the input;
+//! node errors are measured deviations; normals agree across seams.
+
+mod common;
+
+use common::{build, crack_report, random_cut, Rng};
+use octolod::gen::Shape;
+use octolod::mesh::{AttrSet, Vertex};
+use octolod::pipeline::{extract, CutSpec};
+use octolod::store::{IndexedMesh, Store};
+
+/// DAG invariants: parent error ≥ child, parent bounds ⊇ child bounds,
+/// vertices finite and inside their node's bounds.
+fn check_dag(s: &Store, name: &str) {
+    for i in 0..s.nodes.len() {
+        let n = &s.nodes[i];
+        for &c in s.children_of(i) {
+            let c = &s.nodes[c as usize];
+            assert!(n.error >= c.error, "{name}: node {i}: error {} < child's {}", n.error, c.error);
+            for k in 0..3 {
+                assert!(n.bounds.min[k] <= c.bounds.min[k] && n.bounds.max[k] >= c.bounds.max[k], "{name}: node {i}: bounds do not contain a child's");
+            }
+        }
+        let m = s.read_node(i).unwrap();
+        for v in &m.mesh.vertices {
+            for k in 0..3 {
+                assert!(v.pos[k].is_finite(), "{name}: node {i}: non-finite vertex");
+                assert!(v.pos[k] >= n.bounds.min[k] && v.pos[k] <= n.bounds.max[k], "{name}: node {i}: vertex outside its bounds");
+            }
+        }
+    }
+}
+
+/// Random valid cuts, error cuts and whole levels: no crack.
+fn check_cuts(s: &Store, input: &IndexedMesh, name: &str, closed: bool) {
+    let mut rng = Rng(17);
+    let mut cuts: Vec<(String, octolod::store::Cut)> = Vec::new();
+    for seed in 1..=10 {
+        cuts.push((format!("random {seed}"), random_cut(s, seed, 0.3 + 0.06 * seed as f64)));
+    }
+    let emax = s.nodes[s.root()].error as f64;
+    for _ in 0..4 {
+        let e = emax * rng.unit();
+        cuts.push((format!("error {e:e}"), s.error_cut(e)));
+    }
+    for l in 0..=s.top_level() {
+        cuts.push((format!("level {l}"), s.level_cut(l)));
+    }
+    let mut total_excess = 0;
+    let mut total_edges = 0;
+    for (what, cut) in &cuts {
+        // Closed under parents.
+        for i in 0..s.nodes.len() {
+            if cut.selected[i] {
+                assert!(s.parents_of(i).iter().all(|&p| cut.selected[p as usize]), "{name}: {what}: not a valid selection");
+            }
+        }
+        let ((pos, tris), shared) = common::cut_mesh_parts(s, cut);
+        assert_eq!(tris.len() as u64, cut.triangles(s), "{name}: {what}: triangle count");
+        let r = crack_report(input, &pos, &tris, &shared);
+        if r.cracks > 0 {
+            let (a, b) = r.first.unwrap();
+            for &i in &cut.drawn {
+                let m = cut.drawn_mesh(&s.read_node(i).unwrap());
+                let has = |p: [f64; 3]| m.vertices.iter().any(|v| v.pos == p);
+                if has(a) || has(b) {
+                    eprintln!("node {i} level {} has a:{} b:{}", s.nodes[i].level, has(a), has(b));
+                }
+            }
+        }
+        assert_eq!(r.cracks, 0, "{name}: {what}: {} crack edges ({r:?})", r.cracks);
+        if closed {
+            assert_eq!(r.open, 0, "{name}: {what}: {} open edges on a closed input", r.open);
+        }
+        total_excess += r.excess;
+        total_edges += r.edges;
+    }
+    // On closed inputs, welded cuts are manifold where the input is: an edge
+    // in more faces than the input's most-used edge stays rare (vertex
+    // clustering pinches thin parts: small tori collapsing at coarse levels).
+    if closed {
+        assert!(total_excess * 100 <= total_edges, "{name}: {total_excess} of {total_edges} edges in more faces than the input has");
+    }
+}
+
+#[test]
+fn closed_sphere_every_cut_is_closed_and_levels_halve() {
+    let d = tempfile::tempdir().unwrap();
+    let (s, input) = build(d.path(), Shape::Sphere, 40_000, 0, 1000);
+    check_dag(&s, "sphere");
+    check_cuts(&s, &input, "sphere", true);
+    let tris: Vec<u64> = (0..=s.top_level()).map(|l| s.level_triangles(l)).collect();
+    for w in tris.windows(2) {
+        let r = w[1] as f64 / w[0] as f64;
+        assert!((0.35..=0.65).contains(&r), "levels do not halve: {tris:?}");
+    }
+    assert_eq!(s.level_nodes(s.top_level()).len(), 1);
+    assert!(*tris.last().unwrap() <= 256, "{tris:?}");
+    // Seams of one level are simplified at the next.
+    let m = octolod::store::Manifest::read(&s.dir).unwrap();
+    for l in &m.levels[1..] {
+        if l.nodes >= 8 {
+            assert!(l.prev_locked_still_fraction < 0.12, "level {}: {:.1}% of the previous seams still locked", l.level, 100.0 * l.prev_locked_still_fraction);
+        }
+    }
+}
+
+#[test]
+fn hard_cases_every_cut_is_crack_free() {
+    let d = tempfile::tempdir().unwrap();
+    for (shape, attrs, closed) in [
+        (Shape::Duplicates, 0, true),
+        (Shape::Fan, 0, false),
+        (Shape::Sheets, 0, false),
+        (Shape::Offset, AttrSet::POS_F64, true),
+        (Shape::Slivers, 0, false),
+        (Shape::Terrain, AttrSet::NORMAL | AttrSet::COLOR | AttrSet::UV, false),
+        (Shape::Open, AttrSet::COLOR, false),
+        (Shape::Plane, 0, false),
+        (Shape::Cylinder, AttrSet::UV, false),
+        (Shape::Instances, 0, true),
+        (Shape::Single, 0, false),
+    ] {
+        let (s, input) = build(d.path(), shape, 12_000, attrs, 400);
+        check_dag(&s, shape.name());
+        check_cuts(&s, &input, shape.name(), closed);
+        if shape != Shape::Single {
+            assert!(s.top_level() >= 2, "{}: only {} levels", shape.name(), s.top_level() + 1);
+        }
+    }
+}
+
+#[test]
+fn level_zero_is_the_input_and_max_error_cuts_hold_their_bound() {
+    let d = tempfile::tempdir().unwrap();
+    let (s, input) = build(d.path(), Shape::Open, 10_000, AttrSet::NORMAL | AttrSet::UV, 500);
+    let out = d.path().join("l0.ply");
+    let (_, nf) = extract(&s, CutSpec::Level(0), &out, true, false).unwrap();
+    assert_eq!(nf as usize, input.triangles.len());
+    let (_, back, _) = octolod::ply::read::read_all(&out).unwrap();
+    let key = |vs: &[Vertex], t: [u64; 3]| {
+        let corners: Vec<Vec<u64>> = t
+            .iter()
+            .map(|&i| {
+                let v = vs[i as usize];
+                v.pos.iter().map(|x| (*x as f32).to_bits() as u64).chain(v.normal.iter().map(|x| x.to_bits() as u64)).chain(v.uv.iter().map(|x| x.to_bits() as u64)).collect()
+            })
+            .collect();
+        let r = (0..3).min_by_key(|&r| corners[r].clone()).unwrap();
+        (0..3).flat_map(|c| corners[(r + c) % 3].clone()).collect::<Vec<u64>>()
+    };
+    let mut a: Vec<_> = input.triangles.iter().map(|t| key(&input.vertices, t.map(|i| i as u64))).collect();
+    let mut b: Vec<_> = back.triangles.iter().map(|&t| key(&back.vertices, t)).collect();
+    a.sort();
+    b.sort();
+    assert!(a == b, "level 0 differs from the input");
+    // The cut at error E draws only nodes whose error is at most E.
+    let e = s.nodes[s.root()].error as f64 * 0.3;
+    let cut = s.error_cut(e);
+    for &i in &cut.drawn {
+        assert!(s.nodes[i].error as f64 <= e, "node {i} drawn with error {} > {e}", s.nodes[i].error);
+    }
+    let (_, nf) = extract(&s, CutSpec::MaxError(e), &d.path().join("e.ply"), true, false).unwrap();
+    assert_eq!(nf, cut.triangles(&s));
+    assert!(nf < input.triangles.len() as u64 && nf > s.nodes[s.root()].tris as u64);
+}
+
+/// A parent's error covers how far each of its patches lies from the child
+/// it was simplified from (exact distances, representatives to surface).
+#[test]
+fn node_errors_cover_the_measured_deviation() {
+    use octolod::metro::{Bvh, Mesh};
+    let d = tempfile::tempdir().unwrap();
+    let (s, _) = build(d.path(), Shape::Terrain, 30_000, 0, 2000);
+    let mut checked = 0;
+    for i in 0..s.nodes.len() {
+        if s.nodes[i].level == 0 {
+            continue;
+        }
+        let nm = s.read_node(i).unwrap();
+        for p in &nm.patches {
+            let child = s.read_node(p.child as usize).unwrap().mesh;
+            let bvh = Bvh::new(&Mesh::from_vertices(&child.vertices, child.triangles.clone()));
+            let tris = &nm.mesh.triangles[p.first as usize..(p.first + p.count) as usize];
+            let mut worst = 0.0f64;
+            for t in tris {
+                for &v in t {
+                    worst = worst.max(bvh.closest(nm.mesh.vertices[v as usize].pos).unwrap().dist2.sqrt());
+                }
+            }
+            assert!(s.nodes[i].error as f64 >= worst * (1.0 - 1e-6), "node {i}: error {} below the measured {worst}", s.nodes[i].error);
+            checked += 1;
+        }
+    }
+    assert!(checked > 10);
+}
+
+#[test]
+fn derived_normals_agree_across_node_seams() {
+    let d = tempfile::tempdir().unwrap();
+    let (s, _) = build(d.path(), Shape::Sphere, 20_000, 0, 800);
+    assert!(s.header.derived_normals);
+    for l in 0..s.top_level() {
+        let mut seen: std::collections::HashMap<[u64; 3], [u32; 3]> = Default::default();
+        let (mut shared, mut inward, mut total) = (0, 0, 0);
+        for i in s.level_nodes(l) {
+            for v in s.read_node(i).unwrap().mesh.vertices {
+                let n = v.normal.map(f32::to_bits);
+                if let Some(old) = seen.insert(v.pos.map(f64::to_bits), n) {
+                    shared += 1;
+                    assert_eq!(old, n, "level {l}: two normals at {:?}", v.pos);
+                }
+                // Outward on a sphere around the origin.
+                let dot: f64 = (0..3).map(|k| v.pos[k] * v.normal[k] as f64).sum();
+                inward += (dot <= 0.0) as usize;
+                total += 1;
+            }
+        }
+        if s.level_nodes(l).len() > 1 {
+            assert!(shared > 0, "level {l}: no shared vertex checked");
+        }
+        assert!(inward * 200 <= total, "level {l}: {inward} of {total} normals point inwards");
+    }
+}
+
+#[test]
+fn smooth_colors_survive_simplification() {
+    let d = tempfile::tempdir().unwrap();
+    let (s, input) = build(d.path(), Shape::Sphere, 20_000, AttrSet::COLOR, 800);
+    let bvh = octolod::metro::Bvh::new(&octolod::metro::Mesh::from_vertices(&input.vertices, input.triangles.clone()));
+    let (mut sum, mut n, mut worst) = (0.0f64, 0.0f64, 0i32);
+    for i in 0..s.nodes.len() {
+        if s.nodes[i].level == 0 || s.nodes[i].level > 3 {
+            continue;
+        }
+        for v in s.read_node(i).unwrap().mesh.vertices {
+            let c = bvh.closest(v.pos).unwrap();
+            let t = input.triangles[c.triangle as usize];
+            let oc = input.vertices[t[0] as usize].color;
+            let e = (0..3).map(|a| (v.color[a] as i32 - oc[a] as i32).abs()).max().unwrap();
+            worst = worst.max(e);
+            sum += e as f64;
+            n += 1.0;
+        }
+    }
+    assert!(n > 100.0);
+    assert!(sum / n < 16.0, "mean color error {} of 255", sum / n);
+    assert!(worst < 96, "worst color error {worst} of 255");
+}
