@@ -32,7 +32,6 @@ use crate::mesh::VertexLayout;
 use crate::progress::Progress;
 use crate::soup::format::{SoupHeader, SoupReader};
 use crate::store::{IndexedMesh, NO_NODE};
-use std::collections::HashMap;
 use std::path::Path;
 
 #[derive(Clone, Debug)]
@@ -297,7 +296,7 @@ impl Cutter<'_> {
 /// Soup triangles → indexed mesh (exactly equal corners share a vertex).
 pub fn index_triangles(layout: &VertexLayout, soup: &[u8]) -> IndexedMesh {
     let s = layout.size;
-    let mut map: HashMap<&[u8], u32> = HashMap::with_capacity(soup.len() / (3 * s));
+    let mut map: rustc_hash::FxHashMap<&[u8], u32> = rustc_hash::FxHashMap::with_capacity_and_hasher(soup.len() / (3 * s), Default::default());
     let mut mesh = IndexedMesh::default();
     for t in soup.chunks_exact(3 * s) {
         let mut tri = [0u32; 3];

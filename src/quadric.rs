@@ -235,6 +235,72 @@ impl QuadricSpace {
     }
 }
 
+/// [`Quadric::at_point`] written straight into stored coefficients
+/// (`out.len() ≥ coeff_len(dim)`, overwritten): no struct, no copies — the
+/// form hot loops use.
+pub fn packed_at_point(dim: usize, a: &[f64], p: &[f64], area: f64, out: &mut [f64]) {
+    let al = a_len(dim);
+    out[..al].copy_from_slice(&a[..al]);
+    let mut ap = [0.0; MAX_DIM];
+    let mut k = 0;
+    for i in 0..dim {
+        for j in i..dim {
+            let v = a[k];
+            ap[i] += v * p[j];
+            if j != i {
+                ap[j] += v * p[i];
+            }
+            k += 1;
+        }
+    }
+    let mut c = 0.0;
+    for i in 0..dim {
+        out[al + i] = -ap[i];
+        c += ap[i] * p[i];
+    }
+    out[al + dim] = c;
+    out[al + dim + 1] = area;
+    let s = al + dim + 2;
+    out[s..s + dim].copy_from_slice(&p[..dim]);
+    out[s + dim] = 1.0;
+}
+
+/// `Q(mean)` of stored coefficients (mean of the added points; 0 without
+/// points), clamped to ≥ 0: [`Quadric::error`] at [`Quadric::mean`]
+/// without building a [`Quadric`].
+pub fn packed_error_at_mean(dim: usize, k: &[f64]) -> f64 {
+    let al = a_len(dim);
+    let s = al + dim + 2;
+    let cnt = k[s + dim];
+    if !(cnt > 0.0) {
+        return k[al + dim].max(0.0);
+    }
+    let mut x = [0.0; MAX_DIM];
+    for i in 0..dim {
+        x[i] = k[s + i] / cnt;
+    }
+    let mut e = 0.0;
+    let mut at = 0;
+    for i in 0..dim {
+        let mut row = 0.5 * k[at] * x[i];
+        at += 1;
+        for j in i + 1..dim {
+            row += k[at] * x[j];
+            at += 1;
+        }
+        e += 2.0 * x[i] * row;
+    }
+    for i in 0..dim {
+        e += 2.0 * k[al + i] * x[i];
+    }
+    e += k[al + dim];
+    if e > 0.0 && e.is_finite() {
+        e
+    } else {
+        0.0
+    }
+}
+
 /// Minimiser found by [`Quadric::solve`], in local embedded coordinates
 /// (decode with [`QuadricSpace::unembed`]).
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -27,7 +27,7 @@
 use crate::error::{Error, IoContext, Location, Result};
 use crate::mesh::VertexLayout;
 use crate::store::IndexedMesh;
-use std::collections::HashMap;
+use rustc_hash::FxHashMap;
 use std::fs::File;
 use std::io::Write;
 use std::path::PathBuf;
@@ -161,13 +161,19 @@ impl ChunkFile {
         use std::os::unix::fs::FileExt;
         let f = self.reader.as_ref().expect("chunk file not finished");
         let refs = self.refs_of(t);
-        let mut g = Gathered::default();
-        let vs = self.layout.size;
-        let rec = vs + 4 * self.a_len + 1;
-        let mut map: HashMap<Vec<u8>, u32> = HashMap::new();
+        let mut bufs = Vec::with_capacity(refs.len());
         for r in refs {
             let mut b = vec![0u8; r.bytes as usize];
             f.read_exact_at(&mut b, r.offset).ctx(&self.path, "read chunk file")?;
+            bufs.push(b);
+        }
+        let mut g = Gathered::default();
+        let vs = self.layout.size;
+        let rec = vs + 4 * self.a_len + 1;
+        let total_v: usize = bufs.iter().map(|b| if b.len() >= 16 { u32::from_le_bytes(b[8..12].try_into().unwrap()) as usize } else { 0 }).sum();
+        let mut map: FxHashMap<&[u8], u32> = FxHashMap::with_capacity_and_hasher(total_v, Default::default());
+        let mut ids = Vec::new();
+        for (r, b) in refs.iter().zip(&bufs) {
             let bad = || Error::input(Location { file: self.path.clone(), offset: Some(r.offset), ..Default::default() }, "damaged chunk");
             if b.len() < 16 {
                 return Err(bad());
@@ -177,25 +183,26 @@ impl ChunkFile {
             if b.len() != 16 + nv * rec + nt * 12 {
                 return Err(bad());
             }
-            let mut ids = Vec::with_capacity(nv);
+            ids.clear();
             for k in 0..nv {
                 let v = &b[16 + k * rec..16 + (k + 1) * rec];
                 let next = g.mesh.vertices.len() as u32;
-                let id = *map.entry(v[..vs].to_vec()).or_insert_with(|| {
+                let id = *map.entry(&v[..vs]).or_insert_with(|| {
                     g.mesh.vertices.push(self.layout.decode(&v[..vs]));
                     g.a.extend(std::iter::repeat_n(0.0, self.a_len));
                     g.was_locked.push(false);
                     next
                 });
-                for j in 0..self.a_len {
-                    g.a[id as usize * self.a_len + j] += f32::from_le_bytes(v[vs + 4 * j..vs + 4 * j + 4].try_into().unwrap()) as f64;
+                let at = id as usize * self.a_len;
+                for (j, x) in v[vs..vs + 4 * self.a_len].chunks_exact(4).enumerate() {
+                    g.a[at + j] += f32::from_le_bytes(x.try_into().unwrap()) as f64;
                 }
                 g.was_locked[id as usize] |= v[rec - 1] & 1 != 0;
                 ids.push(id);
             }
-            let tb = 16 + nv * rec;
-            for k in 0..nt {
-                let c = |j: usize| u32::from_le_bytes(b[tb + 12 * k + 4 * j..tb + 12 * k + 4 * j + 4].try_into().unwrap()) as usize;
+            let tb = &b[16 + nv * rec..];
+            for tri in tb.chunks_exact(12) {
+                let c = |j: usize| u32::from_le_bytes(tri[4 * j..4 * j + 4].try_into().unwrap()) as usize;
                 let tri = [c(0), c(1), c(2)];
                 if tri.iter().any(|&i| i >= nv) {
                     return Err(bad());

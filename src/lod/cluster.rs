@@ -45,6 +45,22 @@ use crate::quadric::{AttrWeights, Quadric, QuadricSpace, MAX_DIM};
 use crate::store::IndexedMesh;
 use std::collections::BinaryHeap;
 
+/// A node's simplified mesh and where each of its vertices came from.
+#[derive(Clone, Debug, Default)]
+pub struct NodeOut {
+    pub mesh: IndexedMesh,
+    /// Quadric matrix per output vertex (packed, raw attribute units).
+    pub a: Vec<f64>,
+    /// Per output vertex: the input vertex it is (kept), or `u32::MAX` for
+    /// a representative.
+    pub kept_from: Vec<u32>,
+    /// Members (input vertices) of output vertex o:
+    /// `members[members_first[o]..members_first[o + 1]]` (empty when kept).
+    pub members_first: Vec<u32>,
+    pub members: Vec<u32>,
+    pub stats: ClusterStats,
+}
+
 /// Figures of one node's clustering.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct ClusterStats {
@@ -175,8 +191,7 @@ impl<'a> Splits<'a> {
             let a = &sp.va[v as usize * al..(v as usize + 1) * al];
             // The trace stands for the area (only its being non-zero matters).
             let area = (0..dim).map(|k| a[diag_at(dim, k)]).sum::<f64>().max(f64::MIN_POSITIVE);
-            let q = Quadric::at_point(dim, a, &embedded[v as usize], area);
-            q.add_into(&mut vq[i * cl..]);
+            crate::quadric::packed_at_point(dim, a, &embedded[v as usize], area, &mut vq[i * cl..(i + 1) * cl]);
         }
         let local: Vec<[f64; 3]> = sp.free.iter().map(|&v| sp.space.to_local(mesh.vertices[v as usize].pos)).collect();
         let mut order: Vec<u32> = (0..nf as u32).collect();
@@ -187,13 +202,10 @@ impl<'a> Splits<'a> {
             add(&mut sp.cq[..cl], &vq[i * cl..(i + 1) * cl]);
         }
         sp.leaf_of = vec![0u32; nf];
-        let prio = |q: &[f64]| -> f64 {
-            // The error at the members' mean: measured better than the
-            // error at the optimum on the scans and terrains tried (it also
-            // favours compact clusters).
-            let q = Quadric::from_coeffs(dim, q);
-            q.error(&q.mean())
-        };
+        // The error at the members' mean: measured better than the error
+        // at the optimum on the scans and terrains tried (it also favours
+        // compact clusters).
+        let prio = |q: &[f64]| -> f64 { crate::quadric::packed_error_at_mean(dim, q) };
         let mut heap = BinaryHeap::new();
         heap.push(Prio(prio(&sp.cq[..cl]), 0));
         let mut clusters = 1usize;
@@ -363,56 +375,74 @@ impl<'a> Splits<'a> {
 
     /// The simplified mesh after `s` splits: one representative per
     /// cluster, minimising its quadric inside its box.
-    /// Also gives each output vertex's quadric matrix (packed): a kept
-    /// vertex's own, a representative's the sum of its members'.
-    /// and which output vertices are kept input vertices.
-    pub fn build(&self, s: u32, rel_tol: f64) -> (IndexedMesh, Vec<f64>, Vec<bool>, ClusterStats) {
+    /// Also gives each output vertex's quadric matrix, where it came from
+    /// and, for a representative, its members ([`NodeOut`]).
+    pub fn build(&self, s: u32, rel_tol: f64) -> NodeOut {
         let mut st = self.stats;
         let nv = self.mesh.vertices.len();
-        let al = self.space.dim * (self.space.dim + 1) / 2;
-        if self.free.is_empty() {
-            let (m, src) = compact(self.mesh, &vec![u32::MAX; nv], &[]);
-            let qa = src.iter().flat_map(|&k| self.raw_a(&self.va[k * al..(k + 1) * al])).collect();
-            return (m, qa, vec![true; src.len()], st);
-        }
         let dim = self.space.dim;
+        let al = dim * (dim + 1) / 2;
         let cl = self.cl;
-        let a = self.assign(s);
-        let mut rep_of_cell = vec![u32::MAX; self.cells.len()];
+        let d = attr_scale(&self.space, true);
+        let mut remap = vec![u32::MAX; nv];
         let mut rep_cell: Vec<u32> = Vec::new();
         let mut reps: Vec<Vertex> = Vec::new();
-        let mut remap = vec![u32::MAX; nv];
-        for (i, &v) in self.free.iter().enumerate() {
-            let c = a[i] as usize;
-            if rep_of_cell[c] == u32::MAX {
-                rep_cell.push(c as u32);
-                let cell = &self.cells[c];
-                let q = Quadric::from_coeffs(dim, &self.cq[c * cl..(c + 1) * cl]);
-                let sol = q.solve(rel_tol, Some((cell.lo, cell.hi)));
-                st.clamped += sol.clamped as u64;
-                rep_of_cell[c] = reps.len() as u32;
-                reps.push(self.space.unembed(&sol.x[..dim], &self.mesh.vertices[v as usize]));
+        let mut rep_of_free = Vec::new();
+        if !self.free.is_empty() {
+            let a = self.assign(s);
+            let mut rep_of_cell = vec![u32::MAX; self.cells.len()];
+            for (i, &v) in self.free.iter().enumerate() {
+                let c = a[i] as usize;
+                if rep_of_cell[c] == u32::MAX {
+                    rep_cell.push(c as u32);
+                    let cell = &self.cells[c];
+                    let q = Quadric::from_coeffs(dim, &self.cq[c * cl..(c + 1) * cl]);
+                    let sol = q.solve(rel_tol, Some((cell.lo, cell.hi)));
+                    st.clamped += sol.clamped as u64;
+                    rep_of_cell[c] = reps.len() as u32;
+                    reps.push(self.space.unembed(&sol.x[..dim], &self.mesh.vertices[v as usize]));
+                }
+                remap[v as usize] = rep_of_cell[c];
+                rep_of_free.push(rep_of_cell[c]);
             }
-            remap[v as usize] = rep_of_cell[c];
         }
         st.clusters = reps.len() as u64;
-        let (m, src) = compact(self.mesh, &remap, &reps);
-        let qa = src
-            .iter()
-            .flat_map(|&k| {
-                let a = if k < nv { &self.va[k * al..(k + 1) * al] } else { self.rep_a(rep_cell[k - nv] as usize) };
-                self.raw_a(a)
-            })
-            .collect();
-        let kept = src.iter().map(|&k| k < nv).collect();
-        (m, qa, kept, st)
-    }
-
-    /// A matrix of this space in raw attribute units (see [`scale_packed`]).
-    fn raw_a(&self, a: &[f64]) -> Vec<f64> {
-        let mut out = a.to_vec();
-        scale_packed(&mut out, self.space.dim, &attr_scale(&self.space, true));
-        out
+        let (mesh, src) = compact(self.mesh, &remap, &reps);
+        let mut out_a = vec![0.0; src.len() * al];
+        for (o, &k) in src.iter().enumerate() {
+            let a = if k < nv { &self.va[k * al..(k + 1) * al] } else { self.rep_a(rep_cell[k - nv] as usize) };
+            let dst = &mut out_a[o * al..(o + 1) * al];
+            dst.copy_from_slice(a);
+            scale_packed(dst, dim, &d);
+        }
+        // Members of each representative (by output vertex), CSR.
+        let mut out_of_rep = vec![u32::MAX; reps.len()];
+        for (o, &k) in src.iter().enumerate() {
+            if k >= nv {
+                out_of_rep[k - nv] = o as u32;
+            }
+        }
+        let mut members_first = vec![0u32; src.len() + 1];
+        for &r in &rep_of_free {
+            let o = out_of_rep[r as usize];
+            if o != u32::MAX {
+                members_first[o as usize + 1] += 1;
+            }
+        }
+        for o in 0..src.len() {
+            members_first[o + 1] += members_first[o];
+        }
+        let mut next = members_first.clone();
+        let mut members = vec![0u32; members_first[src.len()] as usize];
+        for (i, &r) in rep_of_free.iter().enumerate() {
+            let o = out_of_rep[r as usize];
+            if o != u32::MAX {
+                members[next[o as usize] as usize] = self.free[i];
+                next[o as usize] += 1;
+            }
+        }
+        let kept_from = src.iter().map(|&k| if k < nv { k as u32 } else { u32::MAX }).collect();
+        NodeOut { mesh, a: out_a, kept_from, members_first, members, stats: st }
     }
 
     fn rep_a(&self, c: usize) -> &[f64] {
@@ -432,8 +462,8 @@ pub fn cluster_node(mesh: &IndexedMesh, locked: &[bool], attrs: AttrSet, target:
         st.clusters = 0;
         return (compact(mesh, &vec![u32::MAX; mesh.vertices.len()], &[]).0, st);
     }
-    let (m, _, _, st) = sp.build(s, rel_tol);
-    (m, st)
+    let o = sp.build(s, rel_tol);
+    (o.mesh, o.stats)
 }
 
 /// Weight of a border edge's constraint plane, per squared edge length
@@ -448,7 +478,7 @@ const BORDER_WEIGHT: f64 = 1.0;
 /// retreat by a cluster; with these, moving off the border line costs.
 fn add_border_planes(mesh: &IndexedMesh, dim: usize, va: &mut [f64]) {
     let al = dim * (dim + 1) / 2;
-    let mut edges: std::collections::HashMap<(u32, u32), (u32, usize)> = std::collections::HashMap::with_capacity(mesh.triangles.len() * 2);
+    let mut edges: rustc_hash::FxHashMap<(u32, u32), (u32, usize)> = rustc_hash::FxHashMap::with_capacity_and_hasher(mesh.triangles.len() * 2, Default::default());
     for (ti, t) in mesh.triangles.iter().enumerate() {
         for c in 0..3 {
             let (a, b) = (t[c], t[(c + 1) % 3]);
@@ -577,24 +607,34 @@ fn compact(mesh: &IndexedMesh, remap: &[u32], reps: &[Vertex]) -> (IndexedMesh, 
 /// the same orientation (duplicated input faces) are all kept.
 fn unfold(images: &[[usize; 3]]) -> Vec<bool> {
     let mut keep = vec![true; images.len()];
-    let mut groups: std::collections::HashMap<[usize; 3], (Vec<usize>, Vec<usize>)> = std::collections::HashMap::new();
-    for (i, k) in images.iter().enumerate() {
-        let mut s = *k;
-        s.sort_unstable();
-        // Orientation: rotations of the sorted triple are even.
-        let even = *k == s || *k == [s[1], s[2], s[0]] || *k == [s[2], s[0], s[1]];
-        let g = groups.entry(s).or_default();
-        if even {
-            g.0.push(i);
-        } else {
-            g.1.push(i);
+    // (sorted corners, odd orientation, index), grouped by sorting.
+    let mut keyed: Vec<([usize; 3], bool, u32)> = images
+        .iter()
+        .enumerate()
+        .map(|(i, k)| {
+            let mut s = *k;
+            s.sort_unstable();
+            // Orientation: rotations of the sorted triple are even.
+            let even = *k == s || *k == [s[1], s[2], s[0]] || *k == [s[2], s[0], s[1]];
+            (s, !even, i as u32)
+        })
+        .collect();
+    keyed.sort_unstable();
+    let mut i = 0;
+    while i < keyed.len() {
+        let mut j = i;
+        while j < keyed.len() && keyed[j].0 == keyed[i].0 {
+            j += 1;
         }
-    }
-    for (pos, neg) in groups.values() {
-        for (&a, &b) in pos.iter().zip(neg) {
-            keep[a] = false;
-            keep[b] = false;
+        if j - i > 1 {
+            let g = &keyed[i..j];
+            let split = g.partition_point(|x| !x.1);
+            for (p, n) in g[..split].iter().zip(&g[split..]) {
+                keep[p.2 as usize] = false;
+                keep[n.2 as usize] = false;
+            }
         }
+        i = j;
     }
     keep
 }

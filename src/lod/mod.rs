@@ -71,7 +71,7 @@ use cluster::Splits;
 use partition::{Histogram, LevelCube, Tiling, KEY_DEPTH};
 use rayon::prelude::*;
 use shared::{pos_bits, Band, SharedSort, WAS_LOCKED};
-use std::collections::HashMap;
+use rustc_hash::FxHashMap;
 use std::path::Path;
 use std::time::Instant;
 
@@ -173,6 +173,13 @@ pub struct Built {
 /// Most levels built (a guard; halving from 2^40 triangles takes 30).
 const MAX_LEVELS: u8 = 64;
 
+/// Depth of the centroid histograms that predict the next level's cells
+/// (1024 cells per axis; coarsened when they outgrow their memory share).
+const HIST_DEPTH: u8 = 10;
+
+/// Nodes per level whose split curves choose the level's threshold.
+const SAMPLED_NODES: usize = 32;
+
 /// Builds every level from `soup` into store directory `dir`.
 pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
     if !(opts.level_ratio > 1.0 && opts.level_ratio.is_finite()) {
@@ -224,8 +231,8 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
         // the next level's histogram.
         let progress = Progress::items(2 * ids.len() as u64, &format!("level {level}"), opts.quiet);
         let mut sorter = SharedSort::new((opts.mem / 4) as usize, scratch.path());
-        let mut hist = Histogram::new(KEY_DEPTH, hist_cap);
-        let stride = (ids.len() / 96).max(1);
+        let mut hist = Histogram::new(HIST_DEPTH, hist_cap);
+        let stride = (ids.len() / SAMPLED_NODES).max(1);
         let mut samples: Vec<Curve> = Vec::new();
         let mut positions_total = 0u64;
         for (bi, group) in ids.chunks(batch).enumerate() {
@@ -244,10 +251,17 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
                             records.push((*p, w.normal[pi].map(|x| x as f32), flags));
                         }
                     }
-                    let mut h = Histogram::new(KEY_DEPTH, hist_cap);
+                    // Centroid counts at the histogram's depth, as sorted runs.
+                    let mut h: Vec<(u64, u64)> = Vec::new();
                     if !is_final {
-                        for t in &g.mesh.triangles {
-                            h.add(nc.key(tri_centroid(&g.mesh, t)), 1);
+                        let mut keys: Vec<u64> =
+                            g.mesh.triangles.iter().map(|t| nc.key(tri_centroid(&g.mesh, t)) >> (3 * (KEY_DEPTH - HIST_DEPTH) as u32)).collect();
+                        keys.sort_unstable();
+                        for k in keys {
+                            match h.last_mut() {
+                                Some(l) if l.0 == k => l.1 += 1,
+                                _ => h.push((k, 1)),
+                            }
                         }
                     }
                     Ok(Pass1 { records, hist: h, positions: w.pos.len() as u64 })
@@ -259,7 +273,7 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
                 for (p, n, f) in r.records {
                     sorter.push(node, p, n, f)?;
                 }
-                hist.merge(r.hist);
+                hist.add_runs(HIST_DEPTH, &r.hist);
                 positions_total += r.positions;
                 progress.inc(1);
             }
@@ -308,7 +322,6 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
         let mut seam_only = 0u64;
         let mut prev_freed = 0u64;
         let mut next_total = 0u64;
-        let mut buf = Vec::new();
         for (bi, group) in ids.chunks(batch).enumerate() {
             let sets = group
                 .iter()
@@ -318,7 +331,9 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
             let done: Vec<Result<Pass2>> = group
                 .par_iter()
                 .zip(sets.par_iter())
-                .map(|(&leaf, set)| {
+                .enumerate()
+                .map(|(j, (&leaf, set))| {
+                    let id = base + bi * batch + j;
                     let g = chunks.gather(leaf)?;
                     let w = Welded::new(&g.mesh);
                     let mut p2 = Pass2::default();
@@ -351,30 +366,36 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
                     if !is_final {
                         let a = (level > 0).then_some(&g.a[..]);
                         let sp = Splits::new(&g.mesh, a, &locked, attrs, usize::MAX, tau);
-                        let (mut out, qa, out_locked, st) = sp.build(sp.steps(), opts.rel_tol);
-                        p2.clamped = st.clamped;
+                        let mut no = sp.build(sp.steps(), opts.rel_tol);
+                        p2.clamped = no.stats.clamped;
                         // Positions as stored, so errors and welding see the same bits.
                         let mut vb = vec![0u8; layout.size];
-                        for v in out.vertices.iter_mut() {
+                        for v in no.mesh.vertices.iter_mut() {
                             layout.encode(v, &mut vb);
                             *v = layout.decode(&vb);
                         }
-                        p2.error = node_error(&g.mesh, &out);
+                        p2.error = node_error(&g.mesh, &no);
+                        let out = &no.mesh;
+                        let out_locked: Vec<bool> = no.kept_from.iter().map(|&k| k != u32::MAX).collect();
+                        let qa = &no.a;
                         let leaf_of: Vec<u32> =
-                            out.triangles.iter().map(|t| next_tiling.locate(nc.key(tri_centroid(&out, t))) as u32).collect();
+                            out.triangles.iter().map(|t| next_tiling.locate(nc.key(tri_centroid(out, t))) as u32).collect();
                         p2.simp_tris = out.triangles.len() as u32;
-                        p2.routed = split_by_target(&out, &qa, a_len, &out_locked, &leaf_of)
-                            .into_iter()
-                            .map(|(target, m, a, l)| {
-                                let st = leaf_stats(&m);
-                                (target, m, a, l, st)
-                            })
-                            .collect();
-                        if p2.routed.is_empty() {
+                        let file = next_chunks.as_ref().expect("a next level");
+                        let mut routed = split_by_target(out, qa, a_len, &out_locked, &leaf_of);
+                        if routed.is_empty() {
                             // Everything collapsed: still give the node a parent.
                             let c = w.bounds.center();
-                            p2.routed.push((next_tiling.locate(nc.key(c)) as u32, IndexedMesh::default(), Vec::new(), Vec::new(), LeafStats::default()));
+                            routed.push((next_tiling.locate(nc.key(c)) as u32, IndexedMesh::default(), Vec::new(), Vec::new()));
                         }
+                        p2.routed = routed
+                            .into_iter()
+                            .map(|(target, m, a, l)| {
+                                let mut bytes = Vec::new();
+                                file.encode(target, id as u32, &m, &a, &l, &mut bytes);
+                                (target, bytes, leaf_stats(&m))
+                            })
+                            .collect();
                     }
                     Ok(p2)
                 })
@@ -382,7 +403,6 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
             for (j, r) in done.into_iter().enumerate() {
                 let r = r?;
                 let leaf = group[j];
-                let id = base + bi * batch + j;
                 let (offset, bytes) = pack.append(&r.payload)?;
                 let mut bounds = r.content;
                 let mut error = 0.0f64;
@@ -417,9 +437,8 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
                 seam_only += r.seam_only;
                 prev_freed += r.prev_freed;
                 if let Some(nc_file) = next_chunks.as_mut() {
-                    for (target, m, a, l, st) in &r.routed {
-                        nc_file.encode(*target, id as u32, m, a, l, &mut buf);
-                        nc_file.append(*target, &buf)?;
+                    for (target, bytes, st) in &r.routed {
+                        nc_file.append(*target, bytes)?;
                         let s = &mut next_leaves[*target as usize];
                         s.tris += st.tris;
                         s.bounds.merge(&st.bounds);
@@ -492,7 +511,8 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
 /// Pass-1 result of one node.
 struct Pass1 {
     records: Vec<([f64; 3], [f32; 3], u32)>,
-    hist: Histogram,
+    /// (key at HIST_DEPTH, count), sorted.
+    hist: Vec<(u64, u64)>,
     positions: u64,
 }
 
@@ -510,7 +530,8 @@ struct Pass2 {
     shared: u64,
     seam_only: u64,
     prev_freed: u64,
-    routed: Vec<(u32, IndexedMesh, Vec<f32>, Vec<bool>, LeafStats)>,
+    /// Encoded chunks for the next level: (target leaf, bytes, their stats).
+    routed: Vec<(u32, Vec<u8>, LeafStats)>,
 }
 
 /// A node's vertices welded by position: per position its point, the
@@ -529,7 +550,7 @@ struct Welded {
 
 impl Welded {
     fn new(m: &IndexedMesh) -> Welded {
-        let mut map: HashMap<[u64; 3], u32> = HashMap::with_capacity(m.vertices.len());
+        let mut map: FxHashMap<[u64; 3], u32> = FxHashMap::with_capacity_and_hasher(m.vertices.len(), Default::default());
         let mut pos = Vec::new();
         let mut bounds = Aabb::EMPTY;
         let pos_of: Vec<u32> = m
@@ -605,7 +626,7 @@ struct Curve {
 impl Curve {
     fn of(sp: &Splits, tris: usize) -> Curve {
         let n = sp.steps();
-        let mut steps: Vec<u32> = (0..=48).map(|j| ((n as u64 * j as u64 * j as u64) / (48 * 48)) as u32).collect();
+        let mut steps: Vec<u32> = (0..=24).map(|j| ((n as u64 * j as u64 * j as u64) / (24 * 24)) as u32).collect();
         steps.dedup();
         let counts = steps.iter().map(|&s| (s, sp.count_at(s) as f64)).collect();
         Curve { tris: tris as u64, prio: sp.priorities().to_vec(), counts }
@@ -679,30 +700,115 @@ fn tri_centroid(m: &IndexedMesh, t: &[u32; 3]) -> [f64; 3] {
 }
 
 /// The node's simplification error: the largest distance from an input
-/// vertex to the output surface, and from an output vertex to the input
-/// surface (both exact closest points through BVHs; vertices only).
-pub fn node_error(input: &IndexedMesh, output: &IndexedMesh) -> f64 {
-    use crate::metro::{Bvh, Mesh};
+/// vertex to the output surface (exact closest points through a BVH over
+/// the output), and from a representative to the input surface near it
+/// (the input triangles around its cluster's members: an upper bound of
+/// the exact distance, with no index over the input). Kept vertices are at
+/// distance 0.
+pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> f64 {
+    use crate::metro::closest_point_triangle;
+    let output = &out.mesh;
     if input.triangles.is_empty() {
         return 0.0;
     }
-    let mi = Mesh::from_vertices(&input.vertices, input.triangles.clone());
+    let dist2 = |p: [f64; 3], c: [[f64; 3]; 3]| {
+        let q = closest_point_triangle(p, c[0], c[1], c[2]);
+        (0..3).map(|k| (p[k] - q[k]).powi(2)).sum::<f64>()
+    };
+    // Input vertex → its image in the output.
+    let nv = input.vertices.len();
+    let mut image = vec![u32::MAX; nv];
+    for (o, &k) in out.kept_from.iter().enumerate() {
+        if k != u32::MAX {
+            image[k as usize] = o as u32;
+        }
+    }
+    for o in 0..output.vertices.len() {
+        for &m in &out.members[out.members_first[o] as usize..out.members_first[o + 1] as usize] {
+            image[m as usize] = o as u32;
+        }
+    }
+    let (in_first, in_around) = vertex_triangles(nv, &input.triangles);
+    let (out_first, out_around) = vertex_triangles(output.vertices.len(), &output.triangles);
+    let mut d2 = 0.0f64;
+    let mut bbox = Aabb::EMPTY;
+    // Input vertices to the output triangles around their image (an upper
+    // bound of the distance to the whole output surface).
+    for v in 0..nv {
+        if in_first[v + 1] == in_first[v] {
+            continue;
+        }
+        let p = input.vertices[v].pos;
+        bbox.add(p);
+        let o = image[v] as usize;
+        if o < output.vertices.len() && out.kept_from[o] == v as u32 {
+            continue; // kept as it is: on the output
+        }
+        let fan = if o < output.vertices.len() { &out_around[out_first[o] as usize..out_first[o + 1] as usize] } else { &[][..] };
+        let mut best = f64::INFINITY;
+        for &ti in fan {
+            best = best.min(dist2(p, output.triangles[ti as usize].map(|x| output.vertices[x as usize].pos)));
+            if best <= d2 {
+                break; // cannot raise the maximum
+            }
+        }
+        if best.is_finite() {
+            d2 = d2.max(best);
+        } else {
+            // The image lost every triangle: the nearest output vertex bounds it.
+            let near = output.vertices.iter().map(|w| (0..3).map(|k| (p[k] - w.pos[k]).powi(2)).sum::<f64>()).fold(f64::INFINITY, f64::min);
+            if near.is_finite() {
+                d2 = d2.max(near);
+            }
+        }
+    }
     if output.triangles.is_empty() {
         // Everything collapsed: the input's extent is the error.
-        return mi.bbox().diagonal();
+        return bbox.diagonal();
     }
-    let mo = Mesh::from_vertices(&output.vertices, output.triangles.clone());
-    let to_out = Bvh::new(&mo);
-    let mut d2 = mi.referenced_vertices().iter().map(|&i| to_out.closest(input.vertices[i as usize].pos).map_or(0.0, |c| c.dist2)).fold(0.0, f64::max);
-    let inputs: std::collections::HashSet<[u64; 3]> = input.vertices.iter().map(|v| pos_bits(v.pos)).collect();
-    let to_in = Bvh::new(&mi);
-    for &i in &mo.referenced_vertices() {
-        let p = output.vertices[i as usize].pos;
-        if !inputs.contains(&pos_bits(p)) {
-            d2 = d2.max(to_in.closest(p).map_or(0.0, |c| c.dist2));
+    // Representatives to the input triangles around their members.
+    for o in 0..output.vertices.len() {
+        let ms = &out.members[out.members_first[o] as usize..out.members_first[o + 1] as usize];
+        if ms.is_empty() {
+            continue;
+        }
+        let p = output.vertices[o].pos;
+        let mut best = f64::INFINITY;
+        'members: for &m in ms {
+            for &ti in &in_around[in_first[m as usize] as usize..in_first[m as usize + 1] as usize] {
+                best = best.min(dist2(p, input.triangles[ti as usize].map(|x| input.vertices[x as usize].pos)));
+                if best <= d2 {
+                    break 'members; // cannot raise the maximum
+                }
+            }
+        }
+        if best.is_finite() {
+            d2 = d2.max(best);
         }
     }
     d2.sqrt()
+}
+
+/// Triangles around each vertex: `around[first[v]..first[v + 1]]`.
+fn vertex_triangles(nv: usize, tris: &[[u32; 3]]) -> (Vec<u32>, Vec<u32>) {
+    let mut first = vec![0u32; nv + 1];
+    for t in tris {
+        for &v in t {
+            first[v as usize + 1] += 1;
+        }
+    }
+    for v in 0..nv {
+        first[v + 1] += first[v];
+    }
+    let mut next = first.clone();
+    let mut around = vec![0u32; first[nv] as usize];
+    for (ti, t) in tris.iter().enumerate() {
+        for &v in t {
+            around[next[v as usize] as usize] = ti as u32;
+            next[v as usize] += 1;
+        }
+    }
+    (first, around)
 }
 
 /// The smallest f32 not below `x` (errors are stored as f32 and must stay conservative).

@@ -26,7 +26,7 @@
 //! the octree.
 
 use crate::mesh::Aabb;
-use std::collections::HashMap;
+use rustc_hash::FxHashMap as HashMap;
 
 /// Bits per axis of full-depth keys.
 pub const KEY_DEPTH: u8 = 21;
@@ -110,13 +110,24 @@ pub struct Histogram {
 impl Histogram {
     /// Starts at `depth` (≤ [`KEY_DEPTH`]) with at most `cap` cells.
     pub fn new(depth: u8, cap: usize) -> Histogram {
-        Histogram { depth: depth.min(KEY_DEPTH), cap: cap.max(64), map: HashMap::new() }
+        Histogram { depth: depth.min(KEY_DEPTH), cap: cap.max(64), map: HashMap::default() }
     }
 
     #[inline]
     pub fn add(&mut self, key: u64, n: u64) {
         *self.map.entry(key >> (3 * (KEY_DEPTH - self.depth) as u32)).or_insert(0) += n;
         if self.map.len() > self.cap {
+            self.coarsen();
+        }
+    }
+
+    /// Adds sorted (key at `depth`, count) runs (e.g. from a worker thread).
+    pub fn add_runs(&mut self, depth: u8, runs: &[(u64, u64)]) {
+        let sh = 3 * depth.saturating_sub(self.depth) as u32;
+        for &(k, n) in runs {
+            *self.map.entry(k >> sh).or_insert(0) += n;
+        }
+        while self.map.len() > self.cap {
             self.coarsen();
         }
     }

@@ -24,7 +24,7 @@
 use crate::error::{IoContext, Result};
 use crate::extsort::ExtSorter;
 use crate::mesh::Aabb;
-use std::collections::HashMap;
+use rustc_hash::FxHashMap;
 use std::io::{BufReader, BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
 
@@ -281,7 +281,7 @@ impl SharedSort {
 }
 
 /// A node's shared positions: position bits → (summed normal, flags).
-pub type SharedSet = HashMap<[u64; 3], ([f32; 3], u32)>;
+pub type SharedSet = FxHashMap<[u64; 3], ([f32; 3], u32)>;
 
 /// Reads resolved records node by node, in node order.
 pub struct Resolved {
@@ -308,7 +308,7 @@ impl Resolved {
 
     /// The shared set of node `node`; nodes must be asked in increasing order.
     pub fn take(&mut self, node: u32) -> Result<SharedSet> {
-        let mut s = SharedSet::new();
+        let mut s = SharedSet::default();
         while let Some(r) = self.next()? {
             if r.0 < node {
                 continue;
