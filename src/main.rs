@@ -211,6 +211,19 @@ fn print_build(r: &octolod::pipeline::BuildReport) {
         octolod::progress::mib(r.disk_bytes),
         peak_rss().map(octolod::progress::mib).unwrap_or_else(|| "n/a".into())
     );
+    println!("{:>5} {:>7} {:>13} {:>11} {:>8} {:>10} {:>8}", "level", "nodes", "triangles", "err max", "locked", "prev.lock", "time");
+    for l in &r.levels {
+        println!(
+            "{:>5} {:>7} {:>13} {:>11.3e} {:>7.1}% {:>9} {:>7.2}s",
+            l.level,
+            l.nodes,
+            l.triangles,
+            l.error_max,
+            100.0 * l.locked_fraction(),
+            if l.level == 0 { String::new() } else { format!("{:.1}%", 100.0 * l.prev_still_fraction()) },
+            l.seconds
+        );
+    }
 }
 
 fn main() -> ExitCode {

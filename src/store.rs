@@ -387,9 +387,10 @@ impl Store {
     }
 
     /// Checks the index: ids and list ranges in range, children one level
-    /// finer and listing the node as parent (and the converse), levels
-    /// below the top, exactly one node at the top (the root), every node
-    /// reachable from the root, finite bounds and errors, errors monotone.
+    /// finer and listing the node as parent (and the converse), levels at
+    /// most the top, the top level's nodes and only they without parents
+    /// (so every node reaches a root), finite bounds and errors, errors
+    /// and bounds monotone (a parent's error ≥ and bounds ⊇ each child's).
     fn validate(&self) -> std::result::Result<(), String> {
         let n = self.nodes.len();
         if n == 0 {
@@ -424,6 +425,9 @@ impl Store {
                 }
                 if ch.error > nd.error {
                     return Err(format!("node {i}: error {} below its child {c}'s {}", nd.error, ch.error));
+                }
+                if !ch.bounds.is_empty() && (0..3).any(|k| ch.bounds.min[k] < nd.bounds.min[k] || ch.bounds.max[k] > nd.bounds.max[k]) {
+                    return Err(format!("node {i}: bounds do not contain its child {c}'s"));
                 }
             }
             for &p in self.parents_of(i) {
