@@ -700,13 +700,14 @@ fn tri_centroid(m: &IndexedMesh, t: &[u32; 3]) -> [f64; 3] {
 }
 
 /// The node's simplification error: the largest distance from an input
-/// vertex to the output surface (exact closest points through a BVH over
-/// the output), and from a representative to the input surface near it
-/// (the input triangles around its cluster's members: an upper bound of
-/// the exact distance, with no index over the input). Kept vertices are at
-/// distance 0.
+/// vertex to the output surface near it (the output triangles around the
+/// images of the vertex and of its neighbours), and from a representative
+/// to the input surface near it (the input triangles around its members
+/// and their neighbours): upper bounds of the exact distances, tight on
+/// the surfaces tried (a test compares them with exact BVH distances),
+/// with no index over either mesh. Kept vertices are at distance 0.
 pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> f64 {
-    use crate::metro::closest_point_triangle;
+    use crate::metro::{closest_point_triangle, Bvh, Mesh};
     let output = &out.mesh;
     if input.triangles.is_empty() {
         return 0.0;
@@ -732,6 +733,7 @@ pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> f64 {
     let (out_first, out_around) = vertex_triangles(output.vertices.len(), &output.triangles);
     let mut d2 = 0.0f64;
     let mut bbox = Aabb::EMPTY;
+    let mut whole: Option<Bvh> = None;
     // Input vertices to the output triangles around their image (an upper
     // bound of the distance to the whole output surface).
     for v in 0..nv {
@@ -744,21 +746,29 @@ pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> f64 {
         if o < output.vertices.len() && out.kept_from[o] == v as u32 {
             continue; // kept as it is: on the output
         }
-        let fan = if o < output.vertices.len() { &out_around[out_first[o] as usize..out_first[o + 1] as usize] } else { &[][..] };
+        // The output triangles around the images of v and of its neighbours
+        // cover v's surroundings.
         let mut best = f64::INFINITY;
-        for &ti in fan {
-            best = best.min(dist2(p, output.triangles[ti as usize].map(|x| output.vertices[x as usize].pos)));
-            if best <= d2 {
-                break; // cannot raise the maximum
+        'near: for &w in std::iter::once(&(v as u32)).chain(in_around[in_first[v] as usize..in_first[v + 1] as usize].iter().flat_map(|&t| input.triangles[t as usize].iter())) {
+            let o = image[w as usize] as usize;
+            if o >= output.vertices.len() {
+                continue;
+            }
+            for &ti in &out_around[out_first[o] as usize..out_first[o + 1] as usize] {
+                best = best.min(dist2(p, output.triangles[ti as usize].map(|x| output.vertices[x as usize].pos)));
+                if best <= d2 {
+                    break 'near; // cannot raise the maximum
+                }
             }
         }
         if best.is_finite() {
             d2 = d2.max(best);
-        } else {
-            // The image lost every triangle: the nearest output vertex bounds it.
-            let near = output.vertices.iter().map(|w| (0..3).map(|k| (p[k] - w.pos[k]).powi(2)).sum::<f64>()).fold(f64::INFINITY, f64::min);
-            if near.is_finite() {
-                d2 = d2.max(near);
+        } else if !output.triangles.is_empty() {
+            // The image lost every triangle (its cluster folded away): the
+            // exact distance to the whole output, through a BVH built once.
+            let bvh = whole.get_or_insert_with(|| Bvh::new(&Mesh::from_vertices(&output.vertices, output.triangles.clone())));
+            if let Some(c) = bvh.closest(p) {
+                d2 = d2.max(c.dist2);
             }
         }
     }
@@ -773,12 +783,19 @@ pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> f64 {
             continue;
         }
         let p = output.vertices[o].pos;
+        // The input triangles around the members and their neighbours.
         let mut best = f64::INFINITY;
-        'members: for &m in ms {
-            for &ti in &in_around[in_first[m as usize] as usize..in_first[m as usize + 1] as usize] {
-                best = best.min(dist2(p, input.triangles[ti as usize].map(|x| input.vertices[x as usize].pos)));
-                if best <= d2 {
-                    break 'members; // cannot raise the maximum
+        'members: for ring in 0..2 {
+            for &m in ms {
+                let around_m = &in_around[in_first[m as usize] as usize..in_first[m as usize + 1] as usize];
+                let verts: Vec<u32> = if ring == 0 { vec![m] } else { around_m.iter().flat_map(|&t| input.triangles[t as usize]).collect() };
+                for w in verts {
+                    for &ti in &in_around[in_first[w as usize] as usize..in_first[w as usize + 1] as usize] {
+                        best = best.min(dist2(p, input.triangles[ti as usize].map(|x| input.vertices[x as usize].pos)));
+                        if best <= d2 {
+                            break 'members; // cannot raise the maximum
+                        }
+                    }
                 }
             }
         }
