@@ -73,6 +73,9 @@ fn orbit_renders_non_empty_frames_within_budget_and_converges_to_full_res() {
     let ram = 6 << 20;
     let mut o = opts(&s, &out, None, ram);
     o.full_res = true;
+    // At 200x150 the roots alone already meet 1 px; ask for finer so the
+    // first frame must wait for loads.
+    o.view.select.max_error_px = 0.25;
     let r = render(&o).unwrap();
     check_budget(&r, ram);
     assert!(r.frames.len() >= 12);
@@ -88,7 +91,7 @@ fn orbit_renders_non_empty_frames_within_budget_and_converges_to_full_res() {
     assert!(!first.stats.settled);
     let last = r.frames.last().unwrap();
     assert!(last.stats.settled, "never settled");
-    assert!(last.stats.max_error_px <= 1.0 + 1e-9);
+    assert!(last.stats.max_error_px <= 0.25 + 1e-9);
     let d = last.diff_fraction.unwrap();
     assert!(d < 0.003, "settled frame differs from the full-resolution render in {:.3}% of pixels", 100.0 * d);
     assert!(last.psnr_db.unwrap() > 35.0, "PSNR {:?}", last.psnr_db);
