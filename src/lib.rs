@@ -3,8 +3,9 @@
 //!
 //! Data flow, one module per stage:
 //! `ply` (stream PLY) → `soup` (external sort + dereference into a triangle
-//! soup) → `octree` (disk-backed partition) → simplify/`quadric` → `store`
-//! → view, plus metro.
+//! soup) → `octree` (level-0 partition) → `lod` (levels of detail, with
+//! `quadric`) → `store` → `view`, plus `reduce` (one mesh of the size or
+//! error asked, from a store) and `metro`.
 //! Shared plumbing: [`mesh`] (attribute model), [`error`], [`io`],
 //! [`progress`], [`extsort`], [`mem`].
 
@@ -20,6 +21,7 @@ pub mod pipeline;
 pub mod ply;
 pub mod progress;
 pub mod quadric;
+pub mod reduce;
 
 pub mod lod;
 

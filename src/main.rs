@@ -64,13 +64,33 @@ enum Cmd {
         #[arg(long)]
         no_weld: bool,
     },
-    /// Build a store in a temporary directory and extract the level nearest --target-tris.
+    /// One mesh of the size (or error) asked: builds a store in a scratch
+    /// directory, then reduces its nearest level to exactly that size.
+    #[command(group(clap::ArgGroup::new("target").required(true).args(["target_tris", "target_ratio", "target_error"])))]
     Simplify {
         input: PathBuf,
         #[arg(short, long)]
         output: PathBuf,
+        /// Output triangles (within 1 %).
+        #[arg(long, value_name = "N")]
+        target_tris: Option<u64>,
+        /// Output triangles as a fraction of the input's (e.g. 0.1).
+        #[arg(long, value_name = "R")]
+        target_ratio: Option<f64>,
+        /// The smallest mesh whose measured Hausdorff distance to the input
+        /// (both directions) is at most E (object space, or `0.1%` of the diagonal).
+        #[arg(long, value_name = "E")]
+        target_error: Option<String>,
+        /// Node simplifier: collapse (quadric edge collapse, accurate) or
+        /// cluster (generalized-quadric vertex clustering, fast).
+        #[arg(long, default_value = "collapse")]
+        simplifier: octolod::reduce::Simplifier,
+        /// Metro samples per direction when checking --target-error.
+        #[arg(long, default_value_t = 1_000_000)]
+        verify_samples: u64,
+        /// Print the report as JSON.
         #[arg(long)]
-        target_tris: u64,
+        json: bool,
         #[command(flatten)]
         params: BuildParams,
     },
@@ -345,18 +365,60 @@ fn run(cli: Cli) -> Result<()> {
             println!("extract: {}: {nv} vertices, {nf} triangles -> {}", spec.describe(), output.display());
             Ok(())
         }
-        Cmd::Simplify { input, output, target_tris, params } => {
+        Cmd::Simplify { input, output, target_tris, target_ratio, target_error, simplifier, verify_samples, json, params } => {
+            use octolod::reduce::{ReduceOptions, Target};
             octolod::io::check_output(&output, octolod::io::OutputKind::Ply, cli.force)?;
+            let threshold = target_error.as_deref().map(octolod::metro::Threshold::parse).transpose()?;
             let tmp = octolod::io::scratch_dir(&output)?;
             let dir = tmp.path().join("store.octolod");
-            let r = octolod::pipeline::build_store(&input, &dir, &params.options(cli.quiet, false)?)?;
-            print_build(&r);
+            let bo = params.options(cli.quiet || json, false)?;
+            let r = octolod::pipeline::build_store(&input, &dir, &bo)?;
+            if !json {
+                print_build(&r);
+            }
             let s = octolod::store::Store::open(&dir)?;
-            let level = octolod::pipeline::nearest_level(&s, target_tris);
-            let (nv, nf) = octolod::pipeline::extract(&s, octolod::pipeline::CutSpec::Level(level), &output, true, cli.force)?;
-            println!("simplify: level {level} nearest {target_tris}: {nv} vertices, {nf} triangles -> {}", output.display());
+            let target = match (target_tris, target_ratio, threshold) {
+                (Some(n), _, _) => Target::Tris(n),
+                (_, Some(r), _) => Target::Ratio(r),
+                (_, _, Some(t)) => Target::Error(t.limit(s.header.bbox.diagonal())),
+                _ => unreachable!("clap requires one target"),
+            };
+            let o = ReduceOptions { target, simplifier, mem: bo.mem, verify_samples, force: cli.force };
+            let rep = octolod::reduce::simplify_store(&s, &output, &o)?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&rep).expect("the report serializes"));
+            } else {
+                println!(
+                    "simplify: {} from {} ({} triangles, {:?}, {}): {} vertices, {} triangles -> {}",
+                    match rep.target_triangles {
+                        Some(n) => format!("{n} triangles asked"),
+                        None => format!("error <= {:e} asked, measured {:e} after {} tries", o_err(&o), rep.hausdorff.unwrap_or(f64::NAN), rep.tries),
+                    },
+                    rep.start,
+                    rep.start_triangles,
+                    simplifier,
+                    rep.route,
+                    rep.vertices,
+                    rep.triangles,
+                    output.display()
+                );
+                if let Some(n) = &rep.note {
+                    eprintln!("simplify: {n}");
+                }
+            }
+            if !rep.reached {
+                eprintln!("simplify: target not met (see above); the closest mesh was written");
+                std::process::exit(3);
+            }
             Ok(())
         }
+    }
+}
+
+fn o_err(o: &octolod::reduce::ReduceOptions) -> f64 {
+    match o.target {
+        octolod::reduce::Target::Error(e) => e,
+        _ => f64::NAN,
     }
 }
 

@@ -1,6 +1,6 @@
 //! Whole-pipeline commands: PLY → store (`build`), store → PLY (`extract`
-//! of a whole level or of the cut at an error), and the level choice behind
-//! `simplify`.
+//! of a whole level or of the cut at an error; `simplify` is in
+//! [`crate::reduce`]).
 //!
 //! Takes: paths and typed options from the binaries. Gives: a complete
 //! `NAME.octolod/` directory (written under a temporary name and moved into
@@ -14,7 +14,7 @@ use crate::octree::OctreeReport;
 use crate::ply::write::{PlyWriteOptions, PlyWriter};
 use crate::soup::{build_soup, SoupOptions, SoupReport};
 use crate::store::{write_index, Cut, IndexedMesh, Manifest, ManifestLevel, ManifestParams, ManifestSeconds, Store};
-use crate::mesh::VertexLayout;
+use crate::mesh::{AttrSet, VertexLayout};
 use std::collections::HashMap;
 use std::path::Path;
 use std::time::Instant;
@@ -162,20 +162,15 @@ pub fn extract(store: &Store, spec: CutSpec, out: &Path, weld: bool, force: bool
         comments: vec![format!("octolod {} of {}", spec.describe(), store.dir.display())],
         ..Default::default()
     };
-    let mut file = crate::io::AtomicFile::create(out, OutputKind::Ply, force)?;
-    let (nv, nf) = if weld {
+    if weld {
         let parts = cut_meshes(store, &cut).collect::<Result<Vec<_>>>()?;
         let m = weld_union(&store.layout, &parts);
-        let mut w = PlyWriter::new(file.writer(), &opts, m.vertices.len() as u64, m.triangles.len() as u64).ctx(out, "write")?;
-        for v in &m.vertices {
-            w.vertex(v).ctx(out, "write")?;
-        }
-        for t in &m.triangles {
-            w.face(t).ctx(out, "write")?;
-        }
-        w.finish().ctx(out, "write")?;
-        (m.vertices.len() as u64, m.triangles.len() as u64)
-    } else {
+        drop(parts);
+        write_mesh_ply(out, store.header.attrs, &opts.comments[0], &m, force)?;
+        return Ok((m.vertices.len() as u64, m.triangles.len() as u64));
+    }
+    let mut file = crate::io::AtomicFile::create(out, OutputKind::Ply, force)?;
+    let (nv, nf) = {
         // PLY puts all vertices before all faces: two passes over the nodes.
         let (mut nv, mut nf) = (0u64, 0u64);
         for m in cut_meshes(store, &cut) {
@@ -204,6 +199,27 @@ pub fn extract(store: &Store, spec: CutSpec, out: &Path, weld: bool, force: bool
     Ok((nv, nf))
 }
 
+/// Writes one indexed mesh as a binary little-endian PLY with `attrs`,
+/// atomically (an existing PLY octolod wrote is replaced only with `force`).
+pub fn write_mesh_ply(out: &Path, attrs: AttrSet, comment: &str, m: &IndexedMesh, force: bool) -> Result<()> {
+    let opts = PlyWriteOptions {
+        attrs,
+        index_type: crate::ply::Scalar::U32,
+        comments: vec![comment.to_string()],
+        ..Default::default()
+    };
+    let mut file = crate::io::AtomicFile::create(out, OutputKind::Ply, force)?;
+    let mut w = PlyWriter::new(file.writer(), &opts, m.vertices.len() as u64, m.triangles.len() as u64).ctx(out, "write")?;
+    for v in &m.vertices {
+        w.vertex(v).ctx(out, "write")?;
+    }
+    for t in &m.triangles {
+        w.face(t).ctx(out, "write")?;
+    }
+    w.finish().ctx(out, "write")?;
+    file.commit()
+}
+
 /// Concatenates meshes, welding vertices that are bit-identical in `layout`
 /// (unreferenced vertices dropped).
 pub fn weld_union(layout: &VertexLayout, parts: &[IndexedMesh]) -> IndexedMesh {
@@ -229,9 +245,4 @@ pub fn weld_union(layout: &VertexLayout, parts: &[IndexedMesh]) -> IndexedMesh {
         }
     }
     out
-}
-
-/// The level whose whole-level triangle count is nearest `target`.
-pub fn nearest_level(store: &Store, target: u64) -> u8 {
-    (0..=store.top_level()).min_by_key(|&l| store.level_triangles(l).abs_diff(target)).unwrap_or(0)
 }

@@ -1,0 +1,235 @@
+//! `octolod simplify`: exact sizes (in memory and node by node), error
+//! targets checked with metro, attributes carried, hard cases bounded, and
+//! node-by-node results closed.
+
+mod common;
+
+use common::{build_from, edge_counts, gen_ply, weld_positions};
+use octolod::gen::Shape;
+use octolod::mesh::{AttrSet, Vertex};
+use octolod::reduce::{simplify_store, ReduceOptions, ReduceReport, Simplifier, Target};
+use octolod::store::{IndexedMesh, Store};
+use std::path::Path;
+use std::process::Command;
+
+const BOTH: [Simplifier; 2] = [Simplifier::Collapse, Simplifier::Cluster];
+
+fn opts(target: Target, simplifier: Simplifier, mem: u64) -> ReduceOptions {
+    ReduceOptions { target, simplifier, mem, verify_samples: 200_000, force: false }
+}
+
+fn read(p: &Path) -> (AttrSet, IndexedMesh) {
+    let (h, m, _) = octolod::ply::read::read_all(p).unwrap();
+    let tris = m.triangles.iter().map(|t| t.map(|i| i as u32)).collect();
+    (h.attrs, IndexedMesh { vertices: m.vertices, triangles: tris })
+}
+
+fn run(s: &Store, dir: &Path, name: &str, o: &ReduceOptions) -> (ReduceReport, AttrSet, IndexedMesh) {
+    let out = dir.join(format!("{name}.ply"));
+    let r = simplify_store(s, &out, o).unwrap_or_else(|e| panic!("{name}: {e}"));
+    let (a, m) = read(&out);
+    assert_eq!(r.triangles, m.triangles.len() as u64, "{name}");
+    (r, a, m)
+}
+
+fn within_1pct(got: usize, n: u64) -> bool {
+    (got as f64 - n as f64).abs() <= 0.01 * n as f64
+}
+
+/// Edges used once, after welding by position (0 on a closed result).
+fn open_edges(m: &IndexedMesh) -> usize {
+    let (_, t) = weld_positions(std::iter::once((&m.vertices[..], &m.triangles[..])));
+    edge_counts(&t).values().filter(|&&n| n == 1).count()
+}
+
+fn bbox(v: &[Vertex]) -> octolod::mesh::Aabb {
+    let mut b = octolod::mesh::Aabb::EMPTY;
+    for x in v {
+        b.add(x.pos);
+    }
+    b
+}
+
+#[test]
+fn exact_counts_in_memory_from_1e3_to_1e6() {
+    let dir = tempfile::tempdir().unwrap();
+    for (tris, targets) in [(1_000u64, &[500u64, 100][..]), (100_000, &[30_000, 1_000]), (1_000_000, &[250_000, 5_000])] {
+        let (ply, _) = gen_ply(dir.path(), Shape::Sphere, tris, 0);
+        let s = build_from(dir.path(), &ply, 16_384);
+        for &n in targets {
+            for simp in BOTH {
+                let name = format!("exact-{tris}-{n}-{simp:?}");
+                let (r, _, m) = run(&s, dir.path(), &name, &opts(Target::Tris(n), simp, 1 << 30));
+                assert_eq!(r.route, "in-memory", "{name}");
+                assert!(within_1pct(m.triangles.len(), n), "{name}: {} triangles", m.triangles.len());
+                assert!(r.reached, "{name}");
+                // The sphere is closed; collapse keeps it closed.
+                if simp == Simplifier::Collapse {
+                    assert_eq!(open_edges(&m), 0, "{name}");
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn exact_counts_node_by_node_under_a_small_budget_stay_closed() {
+    let dir = tempfile::tempdir().unwrap();
+    let (ply, input) = gen_ply(dir.path(), Shape::Sphere, 200_000, 0);
+    let s = build_from(dir.path(), &ply, 4096);
+    let diag = bbox(&input.vertices).diagonal();
+    // 8 MiB holds about 35 K triangles: no level with >= 30 K fits whole.
+    let mem = 8 << 20;
+    for simp in BOTH {
+        let n = 30_000;
+        let name = format!("per-node-{simp:?}");
+        let (r, _, m) = run(&s, dir.path(), &name, &opts(Target::Tris(n), simp, mem));
+        assert_eq!(r.route, "per-node", "{name}");
+        assert!(within_1pct(m.triangles.len(), n), "{name}: {} triangles", m.triangles.len());
+        let open = open_edges(&m);
+        if simp == Simplifier::Collapse {
+            assert_eq!(open, 0, "{name}: seams between nodes opened");
+        } else {
+            // Clustering may fold thin spots away, never open a seam.
+            assert!(open <= m.triangles.len() / 1000, "{name}: {open} open edges");
+        }
+        let e = octolod::metro::compare(
+            &octolod::metro::Mesh::from_vertices(&input.vertices, input.triangles.clone()),
+            &octolod::metro::Mesh::from_vertices(&m.vertices, m.triangles.clone()),
+            &octolod::metro::Options { samples: Some(200_000), ..Default::default() },
+        )
+        .unwrap();
+        assert!(e.combined.max < 2e-3 * diag, "{name}: Hausdorff {:e}", e.combined.max / diag);
+    }
+    // An output larger than the budget is refused with a clear message.
+    let err = simplify_store(&s, &dir.path().join("big.ply"), &opts(Target::Tris(150_000), Simplifier::Collapse, mem)).unwrap_err();
+    assert!(err.to_string().contains("--mem"), "{err}");
+    assert!(!dir.path().join("big.ply").exists());
+}
+
+#[test]
+fn target_error_is_met_when_measured_by_metro() {
+    let dir = tempfile::tempdir().unwrap();
+    let (ply, input) = gen_ply(dir.path(), Shape::Scan, 60_000, 0);
+    let s = build_from(dir.path(), &ply, 4096);
+    let diag = s.header.bbox.diagonal();
+    for simp in BOTH {
+        for rel in [2e-3, 5e-4] {
+            let e = rel * diag;
+            let name = format!("err-{simp:?}-{rel}");
+            let (r, _, m) = run(&s, dir.path(), &name, &opts(Target::Error(e), simp, 1 << 30));
+            assert!(r.reached, "{name}: {r:?}");
+            // Clustering offers the store's cuts only: below the finest
+            // level's error (the scan's noise) it returns the input.
+            if simp == Simplifier::Collapse || rel >= 2e-3 {
+                assert!(m.triangles.len() < input.triangles.len(), "{name}: nothing removed");
+            }
+            let d = octolod::metro::compare(
+                &octolod::metro::Mesh::from_vertices(&input.vertices, input.triangles.clone()),
+                &octolod::metro::Mesh::from_vertices(&m.vertices, m.triangles.clone()),
+                &octolod::metro::Options { samples: Some(400_000), seed: 7, quiet: true },
+            )
+            .unwrap();
+            assert!(d.combined.max <= e, "{name}: metro {:e} > {e:e}", d.combined.max);
+        }
+    }
+}
+
+#[test]
+fn attributes_survive_both_simplifiers() {
+    let dir = tempfile::tempdir().unwrap();
+    let attrs = AttrSet::NORMAL | AttrSet::COLOR | AttrSet::UV;
+    let (ply, input) = gen_ply(dir.path(), Shape::Sphere, 40_000, attrs);
+    let s = build_from(dir.path(), &ply, 4096);
+    let (umin, umax) = input.vertices.iter().fold((f32::MAX, f32::MIN), |(a, b), v| (a.min(v.uv[0]), b.max(v.uv[0])));
+    let cmax = input.vertices.iter().map(|v| v.color[0]).max().unwrap();
+    let cmin = input.vertices.iter().map(|v| v.color[0]).min().unwrap();
+    for simp in BOTH {
+        let name = format!("attrs-{simp:?}");
+        let (_, a, m) = run(&s, dir.path(), &name, &opts(Target::Tris(4_000), simp, 1 << 30));
+        assert_eq!(a.0 & attrs, attrs, "{name}: attributes lost");
+        for v in &m.vertices {
+            let l = glam::Vec3::from(v.normal).length();
+            assert!((l - 1.0).abs() < 1e-3, "{name}: normal of length {l}");
+            // Clustering's least-squares uv may overshoot by a hair.
+            let tol = 1e-3 * (umax - umin);
+            assert!(v.uv[0] >= umin - tol && v.uv[0] <= umax + tol, "{name}: uv {:?}", v.uv);
+            assert!(v.color[0] >= cmin.saturating_sub(1) && v.color[0] <= cmax.saturating_add(1), "{name}: colour {:?}", v.color);
+        }
+        // Colours vary over the sphere; they are not flattened.
+        let distinct: std::collections::HashSet<u8> = m.vertices.iter().map(|v| v.color[0]).collect();
+        assert!(distinct.len() > 8, "{name}: {} distinct reds", distinct.len());
+    }
+}
+
+#[test]
+fn hard_cases_stay_finite_and_bounded_with_collapse() {
+    let dir = tempfile::tempdir().unwrap();
+    for (shape, attrs) in [
+        (Shape::Plane, 0),
+        (Shape::Cylinder, 0),
+        (Shape::Sheets, 0),
+        (Shape::Slivers, 0),
+        (Shape::Offset, AttrSet::POS_F64),
+        (Shape::Fan, 0),
+        (Shape::Open, 0),
+        (Shape::Duplicates, 0),
+    ] {
+        let (ply, input) = gen_ply(dir.path(), shape, 20_000, attrs);
+        let s = build_from(dir.path(), &ply, 4096);
+        let ib = bbox(&input.vertices);
+        let n = (input.triangles.len() / 10).max(1) as u64;
+        for simp in BOTH {
+            let name = format!("{}-{simp:?}", shape.name());
+            let out = dir.path().join(format!("{name}.ply"));
+            let r = simplify_store(&s, &out, &opts(Target::Tris(n), simp, 1 << 30)).unwrap();
+            let (_, m) = read(&out);
+            // Clustering folds away parts thinner than a cluster (the two
+            // sheets 1e-4 apart): then it must say it missed the target.
+            assert!(!m.triangles.is_empty() || (simp == Simplifier::Cluster && !r.reached), "{name}: empty");
+            assert!(m.triangles.len() as u64 <= n + n / 100 || !r.reached, "{name}: {} > {n} and reported reached", m.triangles.len());
+            let tol = 1e-6 * ib.diagonal();
+            for v in &m.vertices {
+                assert!(v.pos.iter().all(|x| x.is_finite()), "{name}: non-finite vertex");
+                for k in 0..3 {
+                    assert!(v.pos[k] >= ib.min[k] - tol && v.pos[k] <= ib.max[k] + tol, "{name}: {:?} outside {ib:?}", v.pos);
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn cli_targets_and_exit_codes() {
+    let dir = tempfile::tempdir().unwrap();
+    let (ply, _) = gen_ply(dir.path(), Shape::Terrain, 30_000, 0);
+    let bin = env!("CARGO_BIN_EXE_octolod");
+    let out = dir.path().join("o.ply");
+    let go = |args: &[&str]| Command::new(bin).arg("--quiet").args(args).output().unwrap();
+    let o = go(&["simplify", ply.to_str().unwrap(), "-o", out.to_str().unwrap(), "--target-ratio", "0.1", "--json"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let input = j["input_triangles"].as_u64().unwrap();
+    let got = j["triangles"].as_u64().unwrap();
+    assert!(within_1pct(got as usize, (input as f64 * 0.1).round() as u64), "{j}");
+    assert_eq!(read(&out).1.triangles.len() as u64, got);
+    // An existing output is not replaced without --force ...
+    let o = go(&["simplify", ply.to_str().unwrap(), "-o", out.to_str().unwrap(), "--target-tris", "500"]);
+    assert_eq!(o.status.code(), Some(1), "{}", String::from_utf8_lossy(&o.stderr));
+    // ... and is with it.
+    let o = go(&["--force", "simplify", ply.to_str().unwrap(), "-o", out.to_str().unwrap(), "--target-tris", "500", "--simplifier", "cluster"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(within_1pct(read(&out).1.triangles.len(), 500));
+    // A target is required; two are refused.
+    let o = go(&["simplify", ply.to_str().unwrap(), "-o", dir.path().join("x.ply").to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(2));
+    let o = go(&["simplify", ply.to_str().unwrap(), "-o", dir.path().join("x.ply").to_str().unwrap(), "--target-tris", "5", "--target-ratio", "0.5"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(!dir.path().join("x.ply").exists());
+    // Error targets in % of the diagonal.
+    let o = go(&["simplify", ply.to_str().unwrap(), "-o", dir.path().join("e.ply").to_str().unwrap(), "--target-error", "0.2%", "--json"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(j["reached"], true, "{j}");
+    assert!(j["triangles"].as_u64().unwrap() < input, "{j}");
+}
