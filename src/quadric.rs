@@ -334,6 +334,14 @@ const fn a_len(n: usize) -> usize {
     n * (n + 1) / 2
 }
 
+/// Values a vertex carries from level to level (see [`crate::lod`]): its
+/// quadric about its own position `p`, `Q(x) = (x−p)ᵀA(x−p) + 2gᵀ(x−p) + e`
+/// — the packed matrix A, the half-gradient g = ∇Q(p)/2 and the residual
+/// e = Q(p). Relative to `p`, so far from the origin nothing cancels.
+pub const fn carry_len(dim: usize) -> usize {
+    a_len(dim) + dim + 1
+}
+
 type Mat = [[f64; MAX_DIM]; MAX_DIM];
 
 impl Quadric {
@@ -682,6 +690,17 @@ impl Quadric {
 
     /// `Q(x) = xᵀAx + 2bᵀx + c` for an embedded point (length ≥ dim), clamped
     /// to ≥ 0 (negative values are roundoff).
+    /// Half the gradient at `x`: `A x + b`.
+    pub fn half_gradient(&self, x: &[f64]) -> [f64; MAX_DIM] {
+        let a = self.matrix();
+        let b = self.b();
+        let mut g = [0.0; MAX_DIM];
+        for i in 0..self.dim {
+            g[i] = b[i] + (0..self.dim).map(|j| a[i][j] * x[j]).sum::<f64>();
+        }
+        g
+    }
+
     pub fn error(&self, x: &[f64]) -> f64 {
         let n = self.dim;
         let x = &x[..n];

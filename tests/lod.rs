@@ -249,3 +249,38 @@ fn smooth_colors_survive_simplification() {
     assert!(sum / n < 16.0, "mean color error {} of 255", sum / n);
     assert!(worst < 96, "worst color error {worst} of 255");
 }
+
+/// Cutting a level into many nodes costs (almost) no accuracy: the same
+/// sphere built with small nodes and with one node per level, each level
+/// measured by metro against the input at (about) equal size. Seams of a
+/// level-0 node once carried false border planes into the next levels'
+/// quadrics and made small-node levels 2–4× worse.
+#[test]
+fn small_nodes_are_as_accurate_as_one_big_node() {
+    use octolod::metro::{compare, load_store_level, Mesh, Options};
+    use octolod::pipeline::{build_store, BuildOptions};
+    let d = tempfile::tempdir().unwrap();
+    let (ply, input) = common::gen_ply(d.path(), Shape::Sphere, 200_000, 0);
+    let a = Mesh::from_vertices(&input.vertices, input.triangles.clone());
+    let mut rms = Vec::new();
+    for leaf in [1024u64, 1 << 20] {
+        let out = d.path().join(format!("s{leaf}.octolod"));
+        build_store(&ply, &out, &BuildOptions { mem: 64 << 20, leaf_tris: leaf, ..Default::default() }).unwrap();
+        let s = Store::open(&out).unwrap();
+        let mut per = Vec::new();
+        for l in 2..=4u8 {
+            let b = load_store_level(&out, l).unwrap();
+            let r = compare(&a, &b, &Options { samples: Some(200_000), ..Default::default() }).unwrap();
+            per.push((b.triangles.len() as f64, r.combined.rms));
+        }
+        if leaf == 1024 {
+            assert!(s.nodes.iter().filter(|n| n.level == 3).count() >= 8, "level 3 should have many nodes");
+        }
+        rms.push(per);
+    }
+    for (small, big) in rms[0].iter().zip(&rms[1]) {
+        // RMS ∝ 1/size on a smooth surface: compare at equal size.
+        let ratio = (small.1 * small.0) / (big.1 * big.0);
+        assert!(ratio < 1.25, "small nodes {small:?} vs one node {big:?}: {ratio:.2}x");
+    }
+}

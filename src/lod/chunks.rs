@@ -5,13 +5,14 @@
 //! from the octree cut (level 0: one chunk per leaf, the input's
 //! triangles) or from a node's simplified mesh (level L + 1). Gives: for
 //! each leaf, its triangles welded into one indexed mesh with, per vertex,
-//! its propagated quadric matrix and whether it was locked one level below,
+//! its propagated quadric and whether it was locked one level below,
 //! grouped into patches by source node ([`ChunkFile::gather`]).
 //!
 //! Format (temp file, little-endian): per chunk `u32 target leaf, u32
 //! source node, u32 vertex count, u32 triangle count`, then per vertex the
-//! vertex in the store's input layout, `a_len` f32 of its quadric matrix
-//! (packed upper triangle, attribute dimensions unweighted) and one flag
+//! vertex in the store's input layout, `a_len` f32 of its quadric about its
+//! position (packed upper-triangle matrix, half-gradient, residual:
+//! [`crate::quadric::carry_len`]; attribute dimensions unweighted) and one flag
 //! byte (bit 0: locked at the source's level), then `3 × u32` per triangle.
 //!
 //! Why chunks rather than a triangle soup sorted again for every level:

@@ -41,7 +41,7 @@
 //! sides fold and are removed); the surface stays closed.
 
 use crate::mesh::{Aabb, AttrSet, Vertex};
-use crate::quadric::{AttrWeights, Quadric, QuadricSpace, MAX_DIM};
+use crate::quadric::{carry_len, AttrWeights, Quadric, QuadricSpace, MAX_DIM};
 use crate::store::IndexedMesh;
 use std::collections::BinaryHeap;
 
@@ -49,7 +49,7 @@ use std::collections::BinaryHeap;
 #[derive(Clone, Debug, Default)]
 pub struct NodeOut {
     pub mesh: IndexedMesh,
-    /// Quadric matrix per output vertex (packed, raw attribute units).
+    /// Carried quadric per output vertex ([`carry_len`] values about its position, raw attribute units).
     pub a: Vec<f64>,
     /// Per output vertex: the input vertex it is (kept), or `u32::MAX` for
     /// a representative.
@@ -160,25 +160,27 @@ impl<'a> Splits<'a> {
         // Per vertex: its quadric matrix (propagated, or its triangles' sum).
         let embedded: Vec<[f64; MAX_DIM]> = mesh.vertices.iter().map(|v| sp.space.embed(v)).collect();
         let al = dim * (dim + 1) / 2;
+        let cs = carry_len(dim);
         sp.va = match vertex_a {
             Some(a) => {
                 // Carried in raw attribute units; this node weighs attributes by its size.
-                let mut va = a[..nv * al].to_vec();
+                let mut va = a[..nv * cs].to_vec();
                 let d = attr_scale(&sp.space, false);
-                for v in va.chunks_exact_mut(al) {
-                    scale_packed(v, dim, &d);
+                for v in va.chunks_exact_mut(cs) {
+                    scale_carried(v, dim, &d);
                 }
                 va
             }
             None => {
-                let mut va = vec![0.0f64; nv * al];
+                // The input's planes pass through their corners: g = 0, e = 0.
+                let mut va = vec![0.0f64; nv * cs];
                 for t in &mesh.triangles {
                     let tq = Quadric::from_triangle(&sp.space, &embedded[t[0] as usize], &embedded[t[1] as usize], &embedded[t[2] as usize]);
                     for &v in t {
-                        add(&mut va[v as usize * al..(v as usize + 1) * al], tq.matrix_packed());
+                        add(&mut va[v as usize * cs..v as usize * cs + al], tq.matrix_packed());
                     }
                 }
-                add_border_planes(mesh, dim, &mut va);
+                add_border_planes(mesh, locked, dim, cs, &mut va);
                 va
             }
         };
@@ -188,10 +190,21 @@ impl<'a> Splits<'a> {
         let nf = sp.free.len();
         let mut vq = vec![0.0f64; nf * cl];
         for (i, &v) in sp.free.iter().enumerate() {
-            let a = &sp.va[v as usize * al..(v as usize + 1) * al];
+            let c = &sp.va[v as usize * cs..(v as usize + 1) * cs];
+            let a = &c[..al];
             // The trace stands for the area (only its being non-zero matters).
             let area = (0..dim).map(|k| a[diag_at(dim, k)]).sum::<f64>().max(f64::MIN_POSITIVE);
-            crate::quadric::packed_at_point(dim, a, &embedded[v as usize], area, &mut vq[i * cl..(i + 1) * cl]);
+            let p = &embedded[v as usize];
+            let q = &mut vq[i * cl..(i + 1) * cl];
+            crate::quadric::packed_at_point(dim, a, p, area, q);
+            // The exact input quadric about p: its gradient there too (a
+            // representative of a curved patch is not on its planes). The
+            // residual e is left out, so priorities measure what a split
+            // can still gain; the build adds the members' back.
+            for k in 0..dim {
+                q[al + k] += c[al + k];
+                q[al + dim] -= 2.0 * c[al + k] * p[k];
+            }
         }
         let local: Vec<[f64; 3]> = sp.free.iter().map(|&v| sp.space.to_local(mesh.vertices[v as usize].pos)).collect();
         let mut order: Vec<u32> = (0..nf as u32).collect();
@@ -384,10 +397,14 @@ impl<'a> Splits<'a> {
         let al = dim * (dim + 1) / 2;
         let cl = self.cl;
         let d = attr_scale(&self.space, true);
+        let cs = carry_len(dim);
         let mut remap = vec![u32::MAX; nv];
         let mut rep_cell: Vec<u32> = Vec::new();
         let mut reps: Vec<Vertex> = Vec::new();
         let mut rep_of_free = Vec::new();
+        // Per representative: half-gradient and residual of its quadric at
+        // its position (the members' residuals added below).
+        let mut rep_ge: Vec<f64> = Vec::new();
         if !self.free.is_empty() {
             let a = self.assign(s);
             let mut rep_of_cell = vec![u32::MAX; self.cells.len()];
@@ -401,19 +418,27 @@ impl<'a> Splits<'a> {
                     st.clamped += sol.clamped as u64;
                     rep_of_cell[c] = reps.len() as u32;
                     reps.push(self.space.unembed(&sol.x[..dim], &self.mesh.vertices[v as usize]));
+                    rep_ge.extend_from_slice(&q.half_gradient(&sol.x)[..dim]);
+                    rep_ge.push(sol.error.max(0.0));
                 }
+                rep_ge[rep_of_cell[c] as usize * (dim + 1) + dim] += self.va[v as usize * cs + al + dim];
                 remap[v as usize] = rep_of_cell[c];
                 rep_of_free.push(rep_of_cell[c]);
             }
         }
         st.clusters = reps.len() as u64;
         let (mesh, src) = compact(self.mesh, &remap, &reps);
-        let mut out_a = vec![0.0; src.len() * al];
+        let mut out_a = vec![0.0; src.len() * cs];
         for (o, &k) in src.iter().enumerate() {
-            let a = if k < nv { &self.va[k * al..(k + 1) * al] } else { self.rep_a(rep_cell[k - nv] as usize) };
-            let dst = &mut out_a[o * al..(o + 1) * al];
-            dst.copy_from_slice(a);
-            scale_packed(dst, dim, &d);
+            let dst = &mut out_a[o * cs..(o + 1) * cs];
+            if k < nv {
+                dst.copy_from_slice(&self.va[k * cs..(k + 1) * cs]);
+            } else {
+                let r = k - nv;
+                dst[..al].copy_from_slice(self.rep_a(rep_cell[r] as usize));
+                dst[al..].copy_from_slice(&rep_ge[r * (dim + 1)..(r + 1) * (dim + 1)]);
+            }
+            scale_carried(dst, dim, &d);
         }
         // Members of each representative (by output vertex), CSR.
         let mut out_of_rep = vec![u32::MAX; reps.len()];
@@ -471,13 +496,13 @@ pub fn cluster_node(mesh: &IndexedMesh, locked: &[bool], attrs: AttrSet, target:
 const BORDER_WEIGHT: f64 = 1.0;
 
 /// Garland–Heckbert border constraints: for every edge used by one
-/// triangle (the mesh's open border — a node's seams are locked anyway),
+/// triangle, unless both its ends are locked (the mesh's open border, not
+/// a node's seams),
 /// the plane through the edge perpendicular to its triangle, weighted by
 /// the squared edge length, added to both corners' position block. Plane
 /// quadrics alone let a cluster slide along a flat border, so borders would
 /// retreat by a cluster; with these, moving off the border line costs.
-fn add_border_planes(mesh: &IndexedMesh, dim: usize, va: &mut [f64]) {
-    let al = dim * (dim + 1) / 2;
+fn add_border_planes(mesh: &IndexedMesh, locked: &[bool], dim: usize, stride: usize, va: &mut [f64]) {
     let mut edges: rustc_hash::FxHashMap<(u32, u32), (u32, usize)> = rustc_hash::FxHashMap::with_capacity_and_hasher(mesh.triangles.len() * 2, Default::default());
     for (ti, t) in mesh.triangles.iter().enumerate() {
         for c in 0..3 {
@@ -487,7 +512,11 @@ fn add_border_planes(mesh: &IndexedMesh, dim: usize, va: &mut [f64]) {
         }
     }
     for (&(a, b), &(n, ti)) in &edges {
-        if n != 1 {
+        // An open edge between two locked vertices is a seam with another
+        // node (or an attribute seam), not the mesh's border: a plane
+        // there would be carried up with the vertices' quadrics and pull
+        // the next level's clusters towards a line that is no border.
+        if n != 1 || (locked[a as usize] && locked[b as usize]) {
             continue;
         }
         let t = mesh.triangles[ti];
@@ -506,7 +535,7 @@ fn add_border_planes(mesh: &IndexedMesh, dim: usize, va: &mut [f64]) {
         let m = m.map(|x| x / ml);
         let w = BORDER_WEIGHT * e2;
         for &vtx in &[a, b] {
-            let q = &mut va[vtx as usize * al..(vtx as usize + 1) * al];
+            let q = &mut va[vtx as usize * stride..(vtx as usize + 1) * stride];
             for i in 0..3 {
                 for j in i..3 {
                     // Packed upper-triangular row-major index of (i, j).
@@ -555,6 +584,16 @@ pub fn scale_packed(a: &mut [f64], dim: usize, d: &[f64]) {
             a[k] *= d[i] * d[j];
             k += 1;
         }
+    }
+}
+
+/// [`scale_packed`] for carried values (see [`carry_len`]): the matrix by
+/// `d_i d_j`, the half-gradient by `d_i`, the residual unchanged.
+pub fn scale_carried(c: &mut [f64], dim: usize, d: &[f64]) {
+    let al = dim * (dim + 1) / 2;
+    scale_packed(&mut c[..al], dim, d);
+    for k in 0..dim {
+        c[al + k] *= d[k];
     }
 }
 
