@@ -204,8 +204,14 @@ struct BuildParams {
 
 impl BuildParams {
     fn options(&self, quiet: bool, force: bool) -> Result<octolod::pipeline::BuildOptions> {
+        if self.leaf_tris < MIN_LEAF_TRIS {
+            return Err(octolod::Error::Usage(format!(
+                "--leaf-tris {} is below the minimum {MIN_LEAF_TRIS}: smaller nodes cost more in records, seams and reads than they save",
+                self.leaf_tris
+            )));
+        }
         Ok(octolod::pipeline::BuildOptions {
-            mem: mem::parse_size(&self.mem)?,
+            mem: mem::parse_budget(&self.mem, "--mem")?,
             leaf_tris: self.leaf_tris,
             max_depth: self.max_depth,
             level_ratio: self.level_ratio,
@@ -216,6 +222,9 @@ impl BuildParams {
         })
     }
 }
+
+/// Smallest `--leaf-tris` the CLI accepts.
+const MIN_LEAF_TRIS: u64 = 256;
 
 fn print_build(r: &octolod::pipeline::BuildReport) {
     println!(
@@ -247,6 +256,12 @@ fn print_build(r: &octolod::pipeline::BuildReport) {
 }
 
 fn main() -> ExitCode {
+    // A closed pipe (`octolod info STORE | head -1`) ends the process
+    // quietly, as for other Unix tools, instead of a panic in println!.
+    // SAFETY: restoring the default disposition before any thread starts.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
     let cli = Cli::parse();
     octolod::io::clean_up_on_signals();
     match run(cli) {
@@ -262,7 +277,7 @@ fn run(cli: Cli) -> Result<()> {
     match cli.cmd {
         Cmd::Soup { input, output, mem, external, json } => {
             let opts = soup::SoupOptions {
-                mem: mem::parse_size(&mem)?,
+                mem: mem::parse_budget(&mem, "--mem")?,
                 quiet: cli.quiet,
                 force_external: external,
                 max_fan_in: None,
@@ -299,6 +314,9 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Cmd::Render { store, camera_path, frames, out, width, height, view, full_res, brute_force, settle, wireframe, diff_tolerance } => {
+            if frames == 0 {
+                return Err(octolod::Error::Usage("render: --frames must be at least 1".into()));
+            }
             if width == 0 || height == 0 || width > 16384 || height > 16384 {
                 return Err(octolod::Error::Usage("--width/--height must be within 1..16384".into()));
             }

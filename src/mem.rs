@@ -29,6 +29,33 @@ pub fn parse_size(s: &str) -> Result<u64> {
     Ok(v as u64)
 }
 
+/// Physical memory of this machine (None when it cannot be read).
+pub fn physical_memory() -> Option<u64> {
+    // SAFETY: sysconf has no preconditions.
+    let (pages, size) = unsafe { (libc::sysconf(libc::_SC_PHYS_PAGES), libc::sysconf(libc::_SC_PAGESIZE)) };
+    (pages > 0 && size > 0).then(|| pages as u64 * size as u64)
+}
+
+/// A memory budget (`--mem`, `--ram`): [`parse_size`], and no larger than
+/// the machine's physical memory (a budget the machine cannot give would
+/// end in the allocator aborting mid-run, or in swapping).
+pub fn parse_budget(s: &str, option: &str) -> Result<u64> {
+    let v = parse_size(s)?;
+    check_budget(v, option, physical_memory())?;
+    Ok(v)
+}
+
+fn check_budget(v: u64, option: &str, phys: Option<u64>) -> Result<()> {
+    match phys {
+        Some(p) if v > p => Err(Error::Usage(format!(
+            "{option} {} is more than this machine's memory ({}); give at most that",
+            crate::progress::mib(v),
+            crate::progress::mib(p)
+        ))),
+        _ => Ok(()),
+    }
+}
+
 /// Smallest budget we accept: below this, per-stream buffers dominate.
 pub const MIN_BUDGET: u64 = 64 << 10;
 
@@ -45,5 +72,9 @@ mod tests {
         assert!(parse_size("12X").is_err());
         assert!(parse_size("").is_err());
         assert!(parse_size("0").is_err());
+        assert!(check_budget(8 << 30, "--mem", Some(4 << 30)).unwrap_err().to_string().contains("more than this machine's memory"));
+        assert!(check_budget(1 << 30, "--mem", Some(4 << 30)).is_ok());
+        assert!(parse_budget("10T", "--mem").is_err());
+        assert!(parse_budget("64M", "--mem").is_ok());
     }
 }

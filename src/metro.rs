@@ -2675,7 +2675,8 @@ impl Report {
         .filter_map(|(metric, option, t, value)| {
             t.map(|threshold| {
                 let limit = threshold.limit(self.diagonal);
-                Check { metric, option, threshold, limit, value, exceeded: value > limit }
+                // A figure that is not a number never passes.
+                Check { metric, option, threshold, limit, value, exceeded: !(value <= limit) }
             })
         })
         .collect()
@@ -2922,6 +2923,10 @@ pub struct CliArgs {
     pub quiet: bool,
 }
 
+/// Most samples per direction `--samples` accepts (about an hour per
+/// direction on two cores).
+pub const MAX_SAMPLES: u64 = 10_000_000_000;
+
 /// Runs the command: prints the table (or JSON) on stdout and each exceeded
 /// threshold on stderr. Ok(false) when a threshold is exceeded (the binary
 /// then exits with [`EXIT_THRESHOLD`]).
@@ -2930,8 +2935,11 @@ pub fn run_cli(args: &CliArgs) -> Result<bool> {
     if args.samples == Some(0) {
         return Err(Error::Usage("metro: --samples must be at least 1".into()));
     }
+    if let Some(n) = args.samples.filter(|&n| n > MAX_SAMPLES) {
+        return Err(Error::Usage(format!("metro: --samples {n} is more than {MAX_SAMPLES} per direction (hours of work); ask fewer")));
+    }
     let mem = match &args.mem {
-        Some(m) => MemOptions { budget: crate::mem::parse_size(m)?, explicit: true },
+        Some(m) => MemOptions { budget: crate::mem::parse_budget(m, "--mem")?, explicit: true },
         None => MemOptions::default(),
     };
     let (sa, sb) = (Source::parse(&args.a)?, Source::parse(&args.b)?);

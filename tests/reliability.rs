@@ -1,5 +1,6 @@
 //! Issue 11 ("never lose a user's data"): one test per row of its table
-//! that concerns outputs, temp files and interruption.
+//! that concerns outputs, temp files and interruption, numbers, headers and
+//! option values.
 
 use std::path::Path;
 use std::process::{Command, Stdio};
@@ -172,3 +173,133 @@ fn a_later_run_removes_what_a_killed_run_left() {
     assert_eq!(names(d.path()), ["in.ply", "small.ply", "t.octolod"]);
 }
 
+
+fn write(p: &Path, text: &str) {
+    std::fs::write(p, text).unwrap();
+}
+
+const TRI: &str = "element face 1\nproperty list uchar int vertex_indices\nend_header\n";
+
+/// Row 4: `metro --samples 1e12` ran for ever; now refused up front.
+#[test]
+fn metro_refuses_absurd_sample_counts() {
+    let d = tempfile::tempdir().unwrap();
+    let a = d.path().join("a.ply");
+    gen("sphere", 1000, &a);
+    let o = octolod(&["metro", s(&a), s(&a), "--samples", "1000000000000"]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--samples"), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
+/// Row 6: `--mem 10T` aborted in the allocator and left temp paths.
+#[test]
+fn budgets_beyond_the_machine_are_refused_before_work() {
+    let d = tempfile::tempdir().unwrap();
+    let a = d.path().join("a.ply");
+    gen("sphere", 1000, &a);
+    for args in [
+        vec!["build", s(&a), "-o", "X", "--mem", "10T"],
+        vec!["soup", s(&a), "-o", "X", "--mem", "10T"],
+        vec!["metro", s(&a), s(&a), "--mem", "10T"],
+    ] {
+        let out = d.path().join("out");
+        let args: Vec<&str> = args.iter().map(|&x| if x == "X" { s(&out) } else { x }).collect();
+        let o = octolod(&args);
+        assert_eq!(o.status.code(), Some(1), "{args:?}");
+        assert!(String::from_utf8_lossy(&o.stderr).contains("more than this machine's memory"), "{}", String::from_utf8_lossy(&o.stderr));
+        assert_eq!(names(d.path()), ["a.ply"], "{args:?} left something");
+    }
+}
+
+/// Row 9: ascii `float` 1e39 was accepted (as +inf); integers out of their
+/// type's range too.
+#[test]
+fn ascii_values_out_of_their_types_range_are_errors() {
+    let d = tempfile::tempdir().unwrap();
+    for (name, head, body, want) in [
+        ("float", "property float x\nproperty float y\nproperty float z\n", "1e39 0 0\n0 1 0\n0 0 1\n3 0 1 2\n", "out of range for float"),
+        ("double", "property double x\nproperty double y\nproperty double z\n", "1e400 0 0\n0 1 0\n0 0 1\n3 0 1 2\n", "out of range for double"),
+        ("uchar", "property float x\nproperty float y\nproperty float z\nproperty uchar red\nproperty uchar green\nproperty uchar blue\n", "0 0 0 256 0 0\n0 1 0 0 0 0\n0 0 1 0 0 0\n3 0 1 2\n", "out of range for uchar"),
+        ("int", "property float x\nproperty float y\nproperty float z\n", "0 0 0\n0 1 0\n0 0 1\n3 0 1 2147483648\n", "out of range for int"),
+    ] {
+        let p = d.path().join(format!("{name}.ply"));
+        write(&p, &format!("ply\nformat ascii 1.0\nelement vertex 3\n{head}{TRI}{body}"));
+        let o = octolod(&["soup", s(&p), "-o", s(&d.path().join(format!("{name}.soup")))]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{name}: {err}");
+        assert!(err.contains(want) && err.contains("record"), "{name}: {err}");
+    }
+}
+
+/// Row 10: NaN figures passed `--max-rms`/`--max-mean`.
+#[test]
+fn a_figure_that_is_not_a_number_never_passes_a_threshold() {
+    use octolod::metro::{compare, Limits, Mesh, Options};
+    let m = Mesh::new(vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], vec![[0, 1, 2]]);
+    let mut r = compare(&m, &m, &Options::default()).unwrap();
+    let limits = Limits::parse(Some("1"), Some("1"), Some("1")).unwrap();
+    assert!(r.check(&limits).iter().all(|c| !c.exceeded));
+    r.combined.rms = f64::NAN;
+    r.combined.mean = f64::NAN;
+    r.combined.max = f64::INFINITY;
+    assert!(r.check(&limits).iter().all(|c| c.exceeded));
+}
+
+/// Row 14: `octolod info STORE | head -1` panicked on the broken pipe.
+#[test]
+fn a_closed_pipe_ends_quietly() {
+    use std::os::unix::process::ExitStatusExt;
+    let d = tempfile::tempdir().unwrap();
+    let a = d.path().join("a.ply");
+    gen("sphere", 20_000, &a);
+    let mut child = Command::new(env!("CARGO_BIN_EXE_octolod"))
+        .args(["ply-info", s(&a)])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    drop(child.stdout.take());
+    let o = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!err.contains("panicked") && !err.contains("Broken pipe"), "{err}");
+    assert!(o.status.success() || o.status.signal() == Some(libc::SIGPIPE), "{:?}", o.status);
+}
+
+/// Row 15: duplicate properties or elements were merged silently; format
+/// versions other than 1.0 were accepted.
+#[test]
+fn duplicate_declarations_and_unknown_versions_name_their_lines() {
+    let d = tempfile::tempdir().unwrap();
+    let body = "0 0 0\n0 1 0\n0 0 1\n3 0 1 2\n";
+    for (name, header, want) in [
+        ("dupprop", "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nproperty float x\n", "declared twice (lines 4 and 7)"),
+        ("dupelem", "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nelement vertex 3\nproperty float w\n", "declared twice (lines 3 and 7)"),
+        ("version", "ply\nformat ascii 2.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n", "version 2.0"),
+    ] {
+        let p = d.path().join(format!("{name}.ply"));
+        write(&p, &format!("{header}{TRI}{body}"));
+        let o = octolod(&["ply-info", s(&p)]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{name}: {err}");
+        assert!(err.contains(want), "{name}: {err}");
+    }
+}
+
+/// Row 16: `--frames 0` rendered one frame; `--leaf-tris 1` built a huge store.
+#[test]
+fn senseless_option_values_are_errors() {
+    let d = tempfile::tempdir().unwrap();
+    let a = d.path().join("a.ply");
+    gen("sphere", 2000, &a);
+    let st = d.path().join("s.octolod");
+    let o = octolod(&["build", s(&a), "-o", s(&st), "--leaf-tris", "1"]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--leaf-tris 1 is below the minimum"), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(!st.exists());
+    let o = octolod(&["--quiet", "build", s(&a), "-o", s(&st)]);
+    assert!(o.status.success());
+    let o = octolod(&["render", s(&st), "--out", s(&d.path().join("f")), "--frames", "0"]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--frames must be at least 1"));
+    assert!(!d.path().join("f").exists());
+}

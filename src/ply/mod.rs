@@ -64,6 +64,23 @@ impl Scalar {
     pub fn is_float(self) -> bool {
         matches!(self, Scalar::F32 | Scalar::F64)
     }
+    /// Whether `x` (an ascii value as parsed) is representable in this
+    /// type: integers in range, floats finite (1e39 overflows a `float`).
+    /// NaN and infinities written out literally pass here; coordinates
+    /// are checked for finiteness where vertices are assembled.
+    pub fn holds(self, x: f64) -> bool {
+        let (lo, hi) = match self {
+            Scalar::I8 => (i8::MIN as f64, i8::MAX as f64),
+            Scalar::U8 => (0.0, u8::MAX as f64),
+            Scalar::I16 => (i16::MIN as f64, i16::MAX as f64),
+            Scalar::U16 => (0.0, u16::MAX as f64),
+            Scalar::I32 => (i32::MIN as f64, i32::MAX as f64),
+            Scalar::U32 => (0.0, u32::MAX as f64),
+            Scalar::F32 => (-(f32::MAX as f64), f32::MAX as f64),
+            Scalar::F64 => (f64::MIN, f64::MAX),
+        };
+        !x.is_finite() && self.is_float() || (lo..=hi).contains(&x)
+    }
     /// The classic PLY name (`uchar`, `int`, `float`, ...).
     pub fn name(self) -> &'static str {
         match self {
@@ -187,6 +204,48 @@ fn loc(path: &Path) -> Location {
     Location { file: path.to_path_buf(), ..Default::default() }
 }
 
+/// What the grammar would let pass silently: a `format` version other
+/// than 1.0, and duplicate elements or properties (its maps would merge
+/// them into a misleading later error). Errors name both lines.
+fn check_header_lines(path: &Path, text: &str) -> Result<()> {
+    let at = |line: usize, msg: String| {
+        let mut l = loc(path);
+        l.line = Some(line as u64);
+        Error::input(l, msg)
+    };
+    let mut elements: std::collections::HashMap<&str, usize> = std::collections::HashMap::new();
+    let mut props: std::collections::HashMap<&str, usize> = std::collections::HashMap::new();
+    let mut current: Option<&str> = None;
+    for (i, line) in text.lines().enumerate() {
+        let n = i + 1;
+        let t: Vec<&str> = line.split_ascii_whitespace().collect();
+        match t.first().copied() {
+            Some("format") if t.len() >= 3 && t[2] != "1.0" => {
+                return Err(at(n, format!("PLY format version {} is not supported (only 1.0)", t[2])));
+            }
+            Some("element") if t.len() >= 2 => {
+                if let Some(first) = elements.insert(t[1], n) {
+                    return Err(at(n, format!("element '{}' declared twice (lines {first} and {n})", t[1])));
+                }
+                current = Some(t[1]);
+                props.clear();
+            }
+            Some("property") if t.len() >= 3 => {
+                let name = t[t.len() - 1];
+                if let Some(first) = props.insert(name, n) {
+                    return Err(at(
+                        n,
+                        format!("property '{name}' of element '{}' declared twice (lines {first} and {n})", current.unwrap_or("?")),
+                    ));
+                }
+            }
+            Some("end_header") => break,
+            _ => {}
+        }
+    }
+    Ok(())
+}
+
 /// Offset just past the `end_header` line terminator, if present.
 fn find_end_header(buf: &[u8]) -> Option<usize> {
     let mut start = 0;
@@ -210,6 +269,7 @@ pub fn parse_header(path: &Path, bytes: &[u8], body_offset: u64) -> Result<PlyHe
     if std::str::from_utf8(bytes).is_err() {
         return Err(Error::input(loc(path), "header is not valid text"));
     }
+    check_header_lines(path, std::str::from_utf8(bytes).unwrap_or(""))?;
     let parser = ply_rs_bw::parser::Parser::<ply_rs_bw::ply::DefaultElement>::new();
     let mut reader = ply_rs_bw::parser::Reader::new(bytes);
     let h = parser.read_header(&mut reader).map_err(|e| {

@@ -754,7 +754,13 @@ impl BodyReader<'_> {
             s.parse::<i64>().ok().map(|x| x as f64)
         };
         match parsed {
-            Some(x) => Ok(x),
+            // "inf"/"nan" literals go on to the coordinate checks; a
+            // finite token that overflows its type is an error here.
+            Some(x) if ty.holds(x) && !(ty.is_float() && x.is_infinite() && !s.to_ascii_lowercase().contains("inf")) => Ok(x),
+            Some(_) => Err(Error::input(
+                self.loc(&e.name, rec, off),
+                format!("property '{prop}': '{}' is out of range for {}", String::from_utf8_lossy(&tok), ty.name()),
+            )),
             None => Err(Error::input(
                 self.loc(&e.name, rec, off),
                 format!("property '{prop}': '{}' is not a valid {}", String::from_utf8_lossy(&tok), ty.name()),

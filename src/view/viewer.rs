@@ -370,7 +370,7 @@ pub struct ViewArgs {
 
 impl ViewArgs {
     pub fn options(&self) -> Result<ViewOptions> {
-        let ram = crate::mem::parse_size(&self.ram)?;
+        let ram = crate::mem::parse_budget(&self.ram, "--ram")?;
         let upload = crate::mem::parse_size(&self.upload_per_frame)?;
         if !(self.max_error_px > 0.0 && self.max_error_px.is_finite()) {
             return Err(Error::Usage("--max-error-px must be a positive number".into()));
