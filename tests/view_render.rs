@@ -206,3 +206,30 @@ fn streamed_full_res_reference_equals_drawing_everything_at_once() {
     let bg = octolod::view::image::background_fraction(&one, w, h, octolod::view::headless::clear_rgba8(true));
     assert!(bg > 0.02 && bg < 0.9, "background {bg}");
 }
+
+/// Issue 11, row 7: with every payload below the top level corrupt,
+/// `render` exited 0 without a word; now it fails naming the failures and
+/// keeps no frames.
+#[test]
+fn render_fails_when_node_loads_fail() {
+    if skip() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let s = store(dir.path(), Shape::Sphere, 60_000, 2048, 0);
+    let st = octolod::store::Store::open(&s).unwrap();
+    for l in 0..st.top_level() {
+        let p = st.pack_path(l as usize);
+        let mut b = std::fs::read(&p).unwrap();
+        for i in (0..b.len()).step_by(97) {
+            b[i] ^= 0x5a;
+        }
+        std::fs::write(&p, b).unwrap();
+    }
+    let out = dir.path().join("frames");
+    let mut o = opts(&s, &out, None, 32 << 20);
+    o.view.select.max_error_px = 0.25;
+    let e = render(&o).unwrap_err().to_string();
+    assert!(e.contains("node load(s) failed"), "{e}");
+    assert!(!out.exists());
+}

@@ -177,6 +177,15 @@ pub fn render(o: &RenderOptions) -> Result<RenderReport> {
     }
     progress.finish();
     write_stats(out.path(), &frames, o)?;
+    // Frames drawn while nodes failed to load are not what was asked:
+    // nothing is kept and the run fails, naming the first failures.
+    let (failed, msgs) = viewer.load_failures();
+    if failed > 0 {
+        return Err(crate::error::Error::input(
+            crate::error::Location { file: o.store.clone(), ..Default::default() },
+            format!("render: {failed} node load(s) failed: {}", msgs.join("; ")),
+        ));
+    }
     out.commit()?;
     Ok(RenderReport { frames, out: o.out.clone() })
 }

@@ -227,6 +227,11 @@ impl<M: GpuBytes> Viewer<M> {
         dvec(self.origin)
     }
 
+    /// Node loads that failed so far, and the first messages.
+    pub fn load_failures(&self) -> (u64, &[String]) {
+        (self.cache.counters.load_failures, &self.cache.errors)
+    }
+
     /// Tight bounds of the whole model.
     pub fn bounds(&self) -> crate::mesh::Aabb {
         self.hierarchy.bounds
