@@ -11,14 +11,14 @@
 //! **Route for a size N.** The levels halve, so some level holds between N
 //! and 2N triangles. Starting finer costs time but gives the simplifier more
 //! to choose from, so the start is the *finest* level with at least N
-//! triangles whose whole mesh fits the budget ([`BYTES_PER_TRIANGLE`]
+//! triangles whose whole mesh fits the budget ([`Simplifier::bytes_per_triangle`]
 //! estimates what the welded mesh and the simplifier need per triangle); it
 //! is welded and reduced in memory to exactly N. When no such level fits,
 //! the start is the coarsest level with at least N triangles and each of
 //! its nodes gets a share of N proportional to its triangles; nodes are
 //! reduced in parallel with the vertices they share with another node of
-//! the cut locked (found exactly: positions on a node's open edges counted
-//! across all nodes; the mesh's own open border is not locked), then welded
+//! the cut locked (found exactly: positions on some node's open edges, kept
+//! when two nodes hold them; the mesh's own open border is not locked), then welded
 //! — bit-identical locked vertices make the seams close — and a last pass
 //! over the welded result, now small, settles the remainder to exactly N
 //! with nothing locked. That result (N triangles) must fit the budget.
@@ -54,12 +54,6 @@ use rustc_hash::{FxHashMap, FxHashSet};
 use std::path::Path;
 use std::str::FromStr;
 
-/// Bytes held per triangle of a mesh reduced in memory: the welded mesh
-/// (≈ 0.5 vertices × 64 B + 12 B), the weld map, and the simplifier's
-/// working set (meshoptimizer: f32 positions, attributes, quadrics, edge
-/// tables; clustering: quadrics and cells) — about 2× the measured peak of
-/// meshopt `simplify` on a 12 M-triangle sphere (1.64 GiB).
-pub const BYTES_PER_TRIANGLE: u64 = 240;
 
 /// How each node (or the whole mesh) is reduced.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
@@ -69,6 +63,21 @@ pub enum Simplifier {
     Cluster,
     /// Quadric edge collapse with attributes (accurate).
     Collapse,
+}
+
+impl Simplifier {
+    /// Bytes held per triangle of a mesh reduced in memory: the welded mesh
+    /// (≈ 0.5 vertices × 64 B + 12 B), the weld map and the simplifier's
+    /// working set. Measured peaks on the 12 M-triangle sphere reduced whole:
+    /// `collapse` 1.97 GB (164 B per triangle: f32 positions, quadrics,
+    /// edge tables), `cluster` 4.74 GB (395 B: per-vertex quadrics and the
+    /// split sequence's cells); with a margin.
+    pub fn bytes_per_triangle(self) -> u64 {
+        match self {
+            Simplifier::Collapse => 240,
+            Simplifier::Cluster => 440,
+        }
+    }
 }
 
 impl FromStr for Simplifier {
@@ -177,12 +186,12 @@ fn reduce_to_count(store: &Store, n: u64, o: &ReduceOptions) -> Result<(IndexedM
         rep.start = "level 0".into();
         rep.start_triangles = input;
         rep.note = Some(format!("asked {n} triangles of an input of {input}: the input is returned"));
-        return Ok((load_cut(store, &cut, o.mem)?, rep));
+        return Ok((load_cut(store, &cut, o)?, rep));
     }
     // Levels with at least n triangles (level 0 always is one).
     let levels: Vec<(u8, u64)> =
         (0..=store.top_level()).map(|l| (l, store.level_cut(l).triangles(store))).filter(|&(_, t)| t >= n).collect();
-    let fits = |t: u64| t.saturating_mul(BYTES_PER_TRIANGLE) <= o.mem;
+    let fits = |t: u64| t.saturating_mul(o.simplifier.bytes_per_triangle()) <= o.mem;
     let (level, tris) = match levels.iter().find(|&&(_, t)| fits(t)) {
         Some(&lt) => {
             rep.route = "in-memory".into();
@@ -213,15 +222,15 @@ fn reduce_to_error(store: &Store, e: f64, o: &ReduceOptions) -> Result<(IndexedM
                 let cut = if last { store.level_cut(0) } else { store.error_cut(limit) };
                 rep.route = "store-cut".into();
                 rep.start = if last { "level 0".into() } else { format!("max error {limit:.3e}") };
-                let m = load_cut(store, &cut, o.mem)?;
+                let m = load_cut(store, &cut, o)?;
                 (cut, m)
             }
             Simplifier::Collapse => {
                 let cut = if last { store.level_cut(0) } else { store.error_cut(0.25 * limit) };
                 rep.start = if last { "level 0".into() } else { format!("max error {:.3e}", 0.25 * limit) };
                 let tris = cut.triangles(store);
-                rep.route = if tris.saturating_mul(BYTES_PER_TRIANGLE) <= o.mem { "in-memory" } else { "per-node" }.into();
-                let m = if last { load_cut(store, &cut, o.mem)? } else { reduce_cut(store, &cut, Goal::Error(0.75 * limit), o)? };
+                rep.route = if tris.saturating_mul(o.simplifier.bytes_per_triangle()) <= o.mem { "in-memory" } else { "per-node" }.into();
+                let m = if last { load_cut(store, &cut, o)? } else { reduce_cut(store, &cut, Goal::Error(0.75 * limit), o)? };
                 (cut, m)
             }
         };
@@ -252,14 +261,14 @@ fn reduce_to_error(store: &Store, e: f64, o: &ReduceOptions) -> Result<(IndexedM
 }
 
 /// The cut's meshes welded into one (must fit `mem`).
-fn load_cut(store: &Store, cut: &Cut, mem: u64) -> Result<IndexedMesh> {
-    check_fits(cut.triangles(store), mem, "the mesh")?;
+fn load_cut(store: &Store, cut: &Cut, o: &ReduceOptions) -> Result<IndexedMesh> {
+    check_fits(cut.triangles(store), o, "the mesh")?;
     let parts = cut_meshes(store, cut).collect::<Result<Vec<_>>>()?;
     Ok(weld_union(&store.layout, &parts))
 }
 
-fn check_fits(tris: u64, mem: u64, what: &str) -> Result<()> {
-    let need = tris.saturating_mul(BYTES_PER_TRIANGLE);
+fn check_fits(tris: u64, o: &ReduceOptions, what: &str) -> Result<()> {
+    let (need, mem) = (tris.saturating_mul(o.simplifier.bytes_per_triangle()), o.mem);
     if need > mem {
         return Err(Error::Usage(format!(
             "{what} of {tris} triangles needs about {} MiB in memory, more than --mem {} MiB; raise --mem or ask for fewer triangles",
@@ -276,20 +285,28 @@ fn check_fits(tris: u64, mem: u64, what: &str) -> Result<()> {
 pub fn reduce_cut(store: &Store, cut: &Cut, goal: Goal, o: &ReduceOptions) -> Result<IndexedMesh> {
     let attrs = store.header.attrs;
     let tris = cut.triangles(store);
-    if tris.saturating_mul(BYTES_PER_TRIANGLE) <= o.mem {
-        let m = load_cut(store, cut, o.mem)?;
+    if tris.saturating_mul(o.simplifier.bytes_per_triangle()) <= o.mem {
+        let m = load_cut(store, cut, o)?;
         return Ok(reduce_mesh(&m, &vec![false; m.vertices.len()], attrs, goal, o.simplifier));
     }
     if let Goal::Tris(n) = goal {
-        check_fits(n as u64, o.mem, "the output")?;
+        check_fits(n as u64, o, "the output")?;
     }
-    // Pass 1: positions on each part's open edges, counted over parts.
+    // Pass 1: a position two parts share is on an open edge of at least
+    // one of them (unless both cover it wholly: a doubled surface); so take
+    // the positions on open edges, then count the parts holding each.
+    let mut border: FxHashSet<[u64; 3]> = FxHashSet::default();
+    for m in cut_meshes(store, cut) {
+        border.extend(open_edge_positions(&m?));
+    }
     let mut count: FxHashMap<[u64; 3], u32> = FxHashMap::default();
     for m in cut_meshes(store, cut) {
-        for p in open_edge_positions(&m?) {
-            *count.entry(p).or_insert(0) += 1;
+        let held: FxHashSet<[u64; 3]> = m?.vertices.iter().map(pos_key).filter(|k| border.contains(k)).collect();
+        for k in held {
+            *count.entry(k).or_insert(0) += 1;
         }
     }
+    drop(border);
     count.retain(|_, c| *c >= 2);
     let shared: FxHashSet<[u64; 3]> = count.into_keys().collect();
     // Pass 2: each part reduced to its share, in parallel batches.
@@ -455,8 +472,9 @@ fn collapse(mesh: &IndexedMesh, locked: &[bool], attrs: AttrSet, goal: Goal) -> 
     };
     run(&mut idx, opts);
     if let Goal::Tris(n) = goal {
-        if idx.len() / 3 > n + n / 100 {
-            // Topology stopped it: allow removing small disconnected parts.
+        if idx.len() / 3 > n + n / 100 && !locked.iter().any(|&l| l) {
+            // Topology stopped it: allow removing small disconnected parts
+            // (never with locks: a part may be a piece of a seam).
             run(&mut idx, opts | meshopt::SimplifyOptions::Prune);
         }
     }

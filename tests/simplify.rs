@@ -78,10 +78,11 @@ fn exact_counts_node_by_node_under_a_small_budget_stay_closed() {
     let (ply, input) = gen_ply(dir.path(), Shape::Sphere, 200_000, 0);
     let s = build_from(dir.path(), &ply, 4096);
     let diag = bbox(&input.vertices).diagonal();
-    // 8 MiB holds about 35 K triangles: no level with >= 30 K fits whole.
-    let mem = 8 << 20;
     for simp in BOTH {
-        let n = 30_000;
+        // A budget that holds the output (60 K) but no level with >= 60 K
+        // triangles (level 1 holds about 100 K).
+        let n = 60_000;
+        let mem = (1.1 * n as f64) as u64 * simp.bytes_per_triangle();
         let name = format!("per-node-{simp:?}");
         let (r, _, m) = run(&s, dir.path(), &name, &opts(Target::Tris(n), simp, mem));
         assert_eq!(r.route, "per-node", "{name}");
@@ -102,6 +103,7 @@ fn exact_counts_node_by_node_under_a_small_budget_stay_closed() {
         assert!(e.combined.max < 2e-3 * diag, "{name}: Hausdorff {:e}", e.combined.max / diag);
     }
     // An output larger than the budget is refused with a clear message.
+    let mem = 66_000 * Simplifier::Collapse.bytes_per_triangle();
     let err = simplify_store(&s, &dir.path().join("big.ply"), &opts(Target::Tris(150_000), Simplifier::Collapse, mem)).unwrap_err();
     assert!(err.to_string().contains("--mem"), "{err}");
     assert!(!dir.path().join("big.ply").exists());
