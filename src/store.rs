@@ -383,7 +383,30 @@ impl Store {
             parents,
         };
         s.validate().map_err(|m| bad(m))?;
+        s.check_pack_ranges()?;
         Ok(s)
+    }
+
+    /// Every node's payload lies inside its level's pack file (so no read
+    /// asks for more than the file holds, whatever the record says).
+    fn check_pack_ranges(&self) -> Result<()> {
+        let mut len = vec![None; self.header.levels as usize];
+        for (i, n) in self.nodes.iter().enumerate() {
+            let l = n.level as usize;
+            if len[l].is_none() {
+                let p = self.pack_path(l);
+                len[l] = Some(std::fs::metadata(&p).ctx(&p, "open pack file")?.len());
+            }
+            let end = n.offset.checked_add(n.bytes as u64);
+            if end.is_none_or(|e| e > len[l].unwrap()) {
+                let p = self.pack_path(l);
+                return Err(Error::input(
+                    Location { file: p, offset: Some(n.offset), ..Default::default() },
+                    format!("node {i}: payload of {} bytes at {} lies beyond the pack file's {} bytes", n.bytes, n.offset, len[l].unwrap()),
+                ));
+            }
+        }
+        Ok(())
     }
 
     /// Checks the index: ids and list ranges in range, children one level

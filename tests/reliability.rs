@@ -303,3 +303,76 @@ fn senseless_option_values_are_errors() {
     assert!(String::from_utf8_lossy(&o.stderr).contains("--frames must be at least 1"));
     assert!(!d.path().join("f").exists());
 }
+
+/// Runs octolod with a time limit (a hang fails the test instead of
+/// hanging it); gives the exit code and stderr.
+fn run_limited(args: &[&str], secs: u64) -> (Option<i32>, String) {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_octolod")).args(args).stdout(Stdio::null()).stderr(Stdio::piped()).spawn().unwrap();
+    let t = Instant::now();
+    loop {
+        if let Some(st) = child.try_wait().unwrap() {
+            let mut err = String::new();
+            use std::io::Read;
+            child.stderr.take().unwrap().read_to_string(&mut err).unwrap();
+            return (st.code(), err);
+        }
+        if t.elapsed() > Duration::from_secs(secs) {
+            let _ = child.kill();
+            panic!("{args:?} still running after {secs} s");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// Rows 2, 3 and 11: a damaged index (a child pointing to itself or to the
+/// root, ids out of range, absurd counts, payloads beyond their file) made
+/// commands loop, allocate gigabytes or panic. Each is now a clear error at
+/// open, naming the index, from every command.
+#[test]
+fn damaged_indexes_are_clear_errors_from_every_command() {
+    let d = tempfile::tempdir().unwrap();
+    let a = d.path().join("a.ply");
+    gen("sphere", 6000, &a);
+    let good = d.path().join("good.octolod");
+    let o = octolod(&["--quiet", "build", s(&a), "-o", s(&good), "--leaf-tris", "256", "--root-tris", "256"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let idx = std::fs::read(good.join("nodes.bin")).unwrap();
+    let u32_at = |b: &[u8], o: usize| u32::from_le_bytes(b[o..o + 4].try_into().unwrap());
+    let u64_at = |b: &[u8], o: usize| u64::from_le_bytes(b[o..o + 8].try_into().unwrap());
+    let n = u64_at(&idx, 24) as usize;
+    let root = n - 1;
+    let rec = |i: usize| 128 + 160 * i;
+    let lists = 128 + 160 * n;
+    let root_first_child = u32_at(&idx, rec(root) + 112 + 16) as usize;
+    // A level-1 node: the first node with children that is not the root.
+    let l1 = (0..n).find(|&i| idx[rec(i)] == 1).unwrap();
+    let l1_first_child = u32_at(&idx, rec(l1) + 112 + 16) as usize;
+    let cases: Vec<(&str, Box<dyn Fn(&mut Vec<u8>)>)> = vec![
+        ("root-child-is-root", Box::new(move |b: &mut Vec<u8>| b[lists + 4 * root_first_child..][..4].copy_from_slice(&(root as u32).to_le_bytes()))),
+        ("l1-child-is-root", Box::new(move |b: &mut Vec<u8>| b[lists + 4 * l1_first_child..][..4].copy_from_slice(&(root as u32).to_le_bytes()))),
+        ("child-out-of-range", Box::new(move |b: &mut Vec<u8>| b[lists + 4 * l1_first_child..][..4].copy_from_slice(&0xFFFF_FFF0u32.to_le_bytes()))),
+        ("huge-node-count", Box::new(|b: &mut Vec<u8>| b[24..32].copy_from_slice(&(1u64 << 60).to_le_bytes()))),
+        ("zero-nodes", Box::new(|b: &mut Vec<u8>| b[24..32].copy_from_slice(&0u64.to_le_bytes()))),
+        ("payload-beyond-file", Box::new(move |b: &mut Vec<u8>| b[rec(0) + 112..][..4].copy_from_slice(&u32::MAX.to_le_bytes()))),
+    ];
+    for (name, damage) in cases {
+        let st = d.path().join(format!("{name}.octolod"));
+        std::fs::create_dir(&st).unwrap();
+        for e in std::fs::read_dir(&good).unwrap() {
+            let e = e.unwrap();
+            std::fs::copy(e.path(), st.join(e.file_name())).unwrap();
+        }
+        let mut b = idx.clone();
+        damage(&mut b);
+        std::fs::write(st.join("nodes.bin"), &b).unwrap();
+        let at0 = format!("{}@0", s(&st));
+        let out = d.path().join(format!("{name}.ply"));
+        for args in [vec!["info", s(&st)], vec!["extract", s(&st), "--level", "0", "-o", s(&out)], vec!["metro", &at0, s(&a)]] {
+            let (code, err) = run_limited(&args, 60);
+            assert_eq!(code, Some(1), "{name} {args:?}: {err}");
+            assert!(err.contains("nodes.bin") || err.contains(".pack"), "{name} {args:?}: {err}");
+            assert!(!err.contains("panicked"), "{name} {args:?}: {err}");
+        }
+        assert!(!out.exists());
+    }
+}
