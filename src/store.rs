@@ -296,6 +296,10 @@ pub fn write_index(dir: &Path, h: &StoreHeader, nodes: &[NodeRec], children: &[u
 
 /// An opened store: the index in memory, payloads read on demand.
 pub struct Store {
+    /// Pack files, opened once when the store is opened: a store rewritten
+    /// in place later (`build --force` swaps the directory) cannot mix its
+    /// new payloads into this reader's old index.
+    packs: Vec<File>,
     pub dir: PathBuf,
     pub header: StoreHeader,
     pub nodes: Vec<NodeRec>,
@@ -373,7 +377,8 @@ impl Store {
         let children = list(lists, nc);
         let parents = list(lists + 4 * nc as usize, np);
         let payload_attrs = attrs.with(AttrSet::NORMAL, attrs.normal() || header.derived_normals);
-        let s = Store {
+        let mut s = Store {
+            packs: Vec::new(),
             dir: dir.to_path_buf(),
             layout: VertexLayout::new(attrs),
             payload_layout: VertexLayout::new(payload_attrs),
@@ -383,6 +388,10 @@ impl Store {
             parents,
         };
         s.validate().map_err(|m| bad(m))?;
+        for l in 0..s.header.levels as usize {
+            let p = s.pack_path(l);
+            s.packs.push(File::open(&p).ctx(&p, "open pack file")?);
+        }
         s.check_pack_ranges()?;
         Ok(s)
     }
@@ -395,7 +404,7 @@ impl Store {
             let l = n.level as usize;
             if len[l].is_none() {
                 let p = self.pack_path(l);
-                len[l] = Some(std::fs::metadata(&p).ctx(&p, "open pack file")?.len());
+                len[l] = Some(self.packs[l].metadata().ctx(&p, "open pack file")?.len());
             }
             let end = n.offset.checked_add(n.bytes as u64);
             if end.is_none_or(|e| e > len[l].unwrap()) {
@@ -497,7 +506,7 @@ impl Store {
     pub fn read_node(&self, id: usize) -> Result<NodeMesh> {
         let n = &self.nodes[id];
         let path = self.pack_path(n.level as usize);
-        let bytes = read_range(&path, n.offset, n.bytes)?;
+        let bytes = read_at(&self.packs[n.level as usize], &path, n.offset, n.bytes)?;
         self.decode_node(id, &bytes)
     }
 
@@ -585,10 +594,10 @@ fn aabb_finite(b: &Aabb) -> bool {
     b.is_empty() || b.min.iter().chain(b.max.iter()).all(|x| x.is_finite())
 }
 
-/// Reads `bytes` at `offset` of `path` with one positioned read.
-pub fn read_range(path: &Path, offset: u64, bytes: u32) -> Result<Vec<u8>> {
+/// Reads `bytes` at `offset` of the open pack `f` (named `path` in errors)
+/// with one positioned read.
+fn read_at(f: &File, path: &Path, offset: u64, bytes: u32) -> Result<Vec<u8>> {
     use std::os::unix::fs::FileExt;
-    let f = File::open(path).ctx(path, "open pack file")?;
     let mut b = vec![0u8; bytes as usize];
     f.read_exact_at(&mut b, offset).ctx(path, "read pack file")?;
     Ok(b)

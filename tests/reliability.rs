@@ -376,3 +376,27 @@ fn damaged_indexes_are_clear_errors_from_every_command() {
         assert!(!out.exists());
     }
 }
+
+/// Row 8: `render` while `build --force` rewrote the same store read the
+/// new packs with the old index. An opened store keeps its pack files: it
+/// reads exactly what it read before the rewrite, and a new open sees the
+/// new store.
+#[test]
+fn an_open_store_is_not_changed_by_a_rebuild_under_it() {
+    let d = tempfile::tempdir().unwrap();
+    let (a, b) = (d.path().join("a.ply"), d.path().join("b.ply"));
+    gen("sphere", 6000, &a);
+    gen("terrain", 9000, &b);
+    let st = d.path().join("s.octolod");
+    assert!(octolod(&["--quiet", "build", s(&a), "-o", s(&st), "--leaf-tris", "512"]).status.success());
+    let old = octolod::store::Store::open(&st).unwrap();
+    let before: Vec<_> = (0..old.nodes.len()).map(|i| old.read_node(i).unwrap().mesh).collect();
+    let o = octolod(&["--quiet", "--force", "build", s(&b), "-o", s(&st), "--leaf-tris", "512"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for (i, m) in before.iter().enumerate() {
+        assert_eq!(&old.read_node(i).unwrap().mesh, m, "node {i} changed under an open store");
+    }
+    let new = octolod::store::Store::open(&st).unwrap();
+    assert_ne!(new.header.store_id, old.header.store_id);
+    assert_ne!(new.nodes.len(), old.nodes.len());
+}
