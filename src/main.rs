@@ -410,7 +410,7 @@ fn run(cli: Cli) -> Result<()> {
                     "simplify: {} from {} ({} triangles, {:?}, {}): {} vertices, {} triangles -> {}",
                     match rep.target_triangles {
                         Some(n) => format!("{n} triangles asked"),
-                        None => format!("error <= {:e} asked, measured {:e} after {} tries", o_err(&o), rep.hausdorff.unwrap_or(f64::NAN), rep.tries),
+                        None => format!("error <= {:e} asked, measured {:e} after {} tries", rep.target_error.unwrap_or(f64::NAN), rep.hausdorff.unwrap_or(f64::NAN), rep.tries),
                     },
                     rep.start,
                     rep.start_triangles,
@@ -430,13 +430,6 @@ fn run(cli: Cli) -> Result<()> {
             }
             Ok(())
         }
-    }
-}
-
-fn o_err(o: &octolod::reduce::ReduceOptions) -> f64 {
-    match o.target {
-        octolod::reduce::Target::Error(e) => e,
-        _ => f64::NAN,
     }
 }
 

@@ -45,7 +45,8 @@
 
 use crate::error::{Error, Result};
 use crate::lod::cluster::{cluster_node, Splits};
-use crate::mesh::{AttrSet, Vertex};
+use crate::lod::shared::pos_bits;
+use crate::mesh::AttrSet;
 use crate::metro::{self, MemOptions, Source};
 use crate::pipeline::{cut_meshes, weld_union, write_mesh_ply};
 use crate::store::{Cut, IndexedMesh, Store};
@@ -132,6 +133,8 @@ pub struct ReduceReport {
     pub input_triangles: u64,
     /// The triangle count asked (size targets).
     pub target_triangles: Option<u64>,
+    /// The error asked (error targets; object space).
+    pub target_error: Option<f64>,
     pub vertices: u64,
     pub triangles: u64,
     /// The target was met (size within 1 %, or measured error ≤ E).
@@ -210,7 +213,7 @@ fn reduce_to_count(store: &Store, n: u64, o: &ReduceOptions) -> Result<(IndexedM
 }
 
 fn reduce_to_error(store: &Store, e: f64, o: &ReduceOptions) -> Result<(IndexedMesh, ReduceReport)> {
-    let mut rep = ReduceReport::default();
+    let mut rep = ReduceReport { target_error: Some(e), ..Default::default() };
     let scratch = crate::io::scratch_dir(&store.dir)?;
     let candidate = scratch.path().join("candidate.ply");
     let mut limit = e;
@@ -301,7 +304,7 @@ pub fn reduce_cut(store: &Store, cut: &Cut, goal: Goal, o: &ReduceOptions) -> Re
     }
     let mut count: FxHashMap<[u64; 3], u32> = FxHashMap::default();
     for m in cut_meshes(store, cut) {
-        let held: FxHashSet<[u64; 3]> = m?.vertices.iter().map(pos_key).filter(|k| border.contains(k)).collect();
+        let held: FxHashSet<[u64; 3]> = m?.vertices.iter().map(|v| pos_bits(v.pos)).filter(|k| border.contains(k)).collect();
         for k in held {
             *count.entry(k).or_insert(0) += 1;
         }
@@ -317,7 +320,7 @@ pub fn reduce_cut(store: &Store, cut: &Cut, goal: Goal, o: &ReduceOptions) -> Re
             .par_iter()
             .map(|&i| -> Result<IndexedMesh> {
                 let m = cut.drawn_mesh(&store.read_node(i)?);
-                let locked: Vec<bool> = m.vertices.iter().map(|v| shared.contains(&pos_key(v))).collect();
+                let locked: Vec<bool> = m.vertices.iter().map(|v| shared.contains(&pos_bits(v.pos))).collect();
                 let g = match goal {
                     Goal::Tris(n) => Goal::Tris(((n as f64) * m.triangles.len() as f64 / tris.max(1) as f64).round() as usize),
                     g => g,
@@ -337,10 +340,6 @@ pub fn reduce_cut(store: &Store, cut: &Cut, goal: Goal, o: &ReduceOptions) -> Re
     }
 }
 
-fn pos_key(v: &Vertex) -> [u64; 3] {
-    v.pos.map(f64::to_bits)
-}
-
 /// Positions of the vertices on edges used by exactly one triangle.
 fn open_edge_positions(m: &IndexedMesh) -> FxHashSet<[u64; 3]> {
     let mut edges: FxHashMap<(u32, u32), u32> = FxHashMap::default();
@@ -351,7 +350,7 @@ fn open_edge_positions(m: &IndexedMesh) -> FxHashSet<[u64; 3]> {
         .iter()
         .map(|v| {
             let n = id.len() as u32;
-            *id.entry(pos_key(v)).or_insert(n)
+            *id.entry(pos_bits(v.pos)).or_insert(n)
         })
         .collect();
     for t in &m.triangles {
@@ -369,7 +368,7 @@ fn open_edge_positions(m: &IndexedMesh) -> FxHashSet<[u64; 3]> {
             on[b as usize] = true;
         }
     }
-    m.vertices.iter().zip(&canon).filter(|(_, &c)| on[c as usize]).map(|(v, _)| pos_key(v)).collect()
+    m.vertices.iter().zip(&canon).filter(|(_, &c)| on[c as usize]).map(|(v, _)| pos_bits(v.pos)).collect()
 }
 
 /// Reduces one mesh in memory to `goal`, keeping `locked` vertices

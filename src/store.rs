@@ -399,19 +399,15 @@ impl Store {
     /// Every node's payload lies inside its level's pack file (so no read
     /// asks for more than the file holds, whatever the record says).
     fn check_pack_ranges(&self) -> Result<()> {
-        let mut len = vec![None; self.header.levels as usize];
+        let len = (0..self.packs.len())
+            .map(|l| Ok(self.packs[l].metadata().ctx(self.pack_path(l), "open pack file")?.len()))
+            .collect::<Result<Vec<u64>>>()?;
         for (i, n) in self.nodes.iter().enumerate() {
             let l = n.level as usize;
-            if len[l].is_none() {
-                let p = self.pack_path(l);
-                len[l] = Some(self.packs[l].metadata().ctx(&p, "open pack file")?.len());
-            }
-            let end = n.offset.checked_add(n.bytes as u64);
-            if end.is_none_or(|e| e > len[l].unwrap()) {
-                let p = self.pack_path(l);
+            if n.offset.checked_add(n.bytes as u64).is_none_or(|e| e > len[l]) {
                 return Err(Error::input(
-                    Location { file: p, offset: Some(n.offset), ..Default::default() },
-                    format!("node {i}: payload of {} bytes at {} lies beyond the pack file's {} bytes", n.bytes, n.offset, len[l].unwrap()),
+                    Location { file: self.pack_path(l), offset: Some(n.offset), ..Default::default() },
+                    format!("node {i}: payload of {} bytes at {} lies beyond the pack file's {} bytes", n.bytes, n.offset, len[l]),
                 ));
             }
         }

@@ -64,10 +64,9 @@ impl Scalar {
     pub fn is_float(self) -> bool {
         matches!(self, Scalar::F32 | Scalar::F64)
     }
-    /// Whether `x` (an ascii value as parsed) is representable in this
-    /// type: integers in range, floats finite (1e39 overflows a `float`).
-    /// NaN and infinities written out literally pass here; coordinates
-    /// are checked for finiteness where vertices are assembled.
+    /// Whether the finite value `x` is representable in this type
+    /// (integers in range; 1e39 overflows a `float`). False for NaN and
+    /// infinities.
     pub fn holds(self, x: f64) -> bool {
         let (lo, hi) = match self {
             Scalar::I8 => (i8::MIN as f64, i8::MAX as f64),
@@ -79,7 +78,7 @@ impl Scalar {
             Scalar::F32 => (-(f32::MAX as f64), f32::MAX as f64),
             Scalar::F64 => (f64::MIN, f64::MAX),
         };
-        !x.is_finite() && self.is_float() || (lo..=hi).contains(&x)
+        (lo..=hi).contains(&x)
     }
     /// The classic PLY name (`uchar`, `int`, `float`, ...).
     pub fn name(self) -> &'static str {

@@ -755,8 +755,9 @@ impl BodyReader<'_> {
         };
         match parsed {
             // "inf"/"nan" literals go on to the coordinate checks; a
-            // finite token that overflows its type is an error here.
-            Some(x) if ty.holds(x) && !(ty.is_float() && x.is_infinite() && !s.to_ascii_lowercase().contains("inf")) => Ok(x),
+            // finite token that overflows its type (parsed as ±inf or out
+            // of range) is an error here.
+            Some(x) if ty.holds(x) || (ty.is_float() && (x.is_nan() || s.to_ascii_lowercase().contains("inf"))) => Ok(x),
             Some(_) => Err(Error::input(
                 self.loc(&e.name, rec, off),
                 format!("property '{prop}': '{}' is out of range for {}", String::from_utf8_lossy(&tok), ty.name()),
