@@ -285,6 +285,28 @@ fn duplicate_declarations_and_unknown_versions_name_their_lines() {
     }
 }
 
+/// Row 15: names with `. : $ /`, a leading digit or non-ASCII text, and a
+/// Latin-1 comment gave raw parser dumps; now they are read (and skipped
+/// where unknown), and the body's extra values land where they should.
+#[test]
+fn odd_names_and_latin1_comments_are_read() {
+    let d = tempfile::tempdir().unwrap();
+    let mut ply = b"ply\nformat ascii 1.0\ncomment scanned at the Mus\xe9e\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nproperty float scan.conf\nproperty uchar 2nd:pass\nproperty int $id/\xc3\xa9\n".to_vec();
+    ply.extend_from_slice(b"element face 1\nproperty list uchar int vertex_indices\nelement \xe9tat 1\nproperty uchar a.b\nend_header\n");
+    ply.extend_from_slice(b"0 0 0 0.5 1 7\n1 0 0 0.5 1 8\n0 1 0 0.5 1 9\n3 0 1 2\n4\n");
+    let p = d.path().join("odd.ply");
+    std::fs::write(&p, ply).unwrap();
+    let o = octolod(&["ply-info", s(&p)]);
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(out.contains("scan.conf") && out.contains("2nd:pass") && out.contains("$id/\u{e9}"), "{out}");
+    let soup = d.path().join("odd.soup");
+    let o = octolod(&["soup", s(&p), "-o", s(&soup), "--json"]);
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(out.contains("\"triangles\":1,") && out.contains("\"vertices\":3,"), "{out}");
+}
+
 /// Row 16: `--frames 0` rendered one frame; `--leaf-tris 1` built a huge store.
 #[test]
 fn senseless_option_values_are_errors() {

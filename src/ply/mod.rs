@@ -6,8 +6,12 @@
 //! body reader ([`read::PlyBody`]) that calls back once per vertex and once
 //! per fan-triangulated triangle, never holding the mesh in memory.
 //!
-//! The header grammar is ply-rs-bw's (so `int8`…`float64` names, comments and
-//! `obj_info` lines behave like the reference crate); the body is decoded here
+//! The header is read by a small grammar of our own ([`parse_header`]):
+//! ply-rs-bw's rejected valid names (`.`, `:`, `$`, `/`, leading digits,
+//! non-ASCII) and Latin-1 comments with raw parser dumps, and merged
+//! duplicate declarations silently; ours names the line of every error,
+//! and a unit test checks it agrees with ply-rs-bw on every header both
+//! accept. The body is decoded here
 //! with typed, offset-compiled decoders over large sequential buffers (no
 //! per-element hash map), which is what makes binary ingest run at memory
 //! speed. [`write`] writes PLY files (used by `extract`, the generator and
@@ -91,19 +95,6 @@ impl Scalar {
             Scalar::U32 => "uint",
             Scalar::F32 => "float",
             Scalar::F64 => "double",
-        }
-    }
-    fn from_ply_rs(t: &ply_rs_bw::ply::ScalarType) -> Scalar {
-        use ply_rs_bw::ply::ScalarType as S;
-        match t {
-            S::Char => Scalar::I8,
-            S::UChar => Scalar::U8,
-            S::Short => Scalar::I16,
-            S::UShort => Scalar::U16,
-            S::Int => Scalar::I32,
-            S::UInt => Scalar::U32,
-            S::Float => Scalar::F32,
-            S::Double => Scalar::F64,
         }
     }
 }
@@ -203,48 +194,6 @@ fn loc(path: &Path) -> Location {
     Location { file: path.to_path_buf(), ..Default::default() }
 }
 
-/// What the grammar would let pass silently: a `format` version other
-/// than 1.0, and duplicate elements or properties (its maps would merge
-/// them into a misleading later error). Errors name both lines.
-fn check_header_lines(path: &Path, text: &str) -> Result<()> {
-    let at = |line: usize, msg: String| {
-        let mut l = loc(path);
-        l.line = Some(line as u64);
-        Error::input(l, msg)
-    };
-    let mut elements: std::collections::HashMap<&str, usize> = std::collections::HashMap::new();
-    let mut props: std::collections::HashMap<&str, usize> = std::collections::HashMap::new();
-    let mut current: Option<&str> = None;
-    for (i, line) in text.lines().enumerate() {
-        let n = i + 1;
-        let t: Vec<&str> = line.split_ascii_whitespace().collect();
-        match t.first().copied() {
-            Some("format") if t.len() >= 3 && t[2] != "1.0" => {
-                return Err(at(n, format!("PLY format version {} is not supported (only 1.0)", t[2])));
-            }
-            Some("element") if t.len() >= 2 => {
-                if let Some(first) = elements.insert(t[1], n) {
-                    return Err(at(n, format!("element '{}' declared twice (lines {first} and {n})", t[1])));
-                }
-                current = Some(t[1]);
-                props.clear();
-            }
-            Some("property") if t.len() >= 3 => {
-                let name = t[t.len() - 1];
-                if let Some(first) = props.insert(name, n) {
-                    return Err(at(
-                        n,
-                        format!("property '{name}' of element '{}' declared twice (lines {first} and {n})", current.unwrap_or("?")),
-                    ));
-                }
-            }
-            Some("end_header") => break,
-            _ => {}
-        }
-    }
-    Ok(())
-}
-
 /// Offset just past the `end_header` line terminator, if present.
 fn find_end_header(buf: &[u8]) -> Option<usize> {
     let mut start = 0;
@@ -260,51 +209,153 @@ fn find_end_header(buf: &[u8]) -> Option<usize> {
     None
 }
 
-/// Parses header bytes (ending with the `end_header` line) with ply-rs-bw's grammar.
+/// A scalar type name: the classic PLY names and the sized ones.
+fn scalar_named(t: &[u8]) -> Option<Scalar> {
+    Some(match t {
+        b"char" | b"int8" => Scalar::I8,
+        b"uchar" | b"uint8" => Scalar::U8,
+        b"short" | b"int16" => Scalar::I16,
+        b"ushort" | b"uint16" => Scalar::U16,
+        b"int" | b"int32" => Scalar::I32,
+        b"uint" | b"uint32" => Scalar::U32,
+        b"float" | b"float32" => Scalar::F32,
+        b"double" | b"float64" => Scalar::F64,
+        _ => return None,
+    })
+}
+
+const SCALAR_NAMES: &str = "char, uchar, short, ushort, int, uint, float, double (or int8 ... float64)";
+
+/// The header's lines, read with PLY 1.0's grammar as Greg Turk's `ply.c`
+/// reads it: whitespace-separated words, one declaration per line.
+/// Element and property names are any run of non-space bytes (`.`, `:`,
+/// `$`, `/`, a leading digit or non-ASCII text are all fine; bytes that
+/// are not UTF-8 are kept as U+FFFD), comments and `obj_info` lines may
+/// hold any bytes (Latin-1 is common). Every error names its line; a
+/// duplicate element or property names both lines (merging them would
+/// mislead a later error); a `format` version other than 1.0 is refused.
+fn parse_lines(path: &Path, bytes: &[u8]) -> Result<(Encoding, Vec<ElementDef>, Vec<String>)> {
+    let at = |line: usize, msg: String| {
+        let mut l = loc(path);
+        l.line = Some(line as u64);
+        Error::input(l, msg)
+    };
+    let text = |t: &[u8]| String::from_utf8_lossy(t).into_owned();
+    let mut encoding: Option<(Encoding, usize)> = None;
+    let mut elements: Vec<ElementDef> = Vec::new();
+    let mut element_line: std::collections::HashMap<String, usize> = std::collections::HashMap::new();
+    let mut prop_line: std::collections::HashMap<String, usize> = std::collections::HashMap::new();
+    let mut comments = Vec::new();
+    for (i, raw) in bytes.split(|&b| b == b'\n').enumerate() {
+        let n = i + 1;
+        let raw = raw.strip_suffix(b"\r").unwrap_or(raw);
+        let words: Vec<&[u8]> = raw.split(|b| b.is_ascii_whitespace()).filter(|w| !w.is_empty()).collect();
+        if n == 1 {
+            if words != [b"ply"] {
+                return Err(at(n, "the first line must be 'ply'".into()));
+            }
+            continue;
+        }
+        let Some(&keyword) = words.first() else { continue };
+        let malformed = |expected: &str| at(n, format!("malformed header line '{}': expected '{expected}'", text(raw).trim()));
+        match keyword {
+            b"comment" | b"obj_info" => {
+                if keyword == b"comment" {
+                    let rest = raw.trim_ascii_start().strip_prefix(b"comment").unwrap_or(b"");
+                    comments.push(text(rest.trim_ascii()));
+                }
+            }
+            b"format" => {
+                if let Some((_, first)) = encoding {
+                    return Err(at(n, format!("'format' declared twice (lines {first} and {n})")));
+                }
+                if words.len() != 3 {
+                    return Err(malformed("format ascii|binary_little_endian|binary_big_endian 1.0"));
+                }
+                let enc = match words[1] {
+                    b"ascii" => Encoding::Ascii,
+                    b"binary_little_endian" => Encoding::BinaryLe,
+                    b"binary_big_endian" => Encoding::BinaryBe,
+                    other => {
+                        return Err(at(
+                            n,
+                            format!("unknown format '{}' (expected ascii, binary_little_endian or binary_big_endian)", text(other)),
+                        ))
+                    }
+                };
+                if words[2] != b"1.0" {
+                    return Err(at(n, format!("PLY format version {} is not supported (only 1.0)", text(words[2]))));
+                }
+                encoding = Some((enc, n));
+            }
+            b"element" => {
+                if words.len() != 3 {
+                    return Err(malformed("element <name> <count>"));
+                }
+                let name = text(words[1]);
+                let count = std::str::from_utf8(words[2]).ok().and_then(|c| c.parse::<u64>().ok()).ok_or_else(|| {
+                    at(n, format!("element '{name}': count '{}' is not a whole number below 2^64", text(words[2])))
+                })?;
+                if let Some(first) = element_line.insert(name.clone(), n) {
+                    return Err(at(n, format!("element '{name}' declared twice (lines {first} and {n})")));
+                }
+                prop_line.clear();
+                elements.push(ElementDef { name, count, props: Vec::new() });
+            }
+            b"property" => {
+                let Some(e) = elements.last_mut() else {
+                    return Err(at(n, "'property' before any 'element'".into()));
+                };
+                let scalar = |w: &[u8]| {
+                    scalar_named(w)
+                        .ok_or_else(|| at(n, format!("unknown property type '{}' (expected {SCALAR_NAMES})", text(w))))
+                };
+                let (ty, name) = match words.len() {
+                    3 if words[1] != b"list" => (PropType::Scalar(scalar(words[1])?), words[2]),
+                    5 if words[1] == b"list" => {
+                        let c = scalar(words[2])?;
+                        if c.is_float() {
+                            return Err(at(n, format!("list count type '{}' is not an integer type", text(words[2]))));
+                        }
+                        (PropType::List(c, scalar(words[3])?), words[4])
+                    }
+                    _ => return Err(malformed("property <type> <name>' or 'property list <count type> <item type> <name>")),
+                };
+                let name = text(name);
+                if let Some(first) = prop_line.insert(name.clone(), n) {
+                    return Err(at(n, format!("property '{name}' of element '{}' declared twice (lines {first} and {n})", e.name)));
+                }
+                e.props.push(PropDef { name, ty });
+            }
+            b"end_header" => {
+                if words.len() != 1 {
+                    return Err(malformed("end_header"));
+                }
+                break;
+            }
+            other => {
+                return Err(at(
+                    n,
+                    format!(
+                        "unsupported or malformed header line: unknown keyword '{}' (expected format, comment, obj_info, element, property or end_header)",
+                        text(other)
+                    ),
+                ))
+            }
+        }
+    }
+    let Some((encoding, _)) = encoding else {
+        return Err(Error::input(loc(path), "no 'format' line in the header"));
+    };
+    Ok((encoding, elements, comments))
+}
+
+/// Parses header bytes (ending with the `end_header` line).
 pub fn parse_header(path: &Path, bytes: &[u8], body_offset: u64) -> Result<PlyHeader> {
     if !bytes.starts_with(b"ply") {
         return Err(Error::input(loc(path), "not a PLY file (does not start with 'ply')"));
     }
-    if std::str::from_utf8(bytes).is_err() {
-        return Err(Error::input(loc(path), "header is not valid text"));
-    }
-    check_header_lines(path, std::str::from_utf8(bytes).unwrap_or(""))?;
-    let parser = ply_rs_bw::parser::Parser::<ply_rs_bw::ply::DefaultElement>::new();
-    let mut reader = ply_rs_bw::parser::Reader::new(bytes);
-    let h = parser.read_header(&mut reader).map_err(|e| {
-        let mut l = loc(path);
-        l.line = e.line().map(|x| x as u64);
-        let msg = e.to_string();
-        let msg = msg.split_once(": ").filter(|_| e.line().is_some()).map(|(_, m)| m.to_string()).unwrap_or(msg);
-        Error::input(l, format!("unsupported or malformed header line: {}", msg.replace('\n', " ").replace('\t', "")))
-    })?;
-    let encoding = match h.encoding {
-        ply_rs_bw::ply::Encoding::Ascii => Encoding::Ascii,
-        ply_rs_bw::ply::Encoding::BinaryLittleEndian => Encoding::BinaryLe,
-        ply_rs_bw::ply::Encoding::BinaryBigEndian => Encoding::BinaryBe,
-    };
-    let elements: Vec<ElementDef> = h
-        .elements
-        .values()
-        .map(|e| ElementDef {
-            name: e.name.clone(),
-            count: e.count as u64,
-            props: e
-                .properties
-                .values()
-                .map(|p| PropDef {
-                    name: p.name.clone(),
-                    ty: match &p.data_type {
-                        ply_rs_bw::ply::PropertyType::Scalar(s) => PropType::Scalar(Scalar::from_ply_rs(s)),
-                        ply_rs_bw::ply::PropertyType::List(c, s) => {
-                            PropType::List(Scalar::from_ply_rs(c), Scalar::from_ply_rs(s))
-                        }
-                    },
-                })
-                .collect(),
-        })
-        .collect();
-    let comments = h.comments.clone();
+    let (encoding, elements, comments) = parse_lines(path, bytes)?;
     let elem_loc = |name: &str| Location { file: path.to_path_buf(), element: Some(name.to_string()), ..Default::default() };
     let vertex_elem = elements
         .iter()
@@ -388,4 +439,126 @@ pub(crate) fn face_index_prop(f: &ElementDef) -> Option<usize> {
     ["vertex_indices", "vertex_index"]
         .iter()
         .find_map(|n| f.prop(n).filter(|&i| matches!(f.props[i].ty, PropType::List(..))))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(bytes: &[u8]) -> Result<PlyHeader> {
+        let end = find_end_header(bytes).unwrap_or(bytes.len());
+        parse_header(Path::new("t.ply"), &bytes[..end], end as u64)
+    }
+
+    /// The reference grammar (ply-rs-bw) and ours agree on every bundled
+    /// header: encoding, element names and counts, property names and types.
+    #[test]
+    fn agrees_with_ply_rs_on_the_bundled_headers() {
+        use ply_rs_bw::ply::{PropertyType as P, ScalarType as S};
+        let conv = |t: &S| match t {
+            S::Char => Scalar::I8,
+            S::UChar => Scalar::U8,
+            S::Short => Scalar::I16,
+            S::UShort => Scalar::U16,
+            S::Int => Scalar::I32,
+            S::UInt => Scalar::U32,
+            S::Float => Scalar::F32,
+            S::Double => Scalar::F64,
+        };
+        let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+        let mut checked = 0;
+        for dir in ["fixtures", "fuzz/seeds"] {
+            for entry in std::fs::read_dir(root.join(dir)).unwrap() {
+                let p = entry.unwrap().path();
+                if p.extension().is_none_or(|e| e != "ply") {
+                    continue;
+                }
+                let bytes = std::fs::read(&p).unwrap();
+                let ours = parse(&bytes).unwrap();
+                let parser = ply_rs_bw::parser::Parser::<ply_rs_bw::ply::DefaultElement>::new();
+                let theirs = parser.read_header(&mut ply_rs_bw::parser::Reader::new(&bytes[..])).unwrap();
+                let enc = match theirs.encoding {
+                    ply_rs_bw::ply::Encoding::Ascii => Encoding::Ascii,
+                    ply_rs_bw::ply::Encoding::BinaryLittleEndian => Encoding::BinaryLe,
+                    ply_rs_bw::ply::Encoding::BinaryBigEndian => Encoding::BinaryBe,
+                };
+                assert_eq!(ours.encoding, enc, "{}", p.display());
+                let want: Vec<ElementDef> = theirs
+                    .elements
+                    .values()
+                    .map(|e| ElementDef {
+                        name: e.name.clone(),
+                        count: e.count as u64,
+                        props: e
+                            .properties
+                            .values()
+                            .map(|p| PropDef {
+                                name: p.name.clone(),
+                                ty: match &p.data_type {
+                                    P::Scalar(s) => PropType::Scalar(conv(s)),
+                                    P::List(c, s) => PropType::List(conv(c), conv(s)),
+                                },
+                            })
+                            .collect(),
+                    })
+                    .collect();
+                assert_eq!(ours.elements, want, "{}", p.display());
+                assert_eq!(ours.comments, theirs.comments, "{}", p.display());
+                checked += 1;
+            }
+        }
+        assert!(checked >= 10, "only {checked} headers checked");
+    }
+
+    const TAIL: &str = "property float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n";
+
+    #[test]
+    fn any_non_space_name_is_accepted() {
+        for name in ["a.b", "c:d", "$x", "dir/name", "3d", "höhe", "\u{e9}t\u{e9}"] {
+            let h = format!("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty uchar {name}\n{TAIL}");
+            let h = parse(h.as_bytes()).unwrap();
+            assert_eq!(h.elements[0].props[1].name, name);
+            let h = format!("ply\nformat ascii 1.0\nelement {name} 2\nproperty float {name}\nelement vertex 3\nproperty float x\n{TAIL}");
+            let h = parse(h.as_bytes()).unwrap();
+            assert_eq!((h.elements[0].name.as_str(), h.elements[0].count, h.vertex_elem), (name, 2, 1));
+        }
+    }
+
+    #[test]
+    fn latin1_comments_and_names_are_kept() {
+        let mut h = b"ply\r\nformat binary_little_endian 1.0\r\ncomment caf\xe9 cr\xe8me\r\nobj_info \xff\xfe\r\nelement vertex 3\r\nproperty float x\r\nproperty short t\xe9\r\n".to_vec();
+        h.extend_from_slice(TAIL.replace('\n', "\r\n").as_bytes());
+        let h = parse(&h).unwrap();
+        assert_eq!(h.encoding, Encoding::BinaryLe);
+        assert_eq!(h.comments, ["caf\u{fffd} cr\u{fffd}me"]);
+        assert_eq!(h.elements[0].props[1].name, "t\u{fffd}");
+        assert_eq!(h.elements[0].props[1].ty, PropType::Scalar(Scalar::I16));
+    }
+
+    #[test]
+    fn grammar_errors_name_their_line() {
+        let ok = format!("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\n{TAIL}");
+        for (from, to, line, want) in [
+            ("format ascii 1.0", "format ascii", 2, "expected 'format"),
+            ("format ascii 1.0", "format ebcdic 1.0", 2, "unknown format 'ebcdic'"),
+            ("format ascii 1.0", "format ascii 1.0\nformat ascii 1.0", 3, "'format' declared twice (lines 2 and 3)"),
+            ("element vertex 3", "element vertex -3", 3, "count '-3'"),
+            ("element vertex 3", "element vertex 99999999999999999999", 3, "count '99999999999999999999'"),
+            ("element vertex 3", "element vertex", 3, "expected 'element <name> <count>'"),
+            ("property float x", "property quaternion x", 4, "unknown property type 'quaternion'"),
+            ("property float x", "property float x extra", 4, "malformed header line"),
+            ("property list uchar int", "property list float int", 8, "list count type 'float'"),
+            ("element vertex 3", "property float w\nelement vertex 3", 3, "'property' before any 'element'"),
+            ("element face 1", "frobnicate 3\nelement face 1", 7, "unknown keyword 'frobnicate'"),
+            ("end_header", "end_header now", 9, "expected 'end_header'"),
+        ] {
+            let bad = ok.replacen(from, to, 1);
+            let e = parse(bad.as_bytes()).unwrap_err().to_string();
+            assert!(e.contains(&format!("header line {line}")) && e.contains(want), "{to}: {e}");
+        }
+        let e = parse(b"ply\nelement vertex 3\nproperty float x\nend_header\n").unwrap_err().to_string();
+        assert!(e.contains("no 'format' line"), "{e}");
+        let e = parse(b"ply 1\nformat ascii 1.0\nend_header\n").unwrap_err().to_string();
+        assert!(e.contains("header line 1") && e.contains("must be 'ply'"), "{e}");
+    }
 }
