@@ -263,6 +263,9 @@ fn main() -> ExitCode {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
     let cli = Cli::parse();
+    if matches!(cli.cmd, Cmd::Render { .. }) {
+        quiet_device_select();
+    }
     octolod::io::clean_up_on_signals();
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
@@ -270,6 +273,19 @@ fn main() -> ExitCode {
             eprintln!("octolod: error: {e}");
             ExitCode::FAILURE
         }
+    }
+}
+
+/// Offscreen rendering presents to no display, so Mesa's implicit Vulkan
+/// layer that picks the GPU driving the display has nothing to choose by;
+/// without a desktop session it only prints "error: XDG_RUNTIME_DIR is
+/// invalid" (libwayland, from the layer's probe) on every run. Turn it off
+/// for `render`, unless the user asked it for a device
+/// (`MESA_VK_DEVICE_SELECT`) or set the switch themselves.
+fn quiet_device_select() {
+    if std::env::var_os("MESA_VK_DEVICE_SELECT").is_none() && std::env::var_os("NODEVICE_SELECT").is_none() {
+        // SAFETY: called from main before any other thread exists.
+        unsafe { std::env::set_var("NODEVICE_SELECT", "1") };
     }
 }
 

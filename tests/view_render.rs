@@ -156,9 +156,14 @@ fn render_cli_writes_frames_and_rejects_bad_paths() {
     let o = Command::new(exe)
         .args(["render", s.to_str().unwrap(), "--out", out.to_str().unwrap(), "--frames", "3", "--width", "64", "--height", "48"])
         .args(["--ram", "16M", "--brute-force"])
+        // Issue 11 row 17: without a desktop session every render printed
+        // "error: XDG_RUNTIME_DIR is invalid" (Mesa's device-select layer).
+        .env_remove("XDG_RUNTIME_DIR")
+        .env_remove("NODEVICE_SELECT")
         .output()
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(!String::from_utf8_lossy(&o.stderr).contains("XDG_RUNTIME_DIR"), "{}", String::from_utf8_lossy(&o.stderr));
     let line = String::from_utf8_lossy(&o.stdout);
     assert!(line.contains("render: 3 frames"), "{line}");
     let js: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("stats.json")).unwrap()).unwrap();
