@@ -247,3 +247,48 @@ fn a_budget_below_the_coarsest_level_is_a_clear_error() {
     let e = Viewer::<DrawMesh>::open(&s, opts(4 << 10)).err().expect("4 KiB cannot hold anything");
     assert!(e.to_string().contains("--ram"), "{e}");
 }
+
+/// Issue 11 (item 2): node loads that fail are counted in every frame's
+/// statistics and shown in the overlay (the window also logs each message),
+/// instead of being recorded and never read.
+#[test]
+fn failed_loads_show_in_the_frame_statistics_and_the_overlay() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = store(dir.path(), Shape::Sphere, 60_000, 2048);
+    let st = octolod::store::Store::open(&s).unwrap();
+    for l in 0..st.top_level() {
+        let p = st.pack_path(l as usize);
+        let mut b = std::fs::read(&p).unwrap();
+        for i in (0..b.len()).step_by(97) {
+            b[i] ^= 0x5a;
+        }
+        std::fs::write(&p, b).unwrap();
+    }
+    drop(st);
+    let mut o = opts(64 << 20);
+    o.select.max_error_px = 0.25;
+    o.pin_share = 0.0; // only the roots are loaded at open
+    let mut v: Viewer<DrawMesh> = Viewer::open(&s, o).unwrap();
+    let b = v.bounds();
+    let mut cam = Camera::frame_all(&b, DVec3::Z, 50.0);
+    cam.fit_clip(&b);
+    let healthy = v.frame(&cam, (800, 600), &mut up);
+    assert_eq!(healthy.load_failures, 0, "nothing has been read yet");
+    let mut last = healthy.clone();
+    for _ in 0..200 {
+        last = v.frame(&cam, (800, 600), &mut up);
+        if last.load_failures > 0 && last.pending_loads == 0 {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    assert!(last.load_failures > 0, "{last:?}");
+    assert_eq!(last.load_failures, v.load_failures().0);
+    let (_, msgs) = v.load_failures();
+    assert!(msgs.iter().all(|m| m.contains("level-")), "{msgs:?}");
+    let lines = last.overlay_lines(60.0);
+    assert!(lines.iter().any(|l| l.contains(&format!("{} node load(s) FAILED", last.load_failures))), "{lines:?}");
+    assert!(!healthy.overlay_lines(60.0).iter().any(|l| l.contains("FAILED")));
+    // The roots still draw: a failure leaves a coarser, valid picture.
+    assert!(last.triangles > 0 && !v.draw_list().is_empty());
+}

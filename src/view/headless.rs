@@ -51,12 +51,46 @@ pub struct RenderOptions {
 }
 
 /// One rendered frame: its statistics and, with `--full-res`, the comparison.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, serde::Serialize)]
 pub struct FrameRecord {
+    #[serde(flatten)]
     pub stats: FrameStats,
-    pub psnr_db: Option<f64>,
-    pub diff_fraction: Option<f64>,
+    /// Share of pixels showing the background.
     pub background_fraction: f64,
+    /// PSNR against the full-resolution reference (`--full-res`; `"inf"`
+    /// when identical).
+    #[serde(serialize_with = "inf_as_text")]
+    pub psnr_db: Option<f64>,
+    /// Share of pixels differing from the reference (`--full-res`).
+    pub diff_fraction: Option<f64>,
+}
+
+fn inf_as_text<S: serde::Serializer>(x: &Option<f64>, s: S) -> std::result::Result<S::Ok, S::Error> {
+    match x {
+        Some(v) if v.is_infinite() && *v > 0.0 => s.serialize_str("inf"),
+        Some(v) if v.is_finite() => s.serialize_f64(*v),
+        _ => s.serialize_none(),
+    }
+}
+
+/// `stats.json`: the run's summary, then every frame.
+#[derive(serde::Serialize)]
+struct StatsFile<'a> {
+    store: String,
+    width: u32,
+    height: u32,
+    /// `budgeted` or `brute-force`.
+    mode: &'static str,
+    budget_bytes: u64,
+    frames_rendered: usize,
+    max_resident_bytes: u64,
+    max_select_ms: f64,
+    final_settled: bool,
+    #[serde(serialize_with = "inf_as_text")]
+    final_psnr_db: Option<f64>,
+    final_diff_fraction: Option<f64>,
+    load_failures: u64,
+    frames: &'a [FrameRecord],
 }
 
 /// What a run produced.
@@ -216,63 +250,48 @@ pub fn full_res_frame(renderer: &mut Renderer, store: &crate::store::Store, cam:
 /// Bytes of GPU-ready meshes per reference batch.
 pub const REFERENCE_BATCH: u64 = 64 << 20;
 
-fn num(x: Option<f64>) -> String {
-    match x {
-        Some(v) if v.is_finite() => format!("{v:.4}"),
-        Some(v) if v > 0.0 => "inf".into(),
-        _ => String::new(),
-    }
-}
-
-fn json_num(x: Option<f64>) -> String {
-    match x {
-        Some(v) if v.is_finite() => format!("{v:.5}"),
-        Some(v) if v > 0.0 => "\"inf\"".into(),
-        _ => "null".into(),
+/// A CSV cell for one JSON value (lists joined by spaces, `null` empty).
+fn csv_cell(v: &serde_json::Value) -> String {
+    match v {
+        serde_json::Value::Null => String::new(),
+        serde_json::Value::String(s) => s.clone(),
+        serde_json::Value::Array(a) => a.iter().map(csv_cell).collect::<Vec<_>>().join(" "),
+        other => other.to_string(),
     }
 }
 
 fn write_stats(dir: &Path, frames: &[FrameRecord], o: &RenderOptions) -> Result<()> {
     let csv = dir.join("stats.csv");
     let mut f = std::io::BufWriter::new(std::fs::File::create(&csv).ctx(&csv, "create")?);
-    writeln!(f, "{},background_fraction,psnr_db,diff_fraction", FrameStats::CSV_HEADER).ctx(&csv, "write")?;
-    for r in frames {
-        writeln!(f, "{},{:.6},{},{}", r.stats.csv(), r.background_fraction, num(r.psnr_db), num(r.diff_fraction)).ctx(&csv, "write")?;
+    for (i, r) in frames.iter().enumerate() {
+        let serde_json::Value::Object(row) = serde_json::to_value(r).expect("a frame record serializes") else {
+            unreachable!("a struct serializes to an object")
+        };
+        if i == 0 {
+            writeln!(f, "{}", row.keys().cloned().collect::<Vec<_>>().join(",")).ctx(&csv, "write")?;
+        }
+        writeln!(f, "{}", row.values().map(csv_cell).collect::<Vec<_>>().join(",")).ctx(&csv, "write")?;
     }
     f.flush().ctx(&csv, "write")?;
     let js = dir.join("stats.json");
-    let max_res = frames.iter().map(|r| r.stats.resident_bytes).max().unwrap_or(0);
-    let max_sel = frames.iter().map(|r| r.stats.select_ms).fold(0.0, f64::max);
     let last = frames.last();
-    let body: Vec<String> = frames
-        .iter()
-        .map(|r| {
-            let s = r.stats.json();
-            format!(
-                "{},\"background_fraction\":{:.6},\"psnr_db\":{},\"diff_fraction\":{}}}",
-                &s[..s.len() - 1],
-                r.background_fraction,
-                json_num(r.psnr_db),
-                json_num(r.diff_fraction)
-            )
-        })
-        .collect();
-    let text = format!(
-        "{{\n\"store\":{:?},\"width\":{},\"height\":{},\"mode\":\"{}\",\"budget_bytes\":{},\"frames_rendered\":{},\"max_resident_bytes\":{},\"max_select_ms\":{:.4},\"final_settled\":{},\"final_psnr_db\":{},\"final_diff_fraction\":{},\n\"frames\":[\n{}\n]}}\n",
-        o.store.display().to_string(),
-        o.width,
-        o.height,
-        if o.brute_force { "brute-force" } else { "budgeted" },
-        o.view.ram,
-        frames.len(),
-        max_res,
-        max_sel,
-        last.map(|r| r.stats.settled).unwrap_or(false),
-        json_num(last.and_then(|r| r.psnr_db)),
-        json_num(last.and_then(|r| r.diff_fraction)),
-        body.join(",\n")
-    );
-    std::fs::write(&js, text).ctx(&js, "write")
+    let file = StatsFile {
+        store: o.store.display().to_string(),
+        width: o.width,
+        height: o.height,
+        mode: if o.brute_force { "brute-force" } else { "budgeted" },
+        budget_bytes: o.view.ram,
+        frames_rendered: frames.len(),
+        max_resident_bytes: frames.iter().map(|r| r.stats.resident_bytes).max().unwrap_or(0),
+        max_select_ms: frames.iter().map(|r| r.stats.select_ms).fold(0.0, f64::max),
+        final_settled: last.is_some_and(|r| r.stats.settled),
+        final_psnr_db: last.and_then(|r| r.psnr_db),
+        final_diff_fraction: last.and_then(|r| r.diff_fraction),
+        load_failures: last.map_or(0, |r| r.stats.load_failures),
+        frames,
+    };
+    let text = serde_json::to_string_pretty(&file).expect("the stats serialize");
+    std::fs::write(&js, text + "\n").ctx(&js, "write")
 }
 
 /// A default camera for a store: frame-all from a diagonal.

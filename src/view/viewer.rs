@@ -44,8 +44,11 @@ impl Default for ViewOptions {
     }
 }
 
-/// Statistics of one frame.
-#[derive(Clone, Debug, Default)]
+/// Statistics of one frame: one row of `render`'s `stats.csv` and one
+/// element of `stats.json`'s `frames` (same fields, same names, in this
+/// order; `max_error_px` is `null` in JSON and empty in CSV when no node
+/// was refined).
+#[derive(Clone, Debug, Default, serde::Serialize)]
 pub struct FrameStats {
     pub frame: u64,
     pub select_ms: f64,
@@ -69,61 +72,15 @@ pub struct FrameStats {
     pub max_error_px: f64,
     /// Nothing wanted is missing: the cut is what the camera asks for.
     pub settled: bool,
+    /// Node loads that failed so far (the cut then lacks their detail).
+    pub load_failures: u64,
 }
 
 impl FrameStats {
-    pub const CSV_HEADER: &'static str = "frame,select_ms,upload_ms,draw_ms,triangles,nodes,nodes_per_level,resident_mb,peak_resident_mb,budget_mb,pending_loads,loads_done,evictions,hit_rate,max_error_px,settled";
-
-    pub fn csv(&self) -> String {
-        let lv: Vec<String> = self.nodes_per_level.iter().map(|n| n.to_string()).collect();
-        format!(
-            "{},{:.3},{:.3},{:.3},{},{},{},{:.3},{:.3},{:.3},{},{},{},{:.4},{:.3},{}",
-            self.frame,
-            self.select_ms,
-            self.upload_ms,
-            self.draw_ms,
-            self.triangles,
-            self.nodes,
-            lv.join(" "),
-            mb(self.resident_bytes),
-            mb(self.peak_resident_bytes),
-            mb(self.budget_bytes),
-            self.pending_loads,
-            self.loads_done,
-            self.evictions,
-            self.hit_rate,
-            self.max_error_px,
-            self.settled
-        )
-    }
-
-    pub fn json(&self) -> String {
-        let lv: Vec<String> = self.nodes_per_level.iter().map(|n| n.to_string()).collect();
-        format!(
-            "{{\"frame\":{},\"select_ms\":{:.4},\"upload_ms\":{:.4},\"draw_ms\":{:.4},\"triangles\":{},\"nodes\":{},\"nodes_per_level\":[{}],\"resident_bytes\":{},\"peak_resident_bytes\":{},\"budget_bytes\":{},\"pending_loads\":{},\"loads_done\":{},\"evictions\":{},\"hit_rate\":{:.5},\"max_error_px\":{},\"settled\":{}}}",
-            self.frame,
-            self.select_ms,
-            self.upload_ms,
-            self.draw_ms,
-            self.triangles,
-            self.nodes,
-            lv.join(","),
-            self.resident_bytes,
-            self.peak_resident_bytes,
-            self.budget_bytes,
-            self.pending_loads,
-            self.loads_done,
-            self.evictions,
-            self.hit_rate,
-            if self.max_error_px.is_finite() { format!("{:.4}", self.max_error_px) } else { "null".into() },
-            self.settled
-        )
-    }
-
     /// Lines for the statistics overlay.
     pub fn overlay_lines(&self, fps: f64) -> Vec<String> {
         let lv: Vec<String> = self.nodes_per_level.iter().enumerate().filter(|(_, &n)| n > 0).map(|(l, n)| format!("L{l}:{n}")).collect();
-        vec![
+        let mut lines = vec![
             format!("{fps:6.1} fps  select {:.2} ms  upload {:.2} ms  draw {:.2} ms", self.select_ms, self.upload_ms, self.draw_ms),
             format!("{} triangles in {} nodes  [{}]", group(self.triangles), self.nodes, lv.join(" ")),
             format!("resident {:.1} / {:.1} MB  peak {:.1} MB", mb(self.resident_bytes), mb(self.budget_bytes), mb(self.peak_resident_bytes)),
@@ -136,7 +93,11 @@ impl FrameStats {
                 self.max_error_px,
                 if self.settled { "" } else { "  (loading)" }
             ),
-        ]
+        ];
+        if self.load_failures > 0 {
+            lines.push(format!("!! {} node load(s) FAILED: the view lacks their detail (messages in the log)", self.load_failures));
+        }
+        lines
     }
 }
 
@@ -281,6 +242,7 @@ impl<M: GpuBytes> Viewer<M> {
             hit_rate: if c.hits + c.misses == 0 { 1.0 } else { c.hits as f64 / (c.hits + c.misses) as f64 },
             max_error_px: sel.max_error_px,
             settled: sel.wanted.is_empty() && self.cache.awaiting_upload() == 0,
+            load_failures: c.load_failures,
         };
         self.last = sel;
         stats

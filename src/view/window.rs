@@ -389,6 +389,8 @@ struct App {
     overlay_lines: Vec<String>,
     overlay_at: Instant,
     frames: u64,
+    /// Load-failure messages already written to the log.
+    failures_logged: usize,
 }
 
 impl App {
@@ -410,6 +412,7 @@ impl App {
             overlay_lines: Vec::new(),
             overlay_at: now - Duration::from_secs(1),
             frames: 0,
+            failures_logged: 0,
         }
     }
 
@@ -455,6 +458,7 @@ impl App {
         stats.draw_ms = t.elapsed().as_secs_f64() * 1e3;
         self.stats = stats;
         self.frames += 1;
+        self.log_load_failures();
         if self.fps.tick(Instant::now()) {
             if let Some(win) = &self.window {
                 win.set_title(&self.title());
@@ -474,6 +478,16 @@ impl App {
         if self.opts.max_frames.is_some_and(|n| self.frames >= n) {
             event_loop.exit();
         }
+    }
+
+    /// A node that failed to load is an error whatever `--quiet` says: its
+    /// message goes to the log once (the first 16; the overlay counts all).
+    fn log_load_failures(&mut self) {
+        let (_, msgs) = self.viewer.load_failures();
+        for m in &msgs[self.failures_logged.min(msgs.len())..] {
+            eprintln!("octolod: error: view: node load failed: {m}");
+        }
+        self.failures_logged = msgs.len();
     }
 
     fn title(&self) -> String {
