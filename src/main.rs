@@ -369,6 +369,15 @@ fn run(cli: Cli) -> Result<()> {
                 last.stats.triangles,
                 if last.stats.settled { " (settled)" } else { " (still loading)" }
             );
+            // A settled cut coarser than asked: the budget stopped refinement.
+            let asked = o.view.select.max_error_px;
+            if o.view.select.distance_lod.is_none() && !o.brute_force && last.stats.max_error_px > asked * 1.001 {
+                eprintln!(
+                    "octolod: warning: the last frame's cut has {:.2} px of projected error where {asked} px was asked: --ram {} (or the triangle budget) held back refinement",
+                    last.stats.max_error_px,
+                    octolod::progress::bytes(o.view.ram)
+                );
+            }
             Ok(())
         }
         Cmd::View { store, view, window } => octolod::view::window::run_window(window.options(store, view.options()?, cli.quiet)?),

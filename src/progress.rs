@@ -74,7 +74,34 @@ fn proc_status_kb(key: &str) -> Option<u64> {
     line[key.len()..].trim().trim_end_matches("kB").trim().parse().ok()
 }
 
+/// Formats a byte count in the largest unit that keeps it at least 1
+/// (B, KiB, MiB, GiB), one decimal: for messages where a budget may be tiny.
+pub fn bytes(n: u64) -> String {
+    let units = ["KiB", "MiB", "GiB", "TiB"];
+    if n < 1024 {
+        return format!("{n} B");
+    }
+    let mut x = n as f64 / 1024.0;
+    let mut u = 0;
+    while x >= 1024.0 && u + 1 < units.len() {
+        x /= 1024.0;
+        u += 1;
+    }
+    format!("{x:.1} {}", units[u])
+}
+
 /// Formats a byte count as MiB with one decimal.
 pub fn mib(bytes: u64) -> String {
     format!("{:.1} MiB", bytes as f64 / (1024.0 * 1024.0))
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn bytes_picks_a_unit_that_shows_the_figure() {
+        assert_eq!(super::bytes(0), "0 B");
+        assert_eq!(super::bytes(65536), "64.0 KiB");
+        assert_eq!(super::bytes(3 << 20), "3.0 MiB");
+        assert_eq!(super::bytes(5 << 30), "5.0 GiB");
+    }
 }

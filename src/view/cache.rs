@@ -227,8 +227,8 @@ impl<M: GpuBytes> Cache<M> {
         if need > self.budget {
             return Err(crate::Error::Usage(format!(
                 "the RAM budget leaves {} for node data but the coarsest level alone needs {}: raise --ram",
-                crate::progress::mib(self.budget),
-                crate::progress::mib(need)
+                crate::progress::bytes(self.budget),
+                crate::progress::bytes(need)
             )));
         }
         let mut files = HashMap::new();

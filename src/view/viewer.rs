@@ -146,8 +146,8 @@ impl<M: GpuBytes> Viewer<M> {
         if opts.ram <= index_bytes {
             return Err(Error::Usage(format!(
                 "--ram {} does not even hold the node index ({}): raise it",
-                crate::progress::mib(opts.ram),
-                crate::progress::mib(index_bytes)
+                crate::progress::bytes(opts.ram),
+                crate::progress::bytes(index_bytes)
             )));
         }
         let budget = opts.ram - index_bytes;
