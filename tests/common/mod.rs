@@ -10,6 +10,8 @@ use octolod::store::{Cut, IndexedMesh, Store};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
+pub mod store_mutation;
+
 /// Generates `shape` with `tris` triangles and `attrs`, writes it as
 /// `dir/NAME.ply`; gives the path and the mesh.
 pub fn gen_ply(dir: &Path, shape: Shape, tris: u64, attrs: u32) -> (PathBuf, IndexedMesh) {
