@@ -54,7 +54,7 @@ use std::fs::File;
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 
-pub const MAGIC: [u8; 8] = *b"OCTLODIX";
+pub const MAGIC: [u8; 8] = crate::io::STORE_MAGIC;
 pub const VERSION: u32 = 2;
 pub const PAGE: u64 = 4096;
 pub const NO_NODE: u32 = u32::MAX;
