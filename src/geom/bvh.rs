@@ -363,7 +363,6 @@ mod tests {
             .fold(f64::INFINITY, f64::min)
     }
 
-
     #[test]
     fn bvh_closest_equals_brute_force() {
         for (n, seed) in [(1usize, 1u64), (3, 2), (37, 3), (1500, 4)] {

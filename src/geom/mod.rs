@@ -18,6 +18,8 @@ use crate::mesh::{Aabb, Vertex};
 /// A point or vector.
 pub type P3 = [f64; 3];
 
+// The vector helpers: plain componentwise arithmetic in a fixed order, so
+// every caller computes bit-identical results.
 
 #[inline]
 pub fn sub(a: P3, b: P3) -> P3 {
@@ -45,7 +47,8 @@ pub fn dist2(a: P3, b: P3) -> f64 {
     dot(d, d)
 }
 
-/// A triangle mesh reduced to what metro needs: positions and triangles.
+/// A triangle mesh reduced to what distance queries need: positions and
+/// triangles (metro's operands, lod's node error).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Mesh {
     pub positions: Vec<P3>,
@@ -118,8 +121,10 @@ pub fn tri_area(c: [P3; 3]) -> f64 {
     0.5 * dot(n, n).sqrt()
 }
 
+/// splitmix64's increment (2^64 / golden ratio).
 pub(crate) const GOLDEN: u64 = 0x9E37_79B9_7F4A_7C15;
 
+/// splitmix64's output mix: a well-spread 64-bit hash of `x`.
 #[inline]
 pub(crate) fn mix64(x: u64) -> u64 {
     let mut z = x.wrapping_add(GOLDEN);
@@ -147,7 +152,6 @@ impl Rng {
         (self.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
     }
 }
-
 
 /// Random small triangles in the unit cube, every tenth degenerate (a test
 /// mesh for the indexes built on it).

@@ -74,13 +74,13 @@ impl Drop for Entry {
     }
 }
 
-pub(super) enum CacheSlot {
+enum CacheSlot {
     Loading,
     Ready(Arc<Entry>, u64),
 }
 
 #[derive(Default)]
-pub(super) struct CacheState {
+struct CacheState {
     map: HashMap<u64, CacheSlot>,
     /// Last-use tick → key.
     lru: BTreeMap<u64, u64>,

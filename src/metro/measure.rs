@@ -54,7 +54,7 @@ impl Distances {
 }
 
 #[derive(Clone, Copy, Default)]
-pub(super) struct Acc {
+struct Acc {
     n: u64,
     sum: f64,
     sum2: f64,

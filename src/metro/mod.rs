@@ -260,7 +260,7 @@ pub fn load_store_level(dir: &Path, level: u8) -> Result<Mesh> {
 }
 
 // ---------------------------------------------------------------------------
-// The two-sided comparison and its report.
+// The two-sided comparison.
 
 /// What to measure.
 #[derive(Clone, Debug)]
@@ -291,7 +291,6 @@ impl Operand<'_> {
         }
     }
 }
-
 
 /// The memory budget of a comparison.
 #[derive(Clone, Debug, PartialEq)]

@@ -26,7 +26,7 @@ use std::sync::atomic::Ordering::Relaxed;
 use std::sync::Arc;
 
 /// Queries per unit of parallel work against a paged target.
-pub(super) const PIECE: usize = 1024;
+const PIECE: usize = 1024;
 
 /// What a part holds when it serves as a sample source: its mesh welded in
 /// first-reference order, its edges, and lookups for the ownership test.
@@ -75,8 +75,8 @@ impl SrcPart {
 
 /// A node mesh with bit-identical positions merged and unreferenced ones
 /// dropped, vertices numbered in the order of first reference (the weld
-/// [`load_store_level`] does across the whole level, node by node).
-pub(super) fn weld_first_reference(m: &IndexedMesh) -> (Vec<P3>, Vec<[u32; 3]>) {
+/// [`Store::level_mesh`] does across the whole level, node by node).
+fn weld_first_reference(m: &IndexedMesh) -> (Vec<P3>, Vec<[u32; 3]>) {
     let mut ids: HashMap<[u64; 3], u32> = HashMap::with_capacity(m.vertices.len());
     let mut positions = Vec::with_capacity(m.vertices.len());
     let mut triangles = Vec::with_capacity(m.triangles.len());
@@ -94,12 +94,12 @@ pub(super) fn weld_first_reference(m: &IndexedMesh) -> (Vec<P3>, Vec<[u32; 3]>) 
     (positions, triangles)
 }
 
-pub(super) const ROLE_SRC: u64 = 0;
-pub(super) const ROLE_TGT: u64 = 1;
+const ROLE_SRC: u64 = 0;
+const ROLE_TGT: u64 = 1;
 
 /// Upper bounds of the bytes a part costs in the cache, from its slot.
 #[derive(Clone, Copy, Debug, Default)]
-pub(super) struct PartCost {
+struct PartCost {
     /// Reading and decoding: the payload buffer and the decoded mesh.
     load: u64,
     /// As a sample source (load, weld map and the built [`SrcPart`]).
@@ -266,7 +266,7 @@ impl PagedLevel {
 }
 
 /// The samples of a paged level, part by part: the same points in the same
-/// order as [`Plan`] gives for the welded level in memory (parts in cut
+/// order as [`Plan`](super::sample::Plan) gives for the welded level in memory (parts in cut
 /// order; in each, its owned vertices and edges in first-reference and
 /// first-occurrence order, then its faces), with Metro's carried fractions
 /// running across parts. Three passes over the parts: vertices (which also
@@ -303,7 +303,7 @@ pub(super) struct PagedGen<'a> {
     nf: u64,
 }
 
-pub(super) enum Step {
+enum Step {
     Open,
     Close,
     Point(P3),
@@ -501,7 +501,7 @@ impl Gen for PagedGen<'_> {
 /// A query worker's state against a paged target: the part of its last
 /// answer, held (so the next, nearby query usually needs no cache lookup),
 /// and the triangle slot there.
-pub(super) struct Worker {
+struct Worker {
     home: Option<(usize, Arc<Entry>)>,
     slot: u32,
     /// Box-tree nodes to visit, with their squared distance.
@@ -514,7 +514,7 @@ pub(super) struct Worker {
 
 /// Squared distance from `p` to the box `b`.
 #[inline]
-pub(super) fn box_dist2(b: &Aabb, p: P3) -> f64 {
+fn box_dist2(b: &Aabb, p: P3) -> f64 {
     let e = |k: usize| (b.min[k] - p[k]).max(p[k] - b.max[k]).max(0.0);
     let (x, y, z) = (e(0), e(1), e(2));
     x * x + y * y + z * z

@@ -565,7 +565,6 @@ mod tests {
         assert_eq!(Threshold::Absolute(0.5).limit(4.0), 0.5);
     }
 
-
     #[test]
     fn json_escapes_and_numbers() {
         assert_eq!(to_json_string(&"a\"b\\c\n"), "\"a\\\"b\\\\c\\n\"");

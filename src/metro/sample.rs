@@ -11,7 +11,7 @@ use crate::geom::{add, dist2, mix64, scale, sub, tri_area, Mesh, Rng, GOLDEN, P3
 use rayon::prelude::*;
 
 #[inline]
-pub(super) fn isqrt(x: u64) -> u64 {
+fn isqrt(x: u64) -> u64 {
     let mut r = (x as f64).sqrt() as u64;
     while r * r > x {
         r -= 1;
@@ -25,7 +25,7 @@ pub(super) fn isqrt(x: u64) -> u64 {
 /// Sample `i` of `n` stratified samples on triangle `c` whose per-face offset
 /// is `offset` in [0,1) and per-sample generator `rng`.
 #[inline]
-pub(super) fn face_sample(c: &[P3; 3], i: u64, n: u64, offset: f64, rng: &mut Rng) -> P3 {
+fn face_sample(c: &[P3; 3], i: u64, n: u64, offset: f64, rng: &mut Rng) -> P3 {
     let m = isqrt(n - 1) + 1; // ceil(sqrt(n)) for n >= 1
     let cells = m * m;
     let idx = (((i as f64 + offset) * cells as f64 / n as f64) as u64).min(cells - 1);
@@ -87,7 +87,7 @@ pub(super) fn carry(acc: &mut f64, prev: &mut u64, x: f64, density: f64) -> u64 
 }
 
 /// `prefix[i+1]` = samples on elements `..=i` by [`carry`].
-pub(super) fn carry_prefix(w: &[f64], density: f64, prefix: &mut [u64]) {
+fn carry_prefix(w: &[f64], density: f64, prefix: &mut [u64]) {
     let (mut acc, mut prev) = (0.0f64, 0u64);
     prefix[0] = 0;
     for (i, &x) in w.iter().enumerate() {
@@ -195,7 +195,6 @@ impl Plan {
     }
 }
 
-
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(super) enum Kind {
     Vertex,
@@ -287,7 +286,7 @@ impl Gen for MemGen<'_> {
 }
 
 /// Samples `[s, e)` of one kind into `out`.
-pub(super) fn gen_job(src: &Mesh, plan: &Plan, kind: Kind, s: u64, e: u64, out: &mut [P3]) {
+fn gen_job(src: &Mesh, plan: &Plan, kind: Kind, s: u64, e: u64, out: &mut [P3]) {
     let mut k = 0usize;
     let mut put = |p: P3| {
         out[k] = p;
