@@ -50,6 +50,13 @@ pub enum OutputKind {
     Inner,
 }
 
+/// The first bytes of a store's `nodes.bin` ([`crate::store::MAGIC`]):
+/// defined here, where outputs are recognised, so this module needs no
+/// format module (they all build on it).
+pub const STORE_MAGIC: [u8; 8] = *b"OCTLODIX";
+/// The first bytes of a triangle soup ([`crate::soup::format::MAGIC`]).
+pub const SOUP_MAGIC: [u8; 8] = *b"OCTSOUP\0";
+
 /// The marker file every `render` output directory holds.
 pub const FRAMES_MARKER: &str = ".octolod-render";
 
@@ -73,9 +80,9 @@ impl OutputKind {
         };
         match self {
             OutputKind::Store => {
-                p.is_dir() && head(&p.join("nodes.bin"), 8).is_some_and(|b| b == crate::store::MAGIC)
+                p.is_dir() && head(&p.join("nodes.bin"), 8).is_some_and(|b| b == STORE_MAGIC)
             }
-            OutputKind::Soup => p.is_file() && head(p, 8).is_some_and(|b| b == crate::soup::format::MAGIC),
+            OutputKind::Soup => p.is_file() && head(p, 8).is_some_and(|b| b == SOUP_MAGIC),
             OutputKind::Frames => p.is_dir() && p.join(FRAMES_MARKER).is_file(),
             OutputKind::Ply => {
                 if !p.is_file() {
@@ -505,7 +512,7 @@ mod tests {
 
     fn fake_store(p: &Path, tag: &[u8]) {
         fs::create_dir_all(p).unwrap();
-        let mut b = crate::store::MAGIC.to_vec();
+        let mut b = STORE_MAGIC.to_vec();
         b.extend_from_slice(tag);
         fs::write(p.join("nodes.bin"), b).unwrap();
     }

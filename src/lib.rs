@@ -6,12 +6,13 @@
 //! soup) → `octree` (level-0 partition) → `lod` (levels of detail, with
 //! `quadric`) → `store` → `view`, plus `reduce` (one mesh of the size or
 //! error asked, from a store) and `metro`.
-//! Shared plumbing: [`mesh`] (attribute model), [`error`], [`io`],
-//! [`progress`], [`extsort`], [`mem`].
+//! Shared plumbing: [`mesh`] (attribute model), [`geom`] (closest points,
+//! BVH), [`error`], [`io`], [`progress`], [`extsort`], [`mem`].
 
 pub mod error;
 pub mod extsort;
 pub mod gen;
+pub mod geom;
 pub mod io;
 pub mod mem;
 pub mod mesh;

@@ -383,8 +383,12 @@ fn run(cli: Cli) -> Result<()> {
         Cmd::View { store, view, window } => octolod::view::window::run_window(window.options(store, view.options()?, cli.quiet)?),
         Cmd::PlyInfo { input, header_only } => ply_info(&input, header_only, cli.quiet),
         Cmd::Metro { a, b, samples, seed, json, max_hausdorff, max_rms, max_mean, mem } => {
-            let args = octolod::metro::CliArgs { a, b, samples, seed, json, max_hausdorff, max_rms, max_mean, mem, quiet: cli.quiet };
-            if !octolod::metro::run_cli(&args)? {
+            use octolod::metro::{Limits, MemOptions, Options, RunOptions, Source};
+            let limits = Limits::parse(max_hausdorff.as_deref(), max_rms.as_deref(), max_mean.as_deref())?;
+            let options = Options::checked(samples, seed, cli.quiet)?;
+            let mem = MemOptions::parse(mem.as_deref())?;
+            let run = RunOptions { a: Source::parse(&a)?, b: Source::parse(&b)?, options, mem, limits, json };
+            if !octolod::metro::run(&run)? {
                 std::process::exit(octolod::metro::EXIT_THRESHOLD.into());
             }
             Ok(())

@@ -144,11 +144,6 @@ impl CutSpec {
     }
 }
 
-/// The meshes a cut draws, node by node (the drawn patches of each).
-pub fn cut_meshes<'a>(store: &'a Store, cut: &'a Cut) -> impl Iterator<Item = Result<IndexedMesh>> + 'a {
-    cut.drawn.iter().map(move |&i| store.read_node(i).map(|nm| cut.drawn_mesh(&nm)))
-}
-
 /// Writes a cut as one indexed PLY (binary little endian, with the input's
 /// attributes). Vertices shared by neighbouring nodes are welded
 /// (bit-identical vertices become one) unless `weld` is false, which
@@ -163,7 +158,7 @@ pub fn extract(store: &Store, spec: CutSpec, out: &Path, weld: bool, force: bool
         ..Default::default()
     };
     if weld {
-        let parts = cut_meshes(store, &cut).collect::<Result<Vec<_>>>()?;
+        let parts = store.cut_meshes(&cut).collect::<Result<Vec<_>>>()?;
         let m = weld_union(&store.layout, &parts);
         drop(parts);
         write_mesh_ply(out, store.header.attrs, &opts.comments[0], &m, force)?;
@@ -173,19 +168,19 @@ pub fn extract(store: &Store, spec: CutSpec, out: &Path, weld: bool, force: bool
     let (nv, nf) = {
         // PLY puts all vertices before all faces: two passes over the nodes.
         let (mut nv, mut nf) = (0u64, 0u64);
-        for m in cut_meshes(store, &cut) {
+        for m in store.cut_meshes(&cut) {
             let m = m?;
             nv += m.vertices.len() as u64;
             nf += m.triangles.len() as u64;
         }
         let mut w = PlyWriter::new(file.writer(), &opts, nv, nf).ctx(out, "write")?;
-        for m in cut_meshes(store, &cut) {
+        for m in store.cut_meshes(&cut) {
             for v in &m?.vertices {
                 w.vertex(v).ctx(out, "write")?;
             }
         }
         let mut base = 0u32;
-        for m in cut_meshes(store, &cut) {
+        for m in store.cut_meshes(&cut) {
             let m = m?;
             for t in &m.triangles {
                 w.face(&t.map(|i| i + base)).ctx(out, "write")?;

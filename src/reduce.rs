@@ -48,7 +48,7 @@ use crate::lod::cluster::{cluster_node, Splits};
 use crate::lod::shared::pos_bits;
 use crate::mesh::AttrSet;
 use crate::metro::{self, MemOptions, Source};
-use crate::pipeline::{cut_meshes, weld_union, write_mesh_ply};
+use crate::pipeline::{weld_union, write_mesh_ply};
 use crate::store::{Cut, IndexedMesh, Store};
 use rayon::prelude::*;
 use rustc_hash::{FxHashMap, FxHashSet};
@@ -266,7 +266,7 @@ fn reduce_to_error(store: &Store, e: f64, o: &ReduceOptions) -> Result<(IndexedM
 /// The cut's meshes welded into one (must fit `mem`).
 fn load_cut(store: &Store, cut: &Cut, o: &ReduceOptions) -> Result<IndexedMesh> {
     check_fits(cut.triangles(store), o, "the mesh")?;
-    let parts = cut_meshes(store, cut).collect::<Result<Vec<_>>>()?;
+    let parts = store.cut_meshes(cut).collect::<Result<Vec<_>>>()?;
     Ok(weld_union(&store.layout, &parts))
 }
 
@@ -299,11 +299,11 @@ pub fn reduce_cut(store: &Store, cut: &Cut, goal: Goal, o: &ReduceOptions) -> Re
     // one of them (unless both cover it wholly: a doubled surface); so take
     // the positions on open edges, then count the parts holding each.
     let mut border: FxHashSet<[u64; 3]> = FxHashSet::default();
-    for m in cut_meshes(store, cut) {
+    for m in store.cut_meshes(cut) {
         border.extend(open_edge_positions(&m?));
     }
     let mut count: FxHashMap<[u64; 3], u32> = FxHashMap::default();
-    for m in cut_meshes(store, cut) {
+    for m in store.cut_meshes(cut) {
         let held: FxHashSet<[u64; 3]> = m?.vertices.iter().map(|v| pos_bits(v.pos)).filter(|k| border.contains(k)).collect();
         for k in held {
             *count.entry(k).or_insert(0) += 1;

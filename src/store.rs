@@ -4,8 +4,9 @@
 //! Takes: node records and indexed meshes from the LOD builder
 //! ([`crate::lod`]). Gives: a directory that `extract`, `metro`, `info` and
 //! the viewer open and read node by node, and the questions they ask of it:
-//! which nodes make a whole level, which make the cut at an error, which
-//! patches of a node a cut draws ([`Cut`]).
+//! which nodes make a whole level (and its welded mesh), which make the cut
+//! at an error, which patches of a node a cut draws ([`Cut`]) and the
+//! meshes a cut draws.
 //!
 //! Files:
 //! * `nodes.bin` — a 128-byte [`StoreHeader`] (magic `OCTLODIX`, version,
@@ -46,12 +47,14 @@
 //! region adjacent for read-ahead, and cost no inodes.
 
 use crate::error::{Error, IoContext, Location, Result};
+use crate::geom::Mesh;
 use crate::mesh::{Aabb, AttrSet, Vertex, VertexLayout};
+use std::collections::HashMap;
 use std::fs::File;
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 
-pub const MAGIC: [u8; 8] = *b"OCTLODIX";
+pub const MAGIC: [u8; 8] = crate::io::STORE_MAGIC;
 pub const VERSION: u32 = 2;
 pub const PAGE: u64 = 4096;
 pub const NO_NODE: u32 = u32::MAX;
@@ -558,6 +561,48 @@ impl Store {
         Cut::from_selected(self, selected)
     }
 
+    /// The whole level `level` in memory, as metro measures it: its cut's
+    /// node meshes concatenated in cut order, bit-identical positions
+    /// welded (numbered in the order of first appearance), attributes
+    /// dropped. A usage error for a level the store lacks; an input error
+    /// for an empty level.
+    pub fn level_mesh(&self, level: u8) -> Result<Mesh> {
+        self.check_level(level)?;
+        let loc = |file: PathBuf| Location { file, ..Default::default() };
+        let mut mesh = Mesh::default();
+        let mut weld: HashMap<[u64; 3], u32> = HashMap::new();
+        for i in self.level_nodes(level) {
+            let n = &self.nodes[i];
+            let m = self.read_node(i)?.mesh;
+            let ids: Vec<u32> = m
+                .vertices
+                .iter()
+                .map(|v| {
+                    let next = mesh.positions.len() as u32;
+                    *weld.entry(v.pos.map(f64::to_bits)).or_insert_with(|| {
+                        mesh.positions.push(v.pos);
+                        next
+                    })
+                })
+                .collect();
+            for t in &m.triangles {
+                if t.iter().any(|&k| k as usize >= ids.len()) {
+                    return Err(Error::input(loc(self.pack_path(n.level as usize)), format!("node {i}: vertex index out of range")));
+                }
+                mesh.triangles.push(t.map(|k| ids[k as usize]));
+            }
+        }
+        if mesh.triangles.is_empty() {
+            return Err(Error::input(loc(self.dir.clone()), format!("level {level} has no triangles to measure")));
+        }
+        Ok(mesh)
+    }
+
+    /// The meshes `cut` draws, node by node (the drawn patches of each).
+    pub fn cut_meshes<'a>(&'a self, cut: &'a Cut) -> impl Iterator<Item = Result<IndexedMesh>> + 'a {
+        cut.drawn.iter().map(move |&i| self.read_node(i).map(|nm| cut.drawn_mesh(&nm)))
+    }
+
     /// The cut at object-space error `e` (see the module doc).
     pub fn error_cut(&self, e: f64) -> Cut {
         let mut selected = vec![false; self.nodes.len()];
@@ -707,24 +752,6 @@ pub struct ManifestLevel {
     /// The level's error threshold.
     pub tau: f64,
     pub seconds: f64,
-}
-
-impl From<&crate::lod::LevelReport> for ManifestLevel {
-    fn from(r: &crate::lod::LevelReport) -> ManifestLevel {
-        ManifestLevel {
-            level: r.level,
-            nodes: r.nodes,
-            triangles: r.triangles,
-            positions: r.positions,
-            bytes: r.bytes,
-            error_min: r.error_min,
-            error_max: r.error_max,
-            locked_fraction: r.locked_fraction(),
-            prev_locked_still_fraction: r.prev_still_fraction(),
-            tau: r.tau,
-            seconds: r.seconds,
-        }
-    }
 }
 
 impl Manifest {

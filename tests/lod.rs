@@ -171,7 +171,7 @@ fn level_zero_is_the_input_and_max_error_cuts_hold_their_bound() {
 /// it was simplified from (exact distances, representatives to surface).
 #[test]
 fn node_errors_cover_the_measured_deviation() {
-    use octolod::metro::{Bvh, Mesh};
+    use octolod::geom::{Bvh, Mesh};
     let d = tempfile::tempdir().unwrap();
     let (s, _) = build(d.path(), Shape::Terrain, 30_000, 0, 2000);
     let mut checked = 0;
@@ -229,7 +229,7 @@ fn derived_normals_agree_across_node_seams() {
 fn smooth_colors_survive_simplification() {
     let d = tempfile::tempdir().unwrap();
     let (s, input) = build(d.path(), Shape::Sphere, 20_000, AttrSet::COLOR, 800);
-    let bvh = octolod::metro::Bvh::new(&octolod::metro::Mesh::from_vertices(&input.vertices, input.triangles.clone()));
+    let bvh = octolod::geom::Bvh::new(&octolod::geom::Mesh::from_vertices(&input.vertices, input.triangles.clone()));
     let (mut sum, mut n, mut worst) = (0.0f64, 0.0f64, 0i32);
     for i in 0..s.nodes.len() {
         if s.nodes[i].level == 0 || s.nodes[i].level > 3 {

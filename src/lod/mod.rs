@@ -67,10 +67,11 @@ pub mod partition;
 pub mod shared;
 
 use crate::error::{Error, Result};
+use crate::geom::{cross, sub};
 use crate::mesh::{Aabb, AttrSet, VertexLayout};
 use crate::octree::{build_octree, OctreeOptions, OctreeReport};
 use crate::progress::Progress;
-use crate::store::{encode_payload, IndexedMesh, NodeRec, PackWriter, StoreHeader, NO_NODE};
+use crate::store::{encode_payload, IndexedMesh, ManifestLevel, NodeRec, PackWriter, StoreHeader, NO_NODE};
 use chunks::{split_by_target, ChunkFile, Gathered};
 use cluster::Splits;
 use partition::{Histogram, LevelCube, Tiling, KEY_DEPTH};
@@ -161,6 +162,25 @@ impl LevelReport {
             0.0
         } else {
             self.prev_locked_still as f64 / self.prev_locked as f64
+        }
+    }
+}
+
+/// A level's line in the store's manifest.
+impl From<&LevelReport> for ManifestLevel {
+    fn from(r: &LevelReport) -> ManifestLevel {
+        ManifestLevel {
+            level: r.level,
+            nodes: r.nodes,
+            triangles: r.triangles,
+            positions: r.positions,
+            bytes: r.bytes,
+            error_min: r.error_min,
+            error_max: r.error_max,
+            locked_fraction: r.locked_fraction(),
+            prev_locked_still_fraction: r.prev_still_fraction(),
+            tau: r.tau,
+            seconds: r.seconds,
         }
     }
 }
@@ -712,7 +732,7 @@ fn tri_centroid(m: &IndexedMesh, t: &[u32; 3]) -> [f64; 3] {
 /// the surfaces tried (a test compares them with exact BVH distances),
 /// with no index over either mesh. Kept vertices are at distance 0.
 pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> f64 {
-    use crate::metro::{closest_point_triangle, Bvh, Mesh};
+    use crate::geom::{closest_point_triangle, Bvh, Mesh};
     let output = &out.mesh;
     if input.triangles.is_empty() {
         return 0.0;
@@ -849,16 +869,6 @@ fn random_id() -> u64 {
     h.write_u128(std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_nanos()).unwrap_or(0));
     h.write_u32(std::process::id());
     h.finish()
-}
-
-#[inline]
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-#[inline]
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
 }
 
 /// A unit f32 normal ((0, 0, 1) when the sum vanishes).

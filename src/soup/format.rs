@@ -27,7 +27,7 @@ use std::fs::File;
 use std::io::{BufReader, Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 
-pub const MAGIC: [u8; 8] = *b"OCTSOUP\0";
+pub const MAGIC: [u8; 8] = crate::io::SOUP_MAGIC;
 pub const VERSION: u32 = 1;
 pub const HEADER_SIZE: usize = 128;
 

@@ -73,7 +73,7 @@ pub fn cut_mesh(s: &Store, cut: &Cut) -> (Vec<[f64; 3]>, Vec<[u32; 3]>) {
 
 /// [`cut_mesh`], and per welded position whether two or more drawn nodes hold it.
 pub fn cut_mesh_parts(s: &Store, cut: &Cut) -> ((Vec<[f64; 3]>, Vec<[u32; 3]>), Vec<bool>) {
-    let parts: Vec<IndexedMesh> = octolod::pipeline::cut_meshes(s, cut).collect::<Result<_, _>>().unwrap();
+    let parts: Vec<IndexedMesh> = s.cut_meshes(cut).collect::<Result<_, _>>().unwrap();
     let (pos, tris) = weld_positions(parts.iter().map(|m| (&m.vertices[..], &m.triangles[..])));
     let index: HashMap<[u64; 3], usize> = pos.iter().enumerate().map(|(i, p)| (p.map(f64::to_bits), i)).collect();
     let mut owner = vec![usize::MAX; pos.len()];

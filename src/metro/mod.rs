@@ -1,0 +1,651 @@
+//! Metro: the two-sided surface distance between two triangle meshes, after
+//! Cignoni, Rocchini and Scopigno, "Metro: measuring error on simplified
+//! surfaces" (1998), as implemented by vcglib's `metro`.
+//!
+//! Takes: two meshes `A` and `B`, each a PLY path (held in memory whole) or
+//! `STORE@L` (level `L` of an octolod store, paged: see "Paging" below; it
+//! measures as the level's whole-level cut with bit-identical positions
+//! welded, the mesh `octolod extract` writes), a sample budget, a seed and a
+//! memory budget (`--mem`). Gives: per direction (`A -> B`: samples on A, distance to the closest
+//! point of B; `B -> A` the other way) and combined, the maximum (Hausdorff),
+//! mean and RMS distance and the sample counts, each absolute and relative to
+//! **the bounding-box diagonal of A** (A is meant to be the reference, e.g.
+//! the original, so figures for several simplifications of it share one
+//! scale; vcglib's Metro divides by the diagonal of the union box instead,
+//! which the report also lists). Combined figures: max of the two maxima;
+//! mean and RMS over all samples of both directions together (so with the
+//! default budget, equal sample counts, the combined mean is the average of
+//! the two directional means). Bounding boxes, areas, vertex and face counts
+//! of both meshes come with it.
+//!
+//! Sampling (per direction, of the source mesh S, total budget `N`, by
+//! default `10 * max(faces of A, faces of B)` like Metro, `--samples`
+//! overrides): as in vcglib's `Sampling::Hausdorff`,
+//! 1. every vertex referenced by a triangle (unreferenced ones are not part
+//!    of the surface), `V` samples — all of them even when `V >= N` — in the
+//!    order of first reference (face by face, corner by corner);
+//! 2. with `R = N - V` left, every unique edge gets samples at equally spaced
+//!    interior points, `sqrt(R / area(S))` per unit length exactly like
+//!    Metro (the spacing the face samples will have), which at the default
+//!    budget puts about 70 % of the samples on edges (~7 per face of the
+//!    larger mesh). One guard Metro lacks: the edges take at most
+//!    [`EDGE_SHARE_MAX`] (90 %) of `R`, which only binds below ~6 samples
+//!    per face, where Metro's edges would take the whole budget and leave
+//!    the face interiors (where a simplification's error peaks) unsampled.
+//!    Length-proportional, fractions carried from edge to edge in edge
+//!    order: the order of first occurrence (face `f`'s corner `k` meets edge
+//!    `(t[k], t[k+1])`), each edge directed as first met;
+//! 3. what is left after the edges, `R - E`, goes to the faces (Metro's
+//!    `Hausdorff()` subtracts the vertex samples a second time here, giving
+//!    the faces `R - E - V`; octolod keeps the total at `N` as `--samples`
+//!    promises, so its faces get `V` more), proportionally to area
+//!    (fractions carried in face order), each face's `n` samples *stratified*:
+//!    the face is cut into `m² >= n` similar sub-triangles (`m = ceil(sqrt
+//!    n)`), `n` of them are picked at equal index spacing with a random
+//!    offset, and one uniform random point is drawn in each.
+//!
+//! The randomness is a splitmix64 hash of (seed, direction, face, sample), so
+//! the sample set depends on the seed only, not on thread count or chunking.
+//!
+//! Distance: for each sample, the exact closest point on the target mesh,
+//! found in a bounding-volume hierarchy over the target's triangles (median
+//! split of triangle centroids along the longest axis, at most 4 triangles a
+//! leaf, flattened depth-first into one array with the left child next to
+//! its parent; subtrees above 64 K triangles built in parallel) by a pruned
+//! nearest-first traversal: the nearer child first, any box farther than the
+//! best distance found so far skipped, and the search seeded with the
+//! previous sample's closest triangle (samples come in surface order, so the
+//! seed is usually already the answer and prunes almost everything). The
+//! point–triangle distance is Ericson's Voronoi-region method (Real-Time
+//! Collision Detection §5.1.5) for well-shaped triangles; thin triangles
+//! (height below 1e-3 of the longest edge) use a plane projection with an
+//! edge-sign inside test and fall back to the edges, and degenerate ones
+//! (height at most 1e-8 of the longest edge: collinear or coincident
+//! corners) are the union of their three edges as segments, so no input
+//! produces NaN.
+//!
+//! Determinism: samples are summed in fixed jobs of [`CHUNK`] samples
+//! (vertex jobs, then edge jobs, then face jobs, each starting at a multiple
+//! of `CHUNK` within its kind), generated and queried a batch of jobs at a
+//! time in parallel with rayon; each job sums sequentially, and the job
+//! partial sums are combined in job order, so every figure is bit-identical
+//! for a given seed whatever the thread count, batch size or memory budget.
+//! The JSON report holds no timings, so it can be diffed; its `paging`
+//! object (present only with a store operand) holds cache counters and peak
+//! RSS, which depend on scheduling.
+//!
+//! Paging (a `STORE@L` operand): the level is never loaded whole. Opening
+//! it reads `nodes.bin` (kept in memory, ~300 bytes a node) and the cut's
+//! node meshes once, in parallel, for their exact bounds (the nodes'
+//! `content` boxes bound the original triangles, not a simplified mesh,
+//! whose cluster representatives may leave them). The cut's nodes are the
+//! level's *parts*; a hierarchy over their bounds is the top level of its
+//! index. A part is read with one positioned read when needed and kept in
+//! one LRU page cache shared by both operands, under a byte budget: as a
+//! query target, its triangles' BVH (built on load); as a sample source,
+//! its mesh welded in first-reference order with its edges and sorted
+//! lookups. Resident bytes are the heap bytes of live entries (cached, or
+//! evicted but still held by a query) plus a reservation, for each load in
+//! flight, of the load's estimated peak (payload, decoded vertices, weld
+//! map, the structure being built), an upper bound swapped for the real
+//! size once built; the cache evicts unheld entries, least recently used
+//! first, before a reservation would exceed its budget.
+//! * Queries against a paged level come a batch at a time (up to 1 M
+//!   samples), sorted along a Morton curve of the target's box, in pieces
+//!   of consecutive queries per worker. A worker keeps the part of its last
+//!   answer (its *home*) and searches it first, which bounds the rest: only
+//!   a part whose box is nearer than the best so far can hold a nearer
+//!   point, and such a box lies within `d + dist(p, home box)` of the home
+//!   box, so the worker's list of the parts near its home (rebuilt with
+//!   twice the radius when a query reaches past it) settles the query;
+//!   without a home, a nearer-child-first walk of the box tree does. A part
+//!   is searched (loaded if needed) only while its box is nearer than the
+//!   best so far. Each answer is the minimum over the same triangles as in
+//!   memory, so the distances equal the in-memory ones (bit for bit but for
+//!   a near-tie pruned differently by the two hierarchies).
+//! * Sampling a paged level gives the samples the welded level would give
+//!   in memory, in the same order: parts in cut order (the in-memory
+//!   concatenation order), in each its vertices and edges in first-
+//!   reference and first-occurrence order, skipping those an earlier part
+//!   already has (bit-identical positions; only earlier parts whose bounds
+//!   meet this part's are asked), then its faces, with the carried
+//!   fractions running across parts and faces numbered globally. That takes
+//!   three passes over the parts: vertices (which also totals the area and
+//!   the owned edges' length the densities need), edges, faces.
+//! * Budget: `--mem` (default [`DEFAULT_MEM`]) covers the batch buffers
+//!   (48 bytes a sample) and the cache; given explicitly, also each PLY
+//!   operand's estimated in-memory size ([`ply_estimate`]); a PLY that does
+//!   not fit is streamed into a scratch store of its level 0 (the exact
+//!   input: soup + octree under `--mem`, leaves sized to the budget) and
+//!   paged like a store level. The cache must hold what one direction holds at once: a paged
+//!   source's current part and one earlier part, and two parts per query
+//!   worker (its home and one other); the number of workers is cut to fit,
+//!   and a budget below one worker's worth is a usage error naming the
+//!   minimum. Fixed overheads (the store indexes, thread stacks) come on
+//!   top; the report gives the cache's peak and the process's peak RSS.
+//!
+//! Complexity: building each BVH is O(F log F) time and O(F) memory (about
+//! 100 bytes a triangle with the reordered copy of its corners); sampling is
+//! O(N) plus an O(F) prefix pass and an O(E log E) edge sort; each query is
+//! O(log F) expected on reasonable meshes (worst case O(F)), so a direction
+//! costs O(N log F) and runs on all cores. Paged, memory is O(budget +
+//! nodes) and each part is read once per pass and per role while the cache
+//! holds the working set, more often below it (the report counts loads).
+//!
+//! Thresholds (`--max-hausdorff`, `--max-rms`, `--max-mean`) are checked
+//! against the combined figures, absolute (`0.01`) or as a percentage of A's
+//! diagonal (`0.1%`); the CLI exits with [`EXIT_THRESHOLD`] (3) when one is
+//! exceeded, distinct from 1 for errors.
+//!
+//! Files: this one (operands, options, the two-sided comparison, [`run`]),
+//! `sample.rs` (the sample points of a mesh in memory), `measure.rs` (one
+//! direction: samples against a target), `paged.rs` (a store level as
+//! parts), `cache.rs` (the page cache), `report.rs` (the report, its table
+//! and its JSON); the point–triangle distance and the BVH are
+//! [`crate::geom`]'s.
+
+mod cache;
+mod measure;
+mod paged;
+mod report;
+mod sample;
+
+pub use crate::geom::Mesh;
+pub use measure::{one_sided, Distances};
+pub use report::{Check, JsonBox, JsonCheck, JsonDistances, JsonMesh, JsonPaging, JsonParts, JsonReport, Limits, MeshSummary, PagingReport, Report, Threshold, Timings};
+
+use crate::error::{Error, Location, Result};
+use crate::geom::{mix64, Bvh};
+use crate::progress::Progress;
+use cache::Cache;
+use measure::{measure, Target};
+use paged::PagedLevel;
+use paged::PagedGen;
+use sample::MemGen;
+use std::fmt;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::Ordering::Relaxed;
+use std::time::Instant;
+
+/// Exit status of `octolod metro` when a threshold is exceeded (1 is an error).
+pub const EXIT_THRESHOLD: u8 = 3;
+/// Default samples per direction per face of the larger mesh (Metro's 10).
+pub const SAMPLES_PER_FACE: u64 = 10;
+/// Samples per parallel work item; fixed, so results do not depend on threads.
+pub const CHUNK: u64 = 16 * 1024;
+/// Most of the non-vertex budget the edges may take (Metro has no cap; see
+/// the module documentation).
+pub const EDGE_SHARE_MAX: f64 = 0.9;
+
+/// Default `--mem`.
+pub const DEFAULT_MEM: u64 = 1 << 30;
+/// Samples at most per batch (queried together, sorted along a Morton curve
+/// when the target is paged).
+const BATCH_MAX: usize = 1 << 20;
+/// Bytes a batch costs per sample: the point, its distance, its sort key.
+const BATCH_BYTES_PER_SAMPLE: u64 = 48;
+
+/// Where a metro operand comes from.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Source {
+    Ply(PathBuf),
+    /// A store directory and a level.
+    Store(PathBuf, u8),
+}
+
+impl Source {
+    /// `PATH.ply` or `STORE@L`. A spec is a store when the part before the
+    /// last `@` is a directory (or the whole spec names nothing and the part
+    /// after `@` is a number); a bare store directory is a usage error.
+    pub fn parse(spec: &str) -> Result<Source> {
+        if let Some((dir, level)) = spec.rsplit_once('@') {
+            let numeric = !level.is_empty() && level.bytes().all(|c| c.is_ascii_digit());
+            if Path::new(dir).is_dir() || (numeric && !Path::new(spec).exists()) {
+                let l: u8 = level.parse().map_err(|_| {
+                    Error::Usage(format!("'{spec}': the level after '@' must be a number from 0 to 255, not '{level}'"))
+                })?;
+                return Ok(Source::Store(PathBuf::from(dir), l));
+            }
+        }
+        if Path::new(spec).is_dir() {
+            return Err(Error::Usage(format!("'{spec}' is a directory; name a store level as {spec}@L (e.g. {spec}@0)")));
+        }
+        Ok(Source::Ply(PathBuf::from(spec)))
+    }
+    pub fn load(&self) -> Result<Mesh> {
+        match self {
+            Source::Ply(p) => load_ply(p),
+            Source::Store(d, l) => load_store_level(d, *l),
+        }
+    }
+}
+
+impl fmt::Display for Source {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Source::Ply(p) => write!(f, "{}", p.display()),
+            Source::Store(d, l) => write!(f, "{}@{l}", d.display()),
+        }
+    }
+}
+
+fn loc(path: &Path) -> Location {
+    Location { file: path.to_path_buf(), ..Default::default() }
+}
+
+/// Reads a whole PLY (any format the reader takes; polygons fan-triangulated,
+/// triangles with a repeated index dropped).
+pub fn load_ply(path: &Path) -> Result<Mesh> {
+    let (_, sink, _) = crate::ply::read::read_all(path)?;
+    if sink.vertices.len() as u64 > u32::MAX as u64 + 1 {
+        return Err(Error::input(loc(path), format!("{} vertices: metro takes at most 2^32", sink.vertices.len())));
+    }
+    let mesh = Mesh {
+        positions: sink.vertices.iter().map(|v| v.pos).collect(),
+        triangles: sink.triangles.iter().map(|t| t.map(|i| i as u32)).collect(),
+    };
+    if mesh.triangles.is_empty() {
+        return Err(Error::input(loc(path), "no triangles to measure"));
+    }
+    Ok(mesh)
+}
+
+/// Level `level` of the store at `dir` in memory ([`Store::level_mesh`]:
+/// the whole-level cut's node meshes, bit-identical positions welded).
+///
+/// [`Store::level_mesh`]: crate::store::Store::level_mesh
+pub fn load_store_level(dir: &Path, level: u8) -> Result<Mesh> {
+    crate::store::Store::open(dir)?.level_mesh(level)
+}
+
+// ---------------------------------------------------------------------------
+// The two-sided comparison.
+
+/// What to measure.
+#[derive(Clone, Debug)]
+pub struct Options {
+    /// Samples per direction; None: [`SAMPLES_PER_FACE`] × the larger face count.
+    pub samples: Option<u64>,
+    pub seed: u64,
+    pub quiet: bool,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options { samples: None, seed: 1, quiet: true }
+    }
+}
+
+/// One side of a comparison.
+enum Operand<'a> {
+    Mem(&'a Mesh),
+    Paged(&'a PagedLevel),
+}
+
+impl Operand<'_> {
+    fn faces(&self) -> u64 {
+        match self {
+            Operand::Mem(m) => m.triangles.len() as u64,
+            Operand::Paged(l) => l.faces(),
+        }
+    }
+}
+
+/// The memory budget of a comparison.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MemOptions {
+    /// Bytes (`--mem`, default [`DEFAULT_MEM`]).
+    pub budget: u64,
+    /// Given explicitly: then PLY operands, held whole, must fit it too.
+    pub explicit: bool,
+}
+
+impl Default for MemOptions {
+    fn default() -> Self {
+        MemOptions { budget: DEFAULT_MEM, explicit: false }
+    }
+}
+
+/// Estimated peak bytes of a PLY operand of `v` vertices and `f` faces held
+/// whole: reading (56-byte vertices, 24-byte faces), the mesh (24 + 12),
+/// its index (~165 per triangle at most) and its sample plan (~80 per face
+/// with the edge sort).
+pub fn ply_estimate(v: u64, f: u64) -> u64 {
+    80 * v + 36 * f + Bvh::bytes_bound(f) + 8 * v + 80 * f
+}
+
+/// The paging setup of [`compare_operands`].
+struct Paging<'a> {
+    cache: &'a Cache,
+    threads: usize,
+    report: PagingReport,
+}
+
+/// Two-sided Metro distance between `a` and `b`, both in memory.
+pub fn compare(a: &Mesh, b: &Mesh, opts: &Options) -> Result<Report> {
+    for (m, name) in [(a, "A"), (b, "B")] {
+        if m.triangles.is_empty() {
+            return Err(Error::Usage(format!("metro: mesh {name} has no triangles")));
+        }
+        m.check_indices().map_err(|e| Error::Usage(format!("metro: mesh {name}: {e}")))?;
+    }
+    compare_operands(&Operand::Mem(a), &Operand::Mem(b), opts, BATCH_MAX, None)
+}
+
+/// Two-sided Metro distance between two sources: PLYs are loaded whole,
+/// store levels are paged through one cache under `mem` (see the module
+/// documentation). The samples, and so every figure, are those [`compare`]
+/// gives for the same meshes in memory ([`load_store_level`] for a level).
+pub fn compare_sources(sa: &Source, sb: &Source, opts: &Options, mem: &MemOptions) -> Result<Report> {
+    let t0 = Instant::now();
+    // A PLY over an explicit --mem is streamed into a scratch store of its
+    // level 0 (the exact input) and then paged like any store level; one
+    // that fits is held whole and counted against --mem.
+    let mut scratch = Vec::new();
+    let mut resolved = Vec::new();
+    let mut ply_est = 0u64;
+    for (s, name) in [(sa, "A"), (sb, "B")] {
+        if let Source::Ply(p) = s {
+            let h = crate::ply::read_header(p)?;
+            let e = ply_estimate(h.vertex_count(), h.face_count());
+            if mem.explicit && e > mem.budget {
+                let (tmp, store) = level0_scratch_store(p, opts, mem)?;
+                scratch.push(tmp);
+                resolved.push(store);
+                continue;
+            }
+            if !mem.explicit && e > mem.budget && crate::progress::visible(opts.quiet) {
+                eprintln!(
+                    "octolod: metro: note: {name} = {} is held in memory whole (about {}); for meshes larger than RAM \
+                     build a store (`octolod build`) and pass STORE@0, which is paged under --mem",
+                    p.display(),
+                    crate::progress::mib(e)
+                );
+            }
+            ply_est += e;
+        }
+        resolved.push(s.clone());
+    }
+    let (sa, sb) = (&resolved[0], &resolved[1]);
+    // An eighth of the budget for batches (up to 1 M samples): a larger
+    // batch visits each target part once for more queries.
+    let batch = ((mem.budget / 8 / BATCH_BYTES_PER_SAMPLE) as usize / CHUNK as usize * CHUNK as usize)
+        .clamp(CHUNK as usize, BATCH_MAX);
+    let batch_bytes = batch as u64 * BATCH_BYTES_PER_SAMPLE;
+    let held = if mem.explicit { ply_est } else { 0 };
+    let cache_budget = mem.budget.saturating_sub(held).saturating_sub(batch_bytes);
+    let cache = Cache::new(cache_budget);
+    let threads = rayon::current_num_threads();
+    let open = |s: &Source, op: u64| -> Result<Option<PagedLevel>> {
+        match s {
+            Source::Store(d, l) => Ok(Some(PagedLevel::open(d, *l, s.to_string(), op, &cache, threads, opts.quiet)?)),
+            Source::Ply(_) => Ok(None),
+        }
+    };
+    let (la, lb) = (open(sa, 0)?, open(sb, 1)?);
+    let load = |s: &Source| -> Result<Option<Mesh>> {
+        match s {
+            Source::Ply(p) => Ok(Some(load_ply(p)?)),
+            Source::Store(..) => Ok(None),
+        }
+    };
+    let (ma, mb) = rayon::join(|| load(sa), || load(sb));
+    let (ma, mb) = (ma?, mb?);
+    let load_s = t0.elapsed().as_secs_f64();
+    let a = match (&ma, &la) {
+        (Some(m), _) => Operand::Mem(m),
+        (None, Some(l)) => Operand::Paged(l),
+        _ => unreachable!(),
+    };
+    let b = match (&mb, &lb) {
+        (Some(m), _) => Operand::Mem(m),
+        (None, Some(l)) => Operand::Paged(l),
+        _ => unreachable!(),
+    };
+    for (o, name) in [(&a, "A"), (&b, "B")] {
+        if o.faces() == 0 {
+            return Err(Error::Usage(format!("metro: mesh {name} has no triangles")));
+        }
+    }
+    // Each direction holds at most: a paged source's current part and one
+    // earlier part (ownership test), or its current part while the target's
+    // workers each hold two parts.
+    for (src, tgt, dir) in [(&a, &b, "A -> B"), (&b, &a, "B -> A")] {
+        let s = if let Operand::Paged(l) = src { l.max_src() } else { 0 };
+        let t = if let Operand::Paged(l) = tgt { l.max_tgt() } else { 0 };
+        let need = (2 * s).max(s + 2 * t);
+        if need > cache_budget {
+            let names = |o: &Operand| if let Operand::Paged(l) = o { l.name.clone() } else { String::new() };
+            return Err(Error::Usage(format!(
+                "metro: --mem {} leaves {} for the page cache (after {} of batch buffers{}), too little for {dir} \
+                 ({}{}): its largest node needs up to {} as a sample source and {} as a query index; \
+                 give --mem at least {}",
+                crate::progress::mib(mem.budget),
+                crate::progress::mib(cache_budget),
+                crate::progress::mib(batch_bytes),
+                if held > 0 { format!(" and {} for the PLY operands", crate::progress::mib(held)) } else { String::new() },
+                names(src),
+                if matches!(tgt, Operand::Paged(_)) { format!(" against {}", names(tgt)) } else { String::new() },
+                crate::progress::mib(s),
+                crate::progress::mib(t),
+                crate::progress::mib(need + batch_bytes + held + (1 << 20)),
+            )));
+        }
+    }
+    let paged = la.is_some() || lb.is_some();
+    let report = PagingReport {
+        budget: mem.budget,
+        cache_budget,
+        ply_estimate: ply_est,
+        batch_samples: batch as u64,
+        parts_a: la.as_ref().map(|l| l.parts() as u64),
+        parts_b: lb.as_ref().map(|l| l.parts() as u64),
+        ..Default::default()
+    };
+    let paging = Paging { cache: &cache, threads, report };
+    let mut r = compare_operands(&a, &b, opts, batch, paged.then_some(paging))?;
+    r.a.source = sa.to_string();
+    r.b.source = sb.to_string();
+    r.seconds.load = load_s;
+    Ok(r)
+}
+
+/// Streams PLY `p` into a scratch store of its level 0 (soup + octree under
+/// `--mem`, no simplification; level 0 is the exact input). The store lives
+/// as long as the returned directory guard.
+fn level0_scratch_store(p: &Path, opts: &Options, mem: &MemOptions) -> Result<(crate::io::ScratchDir, Source)> {
+    let tmp = crate::io::scratch_dir(p)?;
+    let stem = p.file_stem().map(|x| x.to_string_lossy().into_owned()).unwrap_or_else(|| "input".into());
+    let dir = tmp.path().join(format!("{stem}.level0.octolod"));
+    if crate::progress::visible(opts.quiet) {
+        eprintln!("octolod: metro: {} does not fit --mem: streaming it into a scratch store of its level 0", p.display());
+    }
+    // Leaves small enough that several nodes' query indexes (~250 B per
+    // triangle) fit the page cache.
+    let bo = crate::pipeline::BuildOptions {
+        mem: mem.budget.max(crate::mem::MIN_BUDGET),
+        leaf_tris: (mem.budget / 2048).clamp(256, 16384),
+        levels: Some(0),
+        quiet: opts.quiet,
+        ..Default::default()
+    };
+    crate::pipeline::build_store(p, &dir, &bo)?;
+    Ok((tmp, Source::Store(dir, 0)))
+}
+
+/// The two directions, then the report.
+fn compare_operands(a: &Operand, b: &Operand, opts: &Options, batch: usize, paging: Option<Paging>) -> Result<Report> {
+    let target = match opts.samples {
+        Some(0) => return Err(Error::Usage("metro: --samples must be at least 1".into())),
+        Some(n) => n,
+        None => SAMPLES_PER_FACE * a.faces().max(b.faces()),
+    };
+    let seed_ab = mix64(opts.seed ^ 0xA70B);
+    let seed_ba = mix64(opts.seed ^ 0xB70A);
+    let mut bvh_s = 0.0;
+    let mut threads_used = [0u64; 2];
+    let mut direction = |src: &Operand, tgt: &Operand, seed: u64, name: &str, k: usize| -> Result<(Distances, Option<MeshSummary>, f64)> {
+        let t0 = Instant::now();
+        let bvh;
+        let tg = match tgt {
+            Operand::Mem(m) => {
+                bvh = Bvh::new(m);
+                Target::Mem(&bvh)
+            }
+            Operand::Paged(l) => {
+                let p = paging.as_ref().expect("a paged operand comes with a cache");
+                let hold = if let Operand::Paged(s) = src { s.max_src() } else { 0 };
+                let t = ((p.cache.budget.saturating_sub(hold)) / (2 * l.max_tgt()).max(1)).clamp(1, p.threads as u64) as usize;
+                threads_used[k] = t as u64;
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(t)
+                    .build()
+                    .map_err(|e| Error::Usage(format!("metro: cannot start {t} threads: {e}")))?;
+                Target::Paged { lvl: l, cache: p.cache, pool }
+            }
+        };
+        bvh_s += t0.elapsed().as_secs_f64();
+        let t1 = Instant::now();
+        let progress = Progress::items(target, name, opts.quiet);
+        let (d, summary) = match src {
+            Operand::Mem(m) => (measure(&mut MemGen::new(m, target, seed), &tg, batch, &progress)?, None),
+            Operand::Paged(l) => {
+                let p = paging.as_ref().expect("a paged operand comes with a cache");
+                let mut g = PagedGen::new(l, p.cache, target, seed);
+                let d = measure(&mut g, &tg, batch, &progress)?;
+                (d, Some(g.summary()))
+            }
+        };
+        progress.finish();
+        Ok((d, summary, t1.elapsed().as_secs_f64()))
+    };
+    let (ab, sum_a, t_ab) = direction(a, b, seed_ab, "A -> B", 0)?;
+    let (ba, sum_b, t_ba) = direction(b, a, seed_ba, "B -> A", 1)?;
+    let summary = |o: &Operand, s: Option<MeshSummary>, name: &str| match o {
+        Operand::Mem(m) => MeshSummary::of(m, name),
+        Operand::Paged(_) => s.expect("a paged operand is summarised by its sampling"),
+    };
+    let (sa, sb) = (summary(a, sum_a, "A"), summary(b, sum_b, "B"));
+    let mut u = sa.bbox;
+    u.merge(&sb.bbox);
+    let paging = paging.map(|p| {
+        let c = p.cache;
+        PagingReport {
+            peak_resident: c.acct.peak.load(Relaxed),
+            loads: c.loads.load(Relaxed),
+            hits: c.hits.load(Relaxed),
+            evictions: c.evictions.load(Relaxed),
+            overcommits: c.overcommits.load(Relaxed),
+            bytes_read: c.bytes_read.load(Relaxed),
+            scan_bytes: c.scan_bytes.load(Relaxed),
+            query_threads: threads_used,
+            peak_rss: crate::progress::peak_rss(),
+            ..p.report
+        }
+    });
+    Ok(Report {
+        diagonal: sa.bbox.diagonal(),
+        union_diagonal: u.diagonal(),
+        a: sa,
+        b: sb,
+        seed: opts.seed,
+        samples_target: target,
+        combined: ab.combine(&ba),
+        a_to_b: ab,
+        b_to_a: ba,
+        seconds: Timings { load: 0.0, bvh: bvh_s, a_to_b: t_ab, b_to_a: t_ba },
+        paging,
+    })
+}
+
+/// Most samples per direction `--samples` accepts (about an hour per
+/// direction on two cores).
+pub const MAX_SAMPLES: u64 = 10_000_000_000;
+
+impl Options {
+    /// Options with the sample count checked: at least 1, at most
+    /// [`MAX_SAMPLES`].
+    pub fn checked(samples: Option<u64>, seed: u64, quiet: bool) -> Result<Options> {
+        if samples == Some(0) {
+            return Err(Error::Usage("metro: --samples must be at least 1".into()));
+        }
+        if let Some(n) = samples.filter(|&n| n > MAX_SAMPLES) {
+            return Err(Error::Usage(format!("metro: --samples {n} is more than {MAX_SAMPLES} per direction (hours of work); ask fewer")));
+        }
+        Ok(Options { samples, seed, quiet })
+    }
+}
+
+impl MemOptions {
+    /// From `--mem` (a size like `512M`, checked against the machine's
+    /// memory): explicit when given, else the default budget.
+    pub fn parse(mem: Option<&str>) -> Result<MemOptions> {
+        Ok(match mem {
+            Some(m) => MemOptions { budget: crate::mem::parse_budget(m, "--mem")?, explicit: true },
+            None => MemOptions::default(),
+        })
+    }
+}
+
+/// A whole `octolod metro` run, as the binary parses it.
+#[derive(Clone, Debug)]
+pub struct RunOptions {
+    /// The reference mesh.
+    pub a: Source,
+    /// The compared mesh.
+    pub b: Source,
+    pub options: Options,
+    pub mem: MemOptions,
+    /// Thresholds on the combined figures.
+    pub limits: Limits,
+    /// Print one JSON object ([`JsonReport`]) instead of the table.
+    pub json: bool,
+}
+
+/// Compares, prints the table (or JSON) on stdout and each exceeded
+/// threshold on stderr. Ok(false) when a threshold is exceeded (the binary
+/// then exits with [`EXIT_THRESHOLD`]).
+pub fn run(o: &RunOptions) -> Result<bool> {
+    let r = compare_sources(&o.a, &o.b, &o.options, &o.mem)?;
+    let mut out = std::io::stdout().lock();
+    let text = if o.json { r.to_json(&o.limits) } else { r.table() };
+    let _ = writeln!(out, "{text}");
+    let _ = out.flush();
+    let checks = r.check(&o.limits);
+    let mut ok = true;
+    for c in checks.iter().filter(|c| c.exceeded) {
+        ok = false;
+        eprintln!(
+            "octolod: metro: {} {:.6e} exceeds {} {} (limit {:.6e})",
+            c.metric, c.value, c.option, c.threshold, c.limit
+        );
+    }
+    Ok(ok)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geom::random_mesh;
+
+    #[test]
+    fn results_do_not_depend_on_thread_count() {
+        let a = random_mesh(300, 11);
+        let b = random_mesh(200, 12);
+        let run = |threads: usize| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap()
+                .install(|| compare(&a, &b, &Options { samples: Some(3 * CHUNK + 123), seed: 4, quiet: true }).unwrap())
+        };
+        let (r1, r3) = (run(1), run(3));
+        assert_eq!(r1.to_json(&Limits::default()), r3.to_json(&Limits::default()));
+        assert_eq!(r1.combined.sum.to_bits(), r3.combined.sum.to_bits());
+        assert!(r1.combined.max > 0.0);
+        let r_other = compare(&a, &b, &Options { samples: Some(3 * CHUNK + 123), seed: 5, quiet: true }).unwrap();
+        assert_ne!(r1.combined.sum, r_other.combined.sum, "the seed changes the face samples");
+    }
+
+}
