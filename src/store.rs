@@ -463,7 +463,9 @@ impl Store {
             }
             for &p in self.parents_of(i) {
                 let pn = self.nodes.get(p as usize).ok_or_else(|| format!("node {i}: parent {p} out of range"))?;
-                if !self.children.get(pn.first_child as usize..(pn.first_child + pn.child_count) as usize).is_some_and(|l| l.contains(&(i as u32))) {
+                // pn is not validated yet (it may come later): widen before adding.
+                let range = pn.first_child as usize..pn.first_child as usize + pn.child_count as usize;
+                if !self.children.get(range).is_some_and(|l| l.contains(&(i as u32))) {
                     return Err(format!("node {i}: parent {p} does not list it as a child"));
                 }
             }
@@ -489,12 +491,12 @@ impl Store {
 
     pub fn children_of(&self, i: usize) -> &[u32] {
         let n = &self.nodes[i];
-        &self.children[n.first_child as usize..(n.first_child + n.child_count) as usize]
+        &self.children[n.first_child as usize..n.first_child as usize + n.child_count as usize]
     }
 
     pub fn parents_of(&self, i: usize) -> &[u32] {
         let n = &self.nodes[i];
-        &self.parents[n.first_parent as usize..(n.first_parent + n.parent_count) as usize]
+        &self.parents[n.first_parent as usize..n.first_parent as usize + n.parent_count as usize]
     }
 
     pub fn pack_path(&self, level: usize) -> PathBuf {
