@@ -62,6 +62,7 @@
 //! next level's leaf size, so nodes merge until nothing is shared.
 
 pub mod chunks;
+pub mod collapse;
 pub mod cluster;
 pub mod partition;
 pub mod shared;
@@ -71,6 +72,7 @@ use crate::geom::{cross, sub};
 use crate::mesh::{Aabb, AttrSet, VertexLayout};
 use crate::octree::{build_octree, OctreeOptions, OctreeReport};
 use crate::progress::Progress;
+use crate::reduce::Simplifier;
 use crate::store::{encode_payload, IndexedMesh, ManifestLevel, NodeRec, PackWriter, StoreHeader, NO_NODE};
 use chunks::{split_by_target, ChunkFile, Gathered};
 use cluster::Splits;
@@ -95,6 +97,9 @@ pub struct LodOptions {
     pub mem: u64,
     /// Eigenvalue cut-off of the representatives' solve.
     pub rel_tol: f64,
+    /// How each node is reduced: clustering to the level's threshold, or
+    /// edge collapse to the node's share.
+    pub simplifier: Simplifier,
     pub quiet: bool,
 }
 
@@ -108,6 +113,7 @@ impl Default for LodOptions {
             levels: None,
             mem: 512 << 20,
             rel_tol: 1e-3,
+            simplifier: Simplifier::Cluster,
             quiet: true,
         }
     }
@@ -221,7 +227,12 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
     let derived = !attrs.normal();
     let payload_layout = VertexLayout::new(attrs.with(AttrSet::NORMAL, true));
     let dim = attrs.quadric_dim();
-    let a_len = crate::quadric::carry_len(dim);
+    // Edge collapse measures each level against the level below, so carried
+    // quadrics would go unused: its chunks carry none.
+    let a_len = match opts.simplifier {
+        Simplifier::Cluster => crate::quadric::carry_len(dim),
+        Simplifier::Collapse => 0,
+    };
     let hist_cap = (opts.mem / 256).max(1 << 16) as usize;
     let cube = |l: u32| LevelCube::for_level(&bbox, l);
     let oo = OctreeOptions { leaf_tris: opts.leaf_tris, max_depth: opts.max_depth, mem: opts.mem, quiet: opts.quiet };
@@ -306,7 +317,7 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
         let (mut resolved, sstats) = sorter.resolve((opts.mem / 4) as usize, scratch.path(), scratch.path().join("shared.bin"))?;
 
         // Split curves of a sample of nodes, with their exact locks.
-        if !is_final {
+        if !is_final && opts.simplifier == Simplifier::Cluster {
             let picked: Vec<usize> = (0..ids.len()).filter(|k| k % stride == 0).collect();
             let mut reader = resolved.reopen()?;
             let sets = picked.iter().map(|&k| reader.take((base + k) as u32)).collect::<Result<Vec<_>>>()?;
@@ -328,7 +339,11 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
         }
 
         // The level's threshold and the next level's leaves.
-        let (tau, predicted) = if is_final { (0.0, 1.0) } else { choose_tau(&samples, 1.0 / opts.level_ratio) };
+        let (tau, predicted) = match opts.simplifier {
+            _ if is_final => (0.0, 1.0),
+            Simplifier::Cluster => choose_tau(&samples, 1.0 / opts.level_ratio),
+            Simplifier::Collapse => (0.0, 1.0 / opts.level_ratio),
+        };
         let next_tiling = if is_final {
             Tiling::default()
         } else {
@@ -389,25 +404,44 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
                     p2.verts = g.mesh.vertices.len() as u32;
                     p2.children = if level == 0 { Vec::new() } else { g.patches.iter().map(|p| p.0).collect() };
                     if !is_final {
-                        let a = (level > 0).then_some(&g.a[..]);
-                        let sp = Splits::new(&g.mesh, a, &locked, attrs, usize::MAX, tau);
-                        let mut no = sp.build(sp.steps(), opts.rel_tol);
-                        p2.clamped = no.stats.clamped;
                         // Positions as stored, so errors and welding see the same bits.
-                        let mut vb = vec![0u8; layout.size];
-                        for v in no.mesh.vertices.iter_mut() {
-                            layout.encode(v, &mut vb);
-                            *v = layout.decode(&vb);
-                        }
-                        p2.error = node_error(&g.mesh, &no);
-                        let out = &no.mesh;
-                        let out_locked: Vec<bool> = no.kept_from.iter().map(|&k| k != u32::MAX).collect();
-                        let qa = &no.a;
+                        let as_stored = |m: &mut IndexedMesh| {
+                            let mut vb = vec![0u8; layout.size];
+                            for v in m.vertices.iter_mut() {
+                                layout.encode(v, &mut vb);
+                                *v = layout.decode(&vb);
+                            }
+                        };
+                        // The simplified mesh, its carried quadrics and which
+                        // of its vertices were locked.
+                        let (out, qa, out_locked) = match opts.simplifier {
+                            Simplifier::Cluster => {
+                                let a = (level > 0).then_some(&g.a[..]);
+                                let sp = Splits::new(&g.mesh, a, &locked, attrs, usize::MAX, tau);
+                                let mut no = sp.build(sp.steps(), opts.rel_tol);
+                                p2.clamped = no.stats.clamped;
+                                as_stored(&mut no.mesh);
+                                p2.error = node_error(&g.mesh, &no);
+                                let out_locked: Vec<bool> = no.kept_from.iter().map(|&k| k != u32::MAX).collect();
+                                (no.mesh, no.a, out_locked)
+                            }
+                            Simplifier::Collapse => {
+                                let n = g.mesh.triangles.len();
+                                let target = (n as f64 / opts.level_ratio).round() as usize;
+                                let c = collapse::collapse(&g.mesh, &locked, attrs, target, None);
+                                let (mut out, from) = collapse::compact(&c.vertices, &c.triangles);
+                                as_stored(&mut out);
+                                p2.error = collapse::collapse_error(&g.mesh, &locked, &out, &from);
+                                let out_locked: Vec<bool> = from.iter().map(|&f| locked[f as usize]).collect();
+                                (out, Vec::new(), out_locked)
+                            }
+                        };
+                        let out = &out;
                         let leaf_of: Vec<u32> =
                             out.triangles.iter().map(|t| next_tiling.locate(nc.key(tri_centroid(out, t))) as u32).collect();
                         p2.simp_tris = out.triangles.len() as u32;
                         let file = next_chunks.as_ref().expect("a next level");
-                        let mut routed = split_by_target(out, qa, a_len, &out_locked, &leaf_of);
+                        let mut routed = split_by_target(out, &qa, a_len, &out_locked, &leaf_of);
                         if routed.is_empty() {
                             // Everything collapsed: still give the node a parent.
                             let c = w.bounds.center();
