@@ -149,6 +149,27 @@ pub fn collapse(mesh: &IndexedMesh, locked: &[bool], attrs: AttrSet, target_tris
     Collapsed { vertices: verts, triangles }
 }
 
+/// `tris` less its folds: a triangle and one of opposite orientation on the
+/// same three positions (edge collapse flattens a thin part — a small
+/// torus's tube — into such pairs, as clustering does) are dropped
+/// together, as [`super::cluster`] drops them: every edge's use count keeps
+/// its parity, so no crack opens, and the zero-volume fins and the
+/// non-manifold edges they bring go.
+pub fn unfold(vertices: &[Vertex], tris: &[[u32; 3]]) -> Vec<[u32; 3]> {
+    let mut id: rustc_hash::FxHashMap<[u64; 3], usize> = Default::default();
+    let images: Vec<[usize; 3]> = tris
+        .iter()
+        .map(|t| {
+            t.map(|v| {
+                let n = id.len();
+                *id.entry(super::shared::pos_bits(vertices[v as usize].pos)).or_insert(n)
+            })
+        })
+        .collect();
+    let keep = super::cluster::unfold(&images);
+    tris.iter().zip(keep).filter(|(_, k)| *k).map(|(t, _)| *t).collect()
+}
+
 /// `tris` over `vertices`, unreferenced vertices dropped; also gives, per
 /// output vertex, the index it had.
 pub fn compact(vertices: &[Vertex], tris: &[[u32; 3]]) -> (IndexedMesh, Vec<u32>) {

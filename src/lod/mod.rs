@@ -429,7 +429,7 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
                                 let n = g.mesh.triangles.len();
                                 let target = (n as f64 / opts.level_ratio).round() as usize;
                                 let c = collapse::collapse(&g.mesh, &locked, attrs, target, None);
-                                let (mut out, from) = collapse::compact(&c.vertices, &c.triangles);
+                                let (mut out, from) = collapse::compact(&c.vertices, &collapse::unfold(&c.vertices, &c.triangles));
                                 as_stored(&mut out);
                                 p2.error = collapse::collapse_error(&g.mesh, &locked, &out, &from);
                                 let out_locked: Vec<bool> = from.iter().map(|&f| locked[f as usize]).collect();
