@@ -31,7 +31,8 @@
 //! edge and face samples) and, while it exceeds E, the limit is lowered and
 //! the mesh rebuilt, down to the input itself.
 //!
-//! **Simplifiers.** `collapse` is quadric edge collapse with attributes:
+//! **Simplifiers.** `collapse` is quadric edge collapse with attributes
+//! ([`crate::lod::collapse`], shared with `build --simplifier collapse`):
 //! meshoptimizer's `simplifyWithUpdate` (vertex positions and attributes
 //! re-placed optimally, locked vertices kept bit-exact, normals, colours and
 //! uvs weighted into the quadric, attribute seams kept closed). Positions

@@ -57,6 +57,40 @@
 //!    of every node that holds them (carried by the same sort that finds
 //!    them), so both sides of a seam shade alike.
 //!
+//! **`--simplifier collapse`** (default `cluster`, everything above) swaps
+//! step 3's node reduction for quadric edge collapse with attributes
+//! ([`collapse`]: meshoptimizer's `simplifyWithUpdate`, the code `octolod
+//! simplify --simplifier collapse` uses), the rest unchanged:
+//! - *Target.* Each node is collapsed to its share, `triangles /
+//!   --level-ratio`, not to a level-wide error limit chosen like τ.
+//!   Clustering has a cheap split sequence whose curve a sample of nodes
+//!   gives for free; collapse has none (a curve would cost a run per
+//!   sampled point), and its greedy order already spends a node's
+//!   reduction where it costs least inside the node. Nodes are octree
+//!   cells of about equal triangle counts, so equal shares differ little
+//!   from one threshold, and the level halves by construction: the next
+//!   level's leaves, predicted before simplification, come out as
+//!   predicted. A node that is mostly locked seam stops short (locks are
+//!   never collapsed) rather than being crushed.
+//! - *Locks.* The same as clustering's: shared positions and attribute
+//!   seams, kept bit-exact, so cuts stay crack-free. A triangle and one of
+//!   opposite orientation on the same positions (a small torus's tube
+//!   flattened) are dropped together, as clustering drops its folds.
+//! - *No carried quadrics.* meshoptimizer builds its quadrics from the
+//!   mesh it is given (level L−1's, not the input's), so the chunks
+//!   between levels carry none (`a_len` 0). Errors are measured, not
+//!   assumed, so piling up shows in the node errors.
+//! - *Error.* Edge collapse keeps no member lists, so [`node_error`]'s
+//!   neighbourhood bound does not apply; the node's error is the exact
+//!   two-sided vertex-sampled distance through a BVH of each side
+//!   ([`collapse::collapse_error`]), then saturated as in step 5.
+//! - *Patches, bounds, attributes, normals.* Each node's output is routed
+//!   to the next level as chunks tagged with the node, as with clustering,
+//!   so patches by source child come out the same way. Positions are
+//!   clamped into the node's input box, attributes into their ranges,
+//!   normals renormalised; derived normals (step 7) are computed the same.
+//!   The store format is unchanged; `store.json` records the simplifier.
+//!
 //! Levels stop at a single node of at most `--root-tris` triangles (or at
 //! `--levels`). A level that barely shrinks (everything locked) doubles the
 //! next level's leaf size, so nodes merge until nothing is shared.
