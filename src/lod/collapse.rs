@@ -34,6 +34,10 @@ pub struct Collapsed {
     pub vertices: Vec<Vertex>,
     /// The surviving triangles, over `vertices`.
     pub triangles: Vec<[u32; 3]>,
+    /// meshoptimizer's error of the result: absolute (object space, with
+    /// the weighted attribute terms) when an error limit was given, else
+    /// relative to the mesh's extent.
+    pub error: f64,
 }
 
 /// Collapses `mesh` towards `target_tris` triangles (0 with an error limit:
@@ -42,7 +46,7 @@ pub struct Collapsed {
 /// second pass may remove small disconnected parts.
 pub fn collapse(mesh: &IndexedMesh, locked: &[bool], attrs: AttrSet, target_tris: usize, max_error: Option<f64>) -> Collapsed {
     if mesh.triangles.is_empty() {
-        return Collapsed { vertices: mesh.vertices.clone(), triangles: Vec::new() };
+        return Collapsed { vertices: mesh.vertices.clone(), triangles: Vec::new(), error: 0.0 };
     }
     let mut bb = Aabb::default();
     for t in &mesh.triangles {
@@ -89,8 +93,9 @@ pub fn collapse(mesh: &IndexedMesh, locked: &[bool], attrs: AttrSet, target_tris
         None => (3 * target_tris, f32::MAX, meshopt::SimplifyOptions::None),
         Some(e) => (3 * target_tris, e as f32, meshopt::SimplifyOptions::ErrorAbsolute),
     };
+    let mut result_error = 0f32;
     let mut run = |idx: &mut Vec<u32>, opts: meshopt::SimplifyOptions| {
-        let n = meshopt::simplify_with_update(idx, &mut pos, &mut attr, &weights, na * 4, Some(&lock), count, err, opts, None);
+        let n = meshopt::simplify_with_update(idx, &mut pos, &mut attr, &weights, na * 4, Some(&lock), count, err, opts, Some(&mut result_error));
         idx.truncate(n);
     };
     run(&mut idx, opts);
@@ -146,7 +151,71 @@ pub fn collapse(mesh: &IndexedMesh, locked: &[bool], attrs: AttrSet, target_tris
         }
     }
     let triangles = idx.chunks_exact(3).map(|t| [t[0], t[1], t[2]]).collect();
-    Collapsed { vertices: verts, triangles }
+    Collapsed { vertices: verts, triangles, error: result_error as f64 }
+}
+
+/// Error curve of one sampled node: its triangles, and (error, triangles)
+/// after collapsing to a few shares of them, errors absolute and made
+/// non-decreasing (fewer triangles never cost less).
+pub struct ErrorCurve {
+    pub tris: u64,
+    pub points: Vec<(f64, f64)>,
+}
+
+/// Shares of a sampled node's triangles its curve is measured at.
+const CURVE_SHARES: [f64; 7] = [0.85, 0.7, 0.58, 0.48, 0.38, 0.27, 0.15];
+
+impl ErrorCurve {
+    pub fn of(mesh: &IndexedMesh, locked: &[bool], attrs: AttrSet) -> ErrorCurve {
+        let n = mesh.triangles.len();
+        let mut points: Vec<(f64, f64)> = Vec::new();
+        let mut worst = 0.0f64;
+        for s in CURVE_SHARES {
+            let c = collapse(mesh, locked, attrs, (s * n as f64).round() as usize, Some(f32::MAX as f64));
+            worst = worst.max(c.error);
+            points.push((worst, c.triangles.len() as f64));
+        }
+        ErrorCurve { tris: n as u64, points }
+    }
+
+    /// Triangles left at error limit `e` (linear between the points; from
+    /// the whole node at error 0; no further than the last point).
+    pub fn at(&self, e: f64) -> f64 {
+        let mut prev = (0.0, self.tris as f64);
+        for &(pe, pt) in &self.points {
+            if e < pe {
+                let f = if pe > prev.0 { (e - prev.0) / (pe - prev.0) } else { 1.0 };
+                return prev.1 + f * (pt - prev.1);
+            }
+            prev = (pe, pt.min(prev.1));
+        }
+        prev.1
+    }
+}
+
+/// The error limit at which the sampled nodes keep `share` of their
+/// triangles, and the share they keep there (bisection on the curves).
+pub fn choose_limit(samples: &[ErrorCurve], share: f64) -> (f64, f64) {
+    let total: f64 = samples.iter().map(|c| c.tris as f64).sum();
+    if total == 0.0 {
+        return (0.0, 1.0);
+    }
+    let kept = |e: f64| samples.iter().map(|c| c.at(e)).sum::<f64>() / total;
+    let hi0 = samples.iter().flat_map(|c| c.points.last().map(|p| p.0)).fold(0.0, f64::max);
+    if !(hi0 > 0.0 && hi0.is_finite()) || kept(hi0) > share {
+        // The samples cannot reach the share: the largest error measured.
+        return (hi0.max(0.0), kept(hi0.max(0.0)));
+    }
+    let (mut lo, mut hi) = (0.0, hi0);
+    for _ in 0..60 {
+        let m = 0.5 * (lo + hi);
+        if kept(m) > share {
+            lo = m;
+        } else {
+            hi = m;
+        }
+    }
+    (hi, kept(hi))
 }
 
 /// `tris` less its folds: a triangle and one of opposite orientation on the
