@@ -46,6 +46,10 @@ enum Cmd {
         output: PathBuf,
         #[command(flatten)]
         params: BuildParams,
+        /// Node simplifier: cluster (generalized-quadric vertex clustering,
+        /// fast) or collapse (quadric edge collapse with attributes, accurate).
+        #[arg(long, default_value = "cluster")]
+        simplifier: octolod::reduce::Simplifier,
     },
     /// Per level: nodes, triangles, bytes, error range, build time.
     Info { store: PathBuf },
@@ -393,8 +397,8 @@ fn run(cli: Cli) -> Result<()> {
             }
             Ok(())
         }
-        Cmd::Build { input, output, params } => {
-            let r = octolod::pipeline::build_store(&input, &output, &params.options(cli.quiet, cli.force)?)?;
+        Cmd::Build { input, output, params, simplifier } => {
+            let r = octolod::pipeline::build_store_with(&input, &output, &params.options(cli.quiet, cli.force)?, simplifier)?;
             print_build(&r);
             Ok(())
         }
@@ -490,6 +494,9 @@ fn info(dir: &std::path::Path) -> Result<()> {
     );
     println!("nodes: {}, levels: {}, root: {} triangles", s.nodes.len(), h.levels, s.nodes[s.root()].tris);
     let manifest = octolod::store::Manifest::read(dir).ok();
+    if let Some(m) = &manifest {
+        println!("simplifier: {}", m.params.simplifier.name());
+    }
     let ml = |level: u8| manifest.as_ref().and_then(|m| m.levels.iter().find(|l| l.level == level).cloned());
     println!(
         "{:>5} {:>8} {:>14} {:>14} {:>12} {:>12} {:>8} {:>9} {:>9}",

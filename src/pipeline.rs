@@ -11,6 +11,7 @@ use crate::error::{IoContext, Result};
 use crate::io::{AtomicDir, OutputKind};
 use crate::lod::{LevelReport, LodOptions};
 use crate::octree::OctreeReport;
+use crate::reduce::Simplifier;
 use crate::ply::write::{PlyWriteOptions, PlyWriter};
 use crate::soup::{build_soup, SoupOptions, SoupReport};
 use crate::store::{write_index, Cut, IndexedMesh, Manifest, ManifestLevel, ManifestParams, ManifestSeconds, Store};
@@ -59,8 +60,13 @@ pub struct BuildReport {
     pub disk_bytes: u64,
 }
 
-/// PLY → store, every stage under `opts.mem`.
+/// PLY → store, every stage under `opts.mem`, nodes reduced by clustering.
 pub fn build_store(input: &Path, output: &Path, opts: &BuildOptions) -> Result<BuildReport> {
+    build_store_with(input, output, opts, Simplifier::Cluster)
+}
+
+/// [`build_store`] with the node simplifier chosen (`build --simplifier`).
+pub fn build_store_with(input: &Path, output: &Path, opts: &BuildOptions, simplifier: Simplifier) -> Result<BuildReport> {
     let t0 = Instant::now();
     let out = AtomicDir::create(output, OutputKind::Store, opts.force)?;
     let soup_path = out.path().join("input.soup");
@@ -73,6 +79,7 @@ pub fn build_store(input: &Path, output: &Path, opts: &BuildOptions) -> Result<B
         root_tris: opts.root_tris,
         levels: opts.levels,
         mem: opts.mem,
+        simplifier,
         quiet: opts.quiet,
         ..Default::default()
     };
@@ -100,6 +107,7 @@ pub fn build_store(input: &Path, output: &Path, opts: &BuildOptions) -> Result<B
             level_ratio: opts.level_ratio,
             root_tris: opts.root_tris,
             levels: opts.levels,
+            simplifier,
         },
         seconds: ManifestSeconds { soup: seconds[0], partition: seconds[1], levels: seconds[2], total: seconds[3] },
         disk_bytes,

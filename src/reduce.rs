@@ -31,7 +31,8 @@
 //! edge and face samples) and, while it exceeds E, the limit is lowered and
 //! the mesh rebuilt, down to the input itself.
 //!
-//! **Simplifiers.** `collapse` is quadric edge collapse with attributes:
+//! **Simplifiers.** `collapse` is quadric edge collapse with attributes
+//! ([`crate::lod::collapse`], shared with `build --simplifier collapse`):
 //! meshoptimizer's `simplifyWithUpdate` (vertex positions and attributes
 //! re-placed optimally, locked vertices kept bit-exact, normals, colours and
 //! uvs weighted into the quadric, attribute seams kept closed). Positions
@@ -57,7 +58,7 @@ use std::str::FromStr;
 
 
 /// How each node (or the whole mesh) is reduced.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Simplifier {
     /// Generalized-quadric adaptive vertex clustering (fast).
@@ -67,6 +68,14 @@ pub enum Simplifier {
 }
 
 impl Simplifier {
+    /// The name `--simplifier` takes.
+    pub fn name(self) -> &'static str {
+        match self {
+            Simplifier::Cluster => "cluster",
+            Simplifier::Collapse => "collapse",
+        }
+    }
+
     /// Bytes held per triangle of a mesh reduced in memory: the welded mesh
     /// (≈ 0.5 vertices × 64 B + 12 B), the weld map and the simplifier's
     /// working set. Measured peaks on the 12 M-triangle sphere reduced whole:
@@ -408,136 +417,18 @@ fn cluster_to_count(mesh: &IndexedMesh, locked: &[bool], attrs: AttrSet, n: usiz
     best.unwrap_or_default()
 }
 
-/// Weights of the attribute channels against position error (which
-/// meshoptimizer measures relative to the mesh's extent): unit normals and
-/// 0..1 colours, so a normal turned by ~60° or a colour channel off by 1
-/// costs about as much as a 25 % (normals) / 50 % (colours) deviation.
-const NORMAL_WEIGHT: f32 = 0.25;
-const COLOR_WEIGHT: f32 = 0.5;
-const UV_WEIGHT: f32 = 1.0;
-
+/// Quadric edge collapse ([`crate::lod::collapse`], shared with the
+/// hierarchy's `build --simplifier collapse`), compacted.
 fn collapse(mesh: &IndexedMesh, locked: &[bool], attrs: AttrSet, goal: Goal) -> IndexedMesh {
-    if mesh.triangles.is_empty() {
-        return IndexedMesh::default();
-    }
-    let mut bb = crate::mesh::Aabb::default();
-    for t in &mesh.triangles {
-        for &v in t {
-            bb.add(mesh.vertices[v as usize].pos);
-        }
-    }
-    let c = bb.center();
-    let mut pos: Vec<[f32; 3]> = mesh.vertices.iter().map(|v| std::array::from_fn(|k| (v.pos[k] - c[k]) as f32)).collect();
-    let mut weights: Vec<f32> = Vec::new();
-    if attrs.normal() {
-        weights.extend([NORMAL_WEIGHT; 3]);
-    }
-    if attrs.color() {
-        weights.extend([COLOR_WEIGHT; 3]);
-        if attrs.alpha() {
-            weights.push(COLOR_WEIGHT);
-        }
-    }
-    if attrs.uv() {
-        weights.extend([UV_WEIGHT; 2]);
-    }
-    let na = weights.len();
-    let mut attr: Vec<f32> = Vec::with_capacity(mesh.vertices.len() * na);
-    for v in &mesh.vertices {
-        if attrs.normal() {
-            attr.extend(v.normal);
-        }
-        if attrs.color() {
-            attr.extend(v.color[..3].iter().map(|&x| x as f32 / 255.0));
-            if attrs.alpha() {
-                attr.push(v.color[3] as f32 / 255.0);
-            }
-        }
-        if attrs.uv() {
-            attr.extend(v.uv);
-        }
-    }
-    let attr0 = attr.clone();
-    let lock: Vec<meshopt::SimplifyVertex> =
-        locked.iter().map(|&l| if l { meshopt::SimplifyVertex::Lock } else { meshopt::SimplifyVertex::None }).collect();
-    let mut idx: Vec<u32> = mesh.triangles.iter().flatten().copied().collect();
-    let (count, err, opts) = match goal {
-        Goal::Tris(n) => (3 * n, f32::MAX, meshopt::SimplifyOptions::None),
-        Goal::Error(e) => (0, e as f32, meshopt::SimplifyOptions::ErrorAbsolute),
+    let (n, e) = match goal {
+        Goal::Tris(n) => (n, None),
+        Goal::Error(e) => (0, Some(e)),
     };
-    let mut run = |idx: &mut Vec<u32>, opts: meshopt::SimplifyOptions| {
-        let n = meshopt::simplify_with_update(idx, &mut pos, &mut attr, &weights, na * 4, Some(&lock), count, err, opts, None);
-        idx.truncate(n);
-    };
-    run(&mut idx, opts);
-    if let Goal::Tris(n) = goal {
-        if idx.len() / 3 > n + n / 100 && !locked.iter().any(|&l| l) {
-            // Topology stopped it: allow removing small disconnected parts
-            // (never with locks: a part may be a piece of a seam).
-            run(&mut idx, opts | meshopt::SimplifyOptions::Prune);
-        }
-    }
-    // Optimal placement may step a hair outside (a convex part's chords);
-    // results stay inside the input's box and attribute ranges.
-    let mut lo = vec![f32::MAX; na];
-    let mut hi = vec![f32::MIN; na];
-    for t in &mesh.triangles {
-        for &v in t {
-            let v = v as usize;
-            for k in 0..na {
-                lo[k] = lo[k].min(attr0[v * na + k]);
-                hi[k] = hi[k].max(attr0[v * na + k]);
-            }
-        }
-    }
-    let mut verts = mesh.vertices.clone();
-    for (i, v) in verts.iter_mut().enumerate() {
-        if locked.get(i).copied().unwrap_or(false) {
-            continue;
-        }
-        v.pos = std::array::from_fn(|k| (c[k] + pos[i][k] as f64).clamp(bb.min[k], bb.max[k]));
-        for k in 0..na {
-            attr[i * na + k] = attr[i * na + k].clamp(lo[k], hi[k]);
-        }
-        let a = &attr[i * na..(i + 1) * na];
-        let mut k = 0;
-        if attrs.normal() {
-            let n = glam::Vec3::from_slice(&a[0..3]);
-            v.normal = if n.length_squared() > 0.0 { n.normalize().to_array() } else { v.normal };
-            k = 3;
-        }
-        if attrs.color() {
-            for ch in 0..3 {
-                v.color[ch] = (a[k + ch].clamp(0.0, 1.0) * 255.0).round() as u8;
-            }
-            k += 3;
-            if attrs.alpha() {
-                v.color[3] = (a[k].clamp(0.0, 1.0) * 255.0).round() as u8;
-                k += 1;
-            }
-        }
-        if attrs.uv() {
-            v.uv = [a[k], a[k + 1]];
-        }
-    }
-    let tris: Vec<[u32; 3]> = idx.chunks_exact(3).map(|t| [t[0], t[1], t[2]]).collect();
-    compact(&IndexedMesh { vertices: verts, triangles: Vec::new() }, &tris)
+    let c = crate::lod::collapse::collapse(mesh, locked, attrs, n, e);
+    crate::lod::collapse::compact(&c.vertices, &c.triangles).0
 }
 
 /// `tris` over `mesh.vertices`, unreferenced vertices dropped.
 fn compact(mesh: &IndexedMesh, tris: &[[u32; 3]]) -> IndexedMesh {
-    let mut map = vec![u32::MAX; mesh.vertices.len()];
-    let mut out = IndexedMesh::default();
-    for t in tris {
-        let nt = t.map(|i| {
-            let i = i as usize;
-            if map[i] == u32::MAX {
-                map[i] = out.vertices.len() as u32;
-                out.vertices.push(mesh.vertices[i]);
-            }
-            map[i]
-        });
-        out.triangles.push(nt);
-    }
-    out
+    crate::lod::collapse::compact(&mesh.vertices, tris).0
 }

@@ -724,6 +724,13 @@ pub struct ManifestParams {
     pub level_ratio: f64,
     pub root_tris: u64,
     pub levels: Option<u8>,
+    /// The node simplifier (`cluster` for stores built before it was a choice).
+    #[serde(default = "cluster")]
+    pub simplifier: crate::reduce::Simplifier,
+}
+
+fn cluster() -> crate::reduce::Simplifier {
+    crate::reduce::Simplifier::Cluster
 }
 
 /// Wall-clock seconds per stage.

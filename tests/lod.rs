@@ -5,23 +5,31 @@
 
 mod common;
 
-use common::{build, crack_report, random_cut, Rng};
+use common::{build_with, crack_report, random_cut, Rng, SIMPLIFIERS};
 use octolod::gen::Shape;
 use octolod::mesh::{AttrSet, Vertex};
 use octolod::pipeline::{extract, CutSpec};
 use octolod::store::{IndexedMesh, Store};
 
 /// DAG invariants: parent error ≥ child, parent bounds ⊇ child bounds,
-/// vertices finite and inside their node's bounds.
+/// errors and vertices finite, vertices inside their node's bounds.
 fn check_dag(s: &Store, name: &str) {
     for i in 0..s.nodes.len() {
         let n = &s.nodes[i];
+        assert!(n.error.is_finite(), "{name}: node {i}: error {}", n.error);
         for &c in s.children_of(i) {
             let c = &s.nodes[c as usize];
             assert!(n.error >= c.error, "{name}: node {i}: error {} < child's {}", n.error, c.error);
             for k in 0..3 {
                 assert!(n.bounds.min[k] <= c.bounds.min[k] && n.bounds.max[k] >= c.bounds.max[k], "{name}: node {i}: bounds do not contain a child's");
             }
+        }
+        // Bounded: inside the input's box, no error beyond its extent.
+        let (bb, diag) = (&s.header.bbox, s.header.bbox.diagonal());
+        let tol = 1e-6 * diag;
+        assert!(n.error as f64 <= diag * (1.0 + 1e-6), "{name}: node {i}: error {} beyond the input's extent {diag}", n.error);
+        for k in 0..3 {
+            assert!(n.bounds.min[k] >= bb.min[k] - tol && n.bounds.max[k] <= bb.max[k] + tol, "{name}: node {i}: bounds outside the input's box");
         }
         let m = s.read_node(i).unwrap();
         for v in &m.mesh.vertices {
@@ -87,14 +95,21 @@ fn check_cuts(s: &Store, input: &IndexedMesh, name: &str, closed: bool) {
 
 #[test]
 fn closed_sphere_every_cut_is_closed_and_levels_halve() {
+    for simp in SIMPLIFIERS {
+        closed_sphere(simp);
+    }
+}
+
+fn closed_sphere(simp: octolod::reduce::Simplifier) {
     let d = tempfile::tempdir().unwrap();
-    let (s, input) = build(d.path(), Shape::Sphere, 40_000, 0, 1000);
-    check_dag(&s, "sphere");
-    check_cuts(&s, &input, "sphere", true);
+    let (s, input) = build_with(d.path(), Shape::Sphere, 40_000, 0, 1000, simp);
+    let name = format!("sphere ({})", simp.name());
+    check_dag(&s, &name);
+    check_cuts(&s, &input, &name, true);
     let tris: Vec<u64> = (0..=s.top_level()).map(|l| s.level_triangles(l)).collect();
     for w in tris.windows(2) {
         let r = w[1] as f64 / w[0] as f64;
-        assert!((0.35..=0.65).contains(&r), "levels do not halve: {tris:?}");
+        assert!((0.35..=0.65).contains(&r), "{name}: levels do not halve: {tris:?}");
     }
     assert_eq!(s.level_nodes(s.top_level()).len(), 1);
     assert!(*tris.last().unwrap() <= 256, "{tris:?}");
@@ -102,7 +117,7 @@ fn closed_sphere_every_cut_is_closed_and_levels_halve() {
     let m = octolod::store::Manifest::read(&s.dir).unwrap();
     for l in &m.levels[1..] {
         if l.nodes >= 8 {
-            assert!(l.prev_locked_still_fraction < 0.12, "level {}: {:.1}% of the previous seams still locked", l.level, 100.0 * l.prev_locked_still_fraction);
+            assert!(l.prev_locked_still_fraction < 0.12, "{name}: level {}: {:.1}% of the previous seams still locked", l.level, 100.0 * l.prev_locked_still_fraction);
         }
     }
 }
@@ -110,6 +125,7 @@ fn closed_sphere_every_cut_is_closed_and_levels_halve() {
 #[test]
 fn hard_cases_every_cut_is_crack_free() {
     let d = tempfile::tempdir().unwrap();
+    for simp in SIMPLIFIERS {
     for (shape, attrs, closed) in [
         (Shape::Duplicates, 0, true),
         (Shape::Fan, 0, false),
@@ -123,19 +139,27 @@ fn hard_cases_every_cut_is_crack_free() {
         (Shape::Instances, 0, true),
         (Shape::Single, 0, false),
     ] {
-        let (s, input) = build(d.path(), shape, 12_000, attrs, 400);
-        check_dag(&s, shape.name());
-        check_cuts(&s, &input, shape.name(), closed);
+        let (s, input) = build_with(d.path(), shape, 12_000, attrs, 400, simp);
+        let name = format!("{} ({})", shape.name(), simp.name());
+        check_dag(&s, &name);
+        check_cuts(&s, &input, &name, closed);
         if shape != Shape::Single {
-            assert!(s.top_level() >= 2, "{}: only {} levels", shape.name(), s.top_level() + 1);
+            assert!(s.top_level() >= 2, "{name}: only {} levels", s.top_level() + 1);
         }
+    }
     }
 }
 
 #[test]
 fn level_zero_is_the_input_and_max_error_cuts_hold_their_bound() {
+    for simp in SIMPLIFIERS {
+        level_zero_and_max_error_cuts(simp);
+    }
+}
+
+fn level_zero_and_max_error_cuts(simp: octolod::reduce::Simplifier) {
     let d = tempfile::tempdir().unwrap();
-    let (s, input) = build(d.path(), Shape::Open, 10_000, AttrSet::NORMAL | AttrSet::UV, 500);
+    let (s, input) = build_with(d.path(), Shape::Open, 10_000, AttrSet::NORMAL | AttrSet::UV, 500, simp);
     let out = d.path().join("l0.ply");
     let (_, nf) = extract(&s, CutSpec::Level(0), &out, true, false).unwrap();
     assert_eq!(nf as usize, input.triangles.len());
@@ -172,8 +196,9 @@ fn level_zero_is_the_input_and_max_error_cuts_hold_their_bound() {
 #[test]
 fn node_errors_cover_the_measured_deviation() {
     use octolod::geom::{Bvh, Mesh};
+    for simp in SIMPLIFIERS {
     let d = tempfile::tempdir().unwrap();
-    let (s, _) = build(d.path(), Shape::Terrain, 30_000, 0, 2000);
+    let (s, _) = build_with(d.path(), Shape::Terrain, 30_000, 0, 2000, simp);
     let mut checked = 0;
     for i in 0..s.nodes.len() {
         if s.nodes[i].level == 0 {
@@ -190,17 +215,24 @@ fn node_errors_cover_the_measured_deviation() {
                     worst = worst.max(bvh.closest(nm.mesh.vertices[v as usize].pos).unwrap().dist2.sqrt());
                 }
             }
-            assert!(s.nodes[i].error as f64 >= worst * (1.0 - 1e-6), "node {i}: error {} below the measured {worst}", s.nodes[i].error);
+            assert!(s.nodes[i].error as f64 >= worst * (1.0 - 1e-6), "{}: node {i}: error {} below the measured {worst}", simp.name(), s.nodes[i].error);
             checked += 1;
         }
     }
     assert!(checked > 10);
+    }
 }
 
 #[test]
 fn derived_normals_agree_across_node_seams() {
+    for simp in SIMPLIFIERS {
+        derived_normals(simp);
+    }
+}
+
+fn derived_normals(simp: octolod::reduce::Simplifier) {
     let d = tempfile::tempdir().unwrap();
-    let (s, _) = build(d.path(), Shape::Sphere, 20_000, 0, 800);
+    let (s, _) = build_with(d.path(), Shape::Sphere, 20_000, 0, 800, simp);
     assert!(s.header.derived_normals);
     for l in 0..s.top_level() {
         let mut seen: std::collections::HashMap<[u64; 3], [u32; 3]> = Default::default();
@@ -227,8 +259,14 @@ fn derived_normals_agree_across_node_seams() {
 
 #[test]
 fn smooth_colors_survive_simplification() {
+    for simp in SIMPLIFIERS {
+        smooth_colors(simp);
+    }
+}
+
+fn smooth_colors(simp: octolod::reduce::Simplifier) {
     let d = tempfile::tempdir().unwrap();
-    let (s, input) = build(d.path(), Shape::Sphere, 20_000, AttrSet::COLOR, 800);
+    let (s, input) = build_with(d.path(), Shape::Sphere, 20_000, AttrSet::COLOR, 800, simp);
     let bvh = octolod::geom::Bvh::new(&octolod::geom::Mesh::from_vertices(&input.vertices, input.triangles.clone()));
     let (mut sum, mut n, mut worst) = (0.0f64, 0.0f64, 0i32);
     for i in 0..s.nodes.len() {
@@ -246,8 +284,8 @@ fn smooth_colors_survive_simplification() {
         }
     }
     assert!(n > 100.0);
-    assert!(sum / n < 16.0, "mean color error {} of 255", sum / n);
-    assert!(worst < 96, "worst color error {worst} of 255");
+    assert!(sum / n < 16.0, "{}: mean color error {} of 255", simp.name(), sum / n);
+    assert!(worst < 96, "{}: worst color error {worst} of 255", simp.name());
 }
 
 /// Cutting a level into many nodes costs (almost) no accuracy: the same
@@ -282,5 +320,65 @@ fn small_nodes_are_as_accurate_as_one_big_node() {
         // RMS ∝ 1/size on a smooth surface: compare at equal size.
         let ratio = (small.1 * small.0) / (big.1 * big.0);
         assert!(ratio < 1.25, "small nodes {small:?} vs one node {big:?}: {ratio:.2}x");
+    }
+}
+
+/// Normals, colours and uvs are carried through either simplifier: unit
+/// normals that agree with the input's and colours near the input's at the
+/// closest point (a smooth sphere); uvs near the input's and, with
+/// collapse, inside its range (a terrain: no uv seam, where the nearest
+/// input uv may lie across the wrap).
+#[test]
+fn attributes_are_carried() {
+    use octolod::geom::{Bvh, Mesh};
+    for simp in SIMPLIFIERS {
+        for shape in [Shape::Sphere, Shape::Terrain] {
+            let d = tempfile::tempdir().unwrap();
+            let (s, input) = build_with(d.path(), shape, 20_000, AttrSet::NORMAL | AttrSet::COLOR | AttrSet::UV, 800, simp);
+            let name = format!("{} ({})", shape.name(), simp.name());
+            assert!(s.header.attrs.normal() && s.header.attrs.color() && s.header.attrs.uv() && !s.header.derived_normals);
+            let bvh = Bvh::new(&Mesh::from_vertices(&input.vertices, input.triangles.clone()));
+            let (mut lo, mut hi) = ([f32::MAX; 2], [f32::MIN; 2]);
+            for v in &input.vertices {
+                for k in 0..2 {
+                    lo[k] = lo[k].min(v.uv[k]);
+                    hi[k] = hi[k].max(v.uv[k]);
+                }
+            }
+            let (mut n, mut turned, mut color_sum, mut uv_worst, mut uv_outside) = (0usize, 0usize, 0.0f64, 0.0f32, 0usize);
+            for i in 0..s.nodes.len() {
+                if s.nodes[i].level == 0 || s.nodes[i].level > 3 {
+                    continue;
+                }
+                for v in s.read_node(i).unwrap().mesh.vertices {
+                    let len = (v.normal.iter().map(|x| x * x).sum::<f32>()).sqrt();
+                    assert!((len - 1.0).abs() < 1e-3, "{name}: node {i}: normal of length {len}");
+                    for k in 0..2 {
+                        uv_outside += (v.uv[k] < lo[k] || v.uv[k] > hi[k]) as usize;
+                    }
+                    let c = bvh.closest(v.pos).unwrap();
+                    let w = input.vertices[input.triangles[c.triangle as usize][0] as usize];
+                    let dot: f32 = (0..3).map(|k| v.normal[k] * w.normal[k]).sum();
+                    turned += (dot < 0.8) as usize;
+                    color_sum += (0..3).map(|a| (v.color[a] as i32 - w.color[a] as i32).abs()).max().unwrap() as f64;
+                    uv_worst = uv_worst.max((0..2).map(|k| (v.uv[k] - w.uv[k]).abs()).fold(0.0, f32::max));
+                    n += 1;
+                }
+            }
+            let color = color_sum / n as f64;
+            eprintln!("{name}: {n} vertices, {turned} normals turned > 37°, mean color error {color:.2}, worst uv error {uv_worst}, {uv_outside} uvs outside the input's range");
+            assert!(n > 1000, "{name}: {n} vertices");
+            assert!(color < 16.0, "{name}: mean color error {color} of 255");
+            if shape == Shape::Sphere {
+                assert!(turned * 200 <= n, "{name}: {turned} of {n} normals turned by more than 37° from the input's");
+            }
+            // Collapse clamps uvs into the input's range. Clustering's
+            // representatives solve uvs with the quadric and overshoot at
+            // the terrain's border: printed, not asserted (known, issue 10).
+            if shape == Shape::Terrain && simp == octolod::reduce::Simplifier::Collapse {
+                assert_eq!(uv_outside, 0, "{name}: uvs outside the input's range");
+                assert!(uv_worst < 0.1, "{name}: uv off by {uv_worst}");
+            }
+        }
     }
 }

@@ -644,7 +644,7 @@ fn compact(mesh: &IndexedMesh, remap: &[u32], reps: &[Vertex]) -> (IndexedMesh, 
 /// count even-odd as it was (no crack can open), removes zero-volume fins
 /// and the non-manifold edges and cancelled normals they bring. Copies of
 /// the same orientation (duplicated input faces) are all kept.
-fn unfold(images: &[[usize; 3]]) -> Vec<bool> {
+pub(crate) fn unfold(images: &[[usize; 3]]) -> Vec<bool> {
     let mut keep = vec![true; images.len()];
     // (sorted corners, odd orientation, index), grouped by sorting.
     let mut keyed: Vec<([usize; 3], bool, u32)> = images

@@ -4,7 +4,8 @@
 
 use octolod::gen::{GenOptions, Generator, Shape};
 use octolod::mesh::{AttrSet, Vertex};
-use octolod::pipeline::{build_store, BuildOptions};
+use octolod::pipeline::{build_store_with, BuildOptions};
+use octolod::reduce::Simplifier;
 use octolod::ply::write::{write_ply, PlyWriteOptions};
 use octolod::store::{Cut, IndexedMesh, Store};
 use std::collections::HashMap;
@@ -22,18 +23,32 @@ pub fn gen_ply(dir: &Path, shape: Shape, tris: u64, attrs: u32) -> (PathBuf, Ind
     (ply, IndexedMesh { vertices: v, triangles: f })
 }
 
+/// Both node simplifiers of the hierarchy, for tests run on each.
+pub const SIMPLIFIERS: [Simplifier; 2] = [Simplifier::Cluster, Simplifier::Collapse];
+
 /// Builds a store from a PLY with small nodes (`leaf` triangles) under a small budget.
 pub fn build_from(dir: &Path, ply: &Path, leaf: u64) -> Store {
-    let out = dir.join(format!("{}.octolod", ply.file_stem().unwrap().to_string_lossy()));
-    build_store(ply, &out, &BuildOptions { mem: 4 << 20, leaf_tris: leaf, max_depth: 12, root_tris: 256, ..Default::default() })
-        .unwrap_or_else(|e| panic!("{}: {e}", ply.display()));
+    build_from_with(dir, ply, leaf, Simplifier::Cluster)
+}
+
+/// [`build_from`] with the hierarchy's node simplifier chosen.
+pub fn build_from_with(dir: &Path, ply: &Path, leaf: u64, simplifier: Simplifier) -> Store {
+    let suffix = if simplifier == Simplifier::Cluster { String::new() } else { format!("-{}", simplifier.name()) };
+    let out = dir.join(format!("{}{suffix}.octolod", ply.file_stem().unwrap().to_string_lossy()));
+    let o = BuildOptions { mem: 4 << 20, leaf_tris: leaf, max_depth: 12, root_tris: 256, ..Default::default() };
+    build_store_with(ply, &out, &o, simplifier).unwrap_or_else(|e| panic!("{} ({}): {e}", ply.display(), simplifier.name()));
     Store::open(&out).unwrap()
 }
 
 /// Generates and builds; gives the store and the input.
 pub fn build(dir: &Path, shape: Shape, tris: u64, attrs: u32, leaf: u64) -> (Store, IndexedMesh) {
+    build_with(dir, shape, tris, attrs, leaf, Simplifier::Cluster)
+}
+
+/// [`build`] with the hierarchy's node simplifier chosen.
+pub fn build_with(dir: &Path, shape: Shape, tris: u64, attrs: u32, leaf: u64, simplifier: Simplifier) -> (Store, IndexedMesh) {
     let (ply, m) = gen_ply(dir, shape, tris, attrs);
-    (build_from(dir, &ply, leaf), m)
+    (build_from_with(dir, &ply, leaf, simplifier), m)
 }
 
 /// A small xorshift generator for reproducible random choices.

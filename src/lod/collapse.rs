@@ -1,0 +1,311 @@
+//! Quadric edge collapse of one mesh (or node) with attributes and locked
+//! vertices: the `collapse` simplifier of both `octolod simplify`
+//! ([`crate::reduce`]) and `octolod build` ([`super`]).
+//!
+//! Takes: an indexed mesh, a lock flag per vertex, the attribute set, a
+//! triangle target and optionally an absolute error limit. Gives: the
+//! re-placed vertices (same indexing as the input: meshoptimizer keeps
+//! the vertex buffer and moves survivors in place) and the surviving
+//! triangles over them, so a caller knows which input vertex each output
+//! vertex is and which triangles came from where.
+//!
+//! meshoptimizer's `simplifyWithUpdate`: vertex positions and attributes
+//! re-placed optimally, locked vertices kept bit-exact, normals, colours
+//! and uvs weighted into the quadric, attribute seams kept closed.
+//! Positions go to meshoptimizer as f32 relative to the mesh's centre, so
+//! inputs far from the origin keep their precision; locked vertices are
+//! restored from their f64 originals. Results are clamped into the input's
+//! box and attribute ranges; normals are renormalised.
+
+use crate::mesh::{Aabb, AttrSet, Vertex};
+use crate::store::IndexedMesh;
+
+/// Weights of the attribute channels against position error (which
+/// meshoptimizer measures relative to the mesh's extent): unit normals and
+/// 0..1 colours, so a normal turned by ~60° or a colour channel off by 1
+/// costs about as much as a 25 % (normals) / 50 % (colours) deviation.
+const NORMAL_WEIGHT: f32 = 0.25;
+const COLOR_WEIGHT: f32 = 0.5;
+const UV_WEIGHT: f32 = 1.0;
+
+/// A collapsed mesh over the input's vertex indices.
+pub struct Collapsed {
+    /// Every input vertex, survivors re-placed (locked ones unchanged).
+    pub vertices: Vec<Vertex>,
+    /// The surviving triangles, over `vertices`.
+    pub triangles: Vec<[u32; 3]>,
+    /// meshoptimizer's error of the result: absolute (object space, with
+    /// the weighted attribute terms) when an error limit was given, else
+    /// relative to the mesh's extent.
+    pub error: f64,
+}
+
+/// Collapses `mesh` towards `target_tris` triangles (0 with an error limit:
+/// as far as the limit allows), keeping `locked` vertices bit-exact. With
+/// no error limit, no lock and the target missed (topology stopped it), a
+/// second pass may remove small disconnected parts.
+pub fn collapse(mesh: &IndexedMesh, locked: &[bool], attrs: AttrSet, target_tris: usize, max_error: Option<f64>) -> Collapsed {
+    if mesh.triangles.is_empty() {
+        return Collapsed { vertices: mesh.vertices.clone(), triangles: Vec::new(), error: 0.0 };
+    }
+    let mut bb = Aabb::default();
+    for t in &mesh.triangles {
+        for &v in t {
+            bb.add(mesh.vertices[v as usize].pos);
+        }
+    }
+    let c = bb.center();
+    let mut pos: Vec<[f32; 3]> = mesh.vertices.iter().map(|v| std::array::from_fn(|k| (v.pos[k] - c[k]) as f32)).collect();
+    let mut weights: Vec<f32> = Vec::new();
+    if attrs.normal() {
+        weights.extend([NORMAL_WEIGHT; 3]);
+    }
+    if attrs.color() {
+        weights.extend([COLOR_WEIGHT; 3]);
+        if attrs.alpha() {
+            weights.push(COLOR_WEIGHT);
+        }
+    }
+    if attrs.uv() {
+        weights.extend([UV_WEIGHT; 2]);
+    }
+    let na = weights.len();
+    let mut attr: Vec<f32> = Vec::with_capacity(mesh.vertices.len() * na);
+    for v in &mesh.vertices {
+        if attrs.normal() {
+            attr.extend(v.normal);
+        }
+        if attrs.color() {
+            attr.extend(v.color[..3].iter().map(|&x| x as f32 / 255.0));
+            if attrs.alpha() {
+                attr.push(v.color[3] as f32 / 255.0);
+            }
+        }
+        if attrs.uv() {
+            attr.extend(v.uv);
+        }
+    }
+    let attr0 = attr.clone();
+    let lock: Vec<meshopt::SimplifyVertex> =
+        locked.iter().map(|&l| if l { meshopt::SimplifyVertex::Lock } else { meshopt::SimplifyVertex::None }).collect();
+    let mut idx: Vec<u32> = mesh.triangles.iter().flatten().copied().collect();
+    let (count, err, opts) = match max_error {
+        None => (3 * target_tris, f32::MAX, meshopt::SimplifyOptions::None),
+        Some(e) => (3 * target_tris, e as f32, meshopt::SimplifyOptions::ErrorAbsolute),
+    };
+    let mut result_error = 0f32;
+    let mut run = |idx: &mut Vec<u32>, opts: meshopt::SimplifyOptions| {
+        let n = meshopt::simplify_with_update(idx, &mut pos, &mut attr, &weights, na * 4, Some(&lock), count, err, opts, Some(&mut result_error));
+        idx.truncate(n);
+    };
+    run(&mut idx, opts);
+    if max_error.is_none() {
+        let n = target_tris;
+        if idx.len() / 3 > n + n / 100 && !locked.iter().any(|&l| l) {
+            // Topology stopped it: allow removing small disconnected parts
+            // (never with locks: a part may be a piece of a seam).
+            run(&mut idx, opts | meshopt::SimplifyOptions::Prune);
+        }
+    }
+    // Optimal placement may step a hair outside (a convex part's chords);
+    // results stay inside the input's box and attribute ranges.
+    let mut lo = vec![f32::MAX; na];
+    let mut hi = vec![f32::MIN; na];
+    for t in &mesh.triangles {
+        for &v in t {
+            let v = v as usize;
+            for k in 0..na {
+                lo[k] = lo[k].min(attr0[v * na + k]);
+                hi[k] = hi[k].max(attr0[v * na + k]);
+            }
+        }
+    }
+    let mut verts = mesh.vertices.clone();
+    for (i, v) in verts.iter_mut().enumerate() {
+        if locked.get(i).copied().unwrap_or(false) {
+            continue;
+        }
+        v.pos = std::array::from_fn(|k| (c[k] + pos[i][k] as f64).clamp(bb.min[k], bb.max[k]));
+        for k in 0..na {
+            attr[i * na + k] = attr[i * na + k].clamp(lo[k], hi[k]);
+        }
+        let a = &attr[i * na..(i + 1) * na];
+        let mut k = 0;
+        if attrs.normal() {
+            let n = glam::Vec3::from_slice(&a[0..3]);
+            v.normal = if n.length_squared() > 0.0 { n.normalize().to_array() } else { v.normal };
+            k = 3;
+        }
+        if attrs.color() {
+            for ch in 0..3 {
+                v.color[ch] = (a[k + ch].clamp(0.0, 1.0) * 255.0).round() as u8;
+            }
+            k += 3;
+            if attrs.alpha() {
+                v.color[3] = (a[k].clamp(0.0, 1.0) * 255.0).round() as u8;
+                k += 1;
+            }
+        }
+        if attrs.uv() {
+            v.uv = [a[k], a[k + 1]];
+        }
+    }
+    let triangles = idx.chunks_exact(3).map(|t| [t[0], t[1], t[2]]).collect();
+    Collapsed { vertices: verts, triangles, error: result_error as f64 }
+}
+
+/// Error curve of one sampled node: its triangles, and (error, triangles)
+/// after collapsing to a few shares of them, errors absolute and made
+/// non-decreasing (fewer triangles never cost less).
+pub struct ErrorCurve {
+    pub tris: u64,
+    pub points: Vec<(f64, f64)>,
+}
+
+/// Shares of a sampled node's triangles its curve is measured at.
+const CURVE_SHARES: [f64; 7] = [0.85, 0.7, 0.58, 0.48, 0.38, 0.27, 0.15];
+
+impl ErrorCurve {
+    pub fn of(mesh: &IndexedMesh, locked: &[bool], attrs: AttrSet) -> ErrorCurve {
+        let n = mesh.triangles.len();
+        let mut points: Vec<(f64, f64)> = Vec::new();
+        let mut worst = 0.0f64;
+        for s in CURVE_SHARES {
+            let c = collapse(mesh, locked, attrs, (s * n as f64).round() as usize, Some(f32::MAX as f64));
+            worst = worst.max(c.error);
+            points.push((worst, c.triangles.len() as f64));
+        }
+        ErrorCurve { tris: n as u64, points }
+    }
+
+    /// Triangles left at error limit `e` (linear between the points; from
+    /// the whole node at error 0; no further than the last point).
+    pub fn at(&self, e: f64) -> f64 {
+        let mut prev = (0.0, self.tris as f64);
+        for &(pe, pt) in &self.points {
+            if e < pe {
+                let f = if pe > prev.0 { (e - prev.0) / (pe - prev.0) } else { 1.0 };
+                return prev.1 + f * (pt - prev.1);
+            }
+            prev = (pe, pt.min(prev.1));
+        }
+        prev.1
+    }
+}
+
+/// The error limit at which the sampled nodes keep `share` of their
+/// triangles, and the share they keep there (bisection on the curves).
+pub fn choose_limit(samples: &[ErrorCurve], share: f64) -> (f64, f64) {
+    let total: f64 = samples.iter().map(|c| c.tris as f64).sum();
+    if total == 0.0 {
+        return (0.0, 1.0);
+    }
+    let kept = |e: f64| samples.iter().map(|c| c.at(e)).sum::<f64>() / total;
+    let hi0 = samples.iter().flat_map(|c| c.points.last().map(|p| p.0)).fold(0.0, f64::max);
+    if !(hi0 > 0.0 && hi0.is_finite()) || kept(hi0) > share {
+        // The samples cannot reach the share: the largest error measured.
+        return (hi0.max(0.0), kept(hi0.max(0.0)));
+    }
+    let (mut lo, mut hi) = (0.0, hi0);
+    for _ in 0..60 {
+        let m = 0.5 * (lo + hi);
+        if kept(m) > share {
+            lo = m;
+        } else {
+            hi = m;
+        }
+    }
+    (hi, kept(hi))
+}
+
+/// `tris` less its folds: a triangle and one of opposite orientation on the
+/// same three positions (edge collapse flattens a thin part — a small
+/// torus's tube — into such pairs, as clustering does) are dropped
+/// together, as [`super::cluster`] drops them: every edge's use count keeps
+/// its parity, so no crack opens, and the zero-volume fins and the
+/// non-manifold edges they bring go.
+pub fn unfold(vertices: &[Vertex], tris: &[[u32; 3]]) -> Vec<[u32; 3]> {
+    let mut id: rustc_hash::FxHashMap<[u64; 3], usize> = Default::default();
+    let images: Vec<[usize; 3]> = tris
+        .iter()
+        .map(|t| {
+            t.map(|v| {
+                let n = id.len();
+                *id.entry(super::shared::pos_bits(vertices[v as usize].pos)).or_insert(n)
+            })
+        })
+        .collect();
+    let keep = super::cluster::unfold(&images);
+    tris.iter().zip(keep).filter(|(_, k)| *k).map(|(t, _)| *t).collect()
+}
+
+/// `tris` over `vertices`, unreferenced vertices dropped; also gives, per
+/// output vertex, the index it had.
+pub fn compact(vertices: &[Vertex], tris: &[[u32; 3]]) -> (IndexedMesh, Vec<u32>) {
+    let mut map = vec![u32::MAX; vertices.len()];
+    let mut out = IndexedMesh::default();
+    let mut from = Vec::new();
+    for t in tris {
+        let nt = t.map(|i| {
+            let i = i as usize;
+            if map[i] == u32::MAX {
+                map[i] = out.vertices.len() as u32;
+                out.vertices.push(vertices[i]);
+                from.push(i as u32);
+            }
+            map[i]
+        });
+        out.triangles.push(nt);
+    }
+    (out, from)
+}
+
+/// The two-sided, vertex-sampled distance between a node's input and its
+/// collapsed output (`from[o]`: the input vertex output vertex o is; a
+/// locked one sits on both sides): the largest distance from a referenced
+/// input vertex to the output surface and from an output vertex to the
+/// input surface, exact (closest points through a BVH of each side). Edge
+/// collapse keeps no member lists, so the neighbourhood bound of
+/// [`super::node_error`] does not apply. An empty output has the input's
+/// extent as its error.
+pub fn collapse_error(input: &IndexedMesh, locked: &[bool], output: &IndexedMesh, from: &[u32]) -> f64 {
+    use crate::geom::{Bvh, Mesh};
+    if input.triangles.is_empty() {
+        return 0.0;
+    }
+    let mut used = vec![false; input.vertices.len()];
+    let mut bbox = Aabb::EMPTY;
+    for t in &input.triangles {
+        for &v in t {
+            used[v as usize] = true;
+            bbox.add(input.vertices[v as usize].pos);
+        }
+    }
+    if output.triangles.is_empty() {
+        return bbox.diagonal();
+    }
+    let is_locked = |v: usize| locked.get(v).copied().unwrap_or(false);
+    let mut on_output = vec![false; input.vertices.len()];
+    for &f in from {
+        on_output[f as usize] = is_locked(f as usize);
+    }
+    let mut d2 = 0.0f64;
+    let out_bvh = Bvh::new(&Mesh::from_vertices(&output.vertices, output.triangles.clone()));
+    for (v, x) in input.vertices.iter().enumerate() {
+        if used[v] && !on_output[v] {
+            if let Some(c) = out_bvh.closest(x.pos) {
+                d2 = d2.max(c.dist2);
+            }
+        }
+    }
+    drop(out_bvh);
+    let in_bvh = Bvh::new(&Mesh::from_vertices(&input.vertices, input.triangles.clone()));
+    for (o, x) in output.vertices.iter().enumerate() {
+        if !is_locked(from[o] as usize) {
+            if let Some(c) = in_bvh.closest(x.pos) {
+                d2 = d2.max(c.dist2);
+            }
+        }
+    }
+    d2.sqrt()
+}
