@@ -654,6 +654,7 @@ mod tests {
         assert!(md.contains("| oocs | target 40 (grid 7) | 40 |"), "{md}");
         assert!(md.contains("| octolod-collapse | target 40 (from level 1, in-memory) | 40 |"), "{md}");
         assert!(md.contains("### octolod simplify ÷ peer at the same target"), "{md}");
+        assert!(md.contains("| collapse | 40 | 40 | 0.83 | 1.00 | 1.27 | 1.00 | 0.83 | 1.00 | 1.17 | 1.00 |"), "{md}");
         assert!(md.contains("- `collapse` ÷ meshopt-simplify over 1 targets: RMS 1.27 (≤ 1 at 0 of 1)"), "{md}");
         assert!(md.contains("![RMS error vs throughput](error_vs_speed-t.svg)"));
         // Pairs: octolod against the three peers, each simplifier against them too.

@@ -396,24 +396,33 @@ fn simplify_section(w: &mut String, rows: &[Row]) {
     let _ = writeln!(w, "\n### octolod simplify ÷ peer at the same target\n");
     let _ = writeln!(
         w,
-        "Time is the whole `octolod simplify` command ÷ the peer's load + simplification; peak RSS the command's ÷ the peer's. Below 1 favours octolod.\n"
+        "One row per `octolod simplify` run; each peer's columns divide its figure by that peer's run at the same target. Time is the whole command ÷ the peer's load + simplification. Below 1 favours octolod.\n"
     );
-    let _ = writeln!(w, "| simplifier | target | tris | peer | peer tris | time (command ÷ load+simplify) | peak RSS | RMS | Hausdorff |");
-    let _ = writeln!(w, "|---|---:|---:|---|---:|---:|---:|---:|---:|");
-    for p in &ps {
-        let _ = writeln!(
+    let mut head = String::from("| simplifier | target | tris |");
+    let mut rule = String::from("|---|---:|---:|");
+    for m in Method::PEERS {
+        let n = m.name();
+        let _ = write!(head, " time ÷ {n} | peak RSS ÷ {n} | RMS ÷ {n} | Hausdorff ÷ {n} |");
+        rule.push_str("---:|---:|---:|---:|");
+    }
+    let _ = writeln!(w, "{head}\n{rule}");
+    for o in rows.iter().filter(|r| Method::SIMPLIFIERS.contains(&r.method)) {
+        let _ = write!(
             w,
-            "| {} | {} | {} | {} | {} | {} | {} | {} | {} |",
-            p.o.method.simplifier().unwrap_or("?"),
-            p.o.target.map_or("?".into(), thousands),
-            thousands(p.o.triangles),
-            p.p.method.name(),
-            thousands(p.p.triangles),
-            ratio(p.time_with_load()),
-            ratio(p.rss()),
-            opt(p.rms(), ratio),
-            opt(p.hausdorff(), ratio),
+            "| {} | {} | {} |",
+            o.method.simplifier().unwrap_or("?"),
+            o.target.map_or("?".into(), thousands),
+            thousands(o.triangles)
         );
+        for m in Method::PEERS {
+            match ps.iter().find(|p| std::ptr::eq(p.o, o) && p.p.method == m) {
+                Some(p) => {
+                    let _ = write!(w, " {} | {} | {} | {} |", ratio(p.time_with_load()), ratio(p.rss()), opt(p.rms(), ratio), opt(p.hausdorff(), ratio));
+                }
+                None => w.push_str(" n/a | n/a | n/a | n/a |"),
+            }
+        }
+        w.push('\n');
     }
     let _ = writeln!(w);
     for m in Method::SIMPLIFIERS {
