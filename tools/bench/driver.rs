@@ -225,8 +225,10 @@ pub fn bench(args: &BenchArgs) -> Result<()> {
 
     let path = write_report(args, &mut r)?;
     if args.clean {
-        for x in r.inputs.iter().flat_map(|i| &i.rows) {
-            let _ = std::fs::remove_file(&x.path);
+        // Every output, and the levels that were extracted but not measured.
+        let levels = r.inputs.iter().flat_map(|i| &i.builds).flat_map(|b| &b.levels).map(|l| &l.path);
+        for path in r.inputs.iter().flat_map(|i| &i.rows).map(|x| &x.path).chain(levels) {
+            let _ = std::fs::remove_file(path);
         }
     }
     b.say(&format!("report: {}", path.display()));
