@@ -21,6 +21,9 @@ use crate::report::{command_line, now_utc, setting_text, thousands};
 struct Bench<'a> {
     args: &'a BenchArgs,
     exe: PathBuf,
+    /// The `octolod` binary (metro, simplify), if it answers.
+    octolod_bin: Option<PathBuf>,
+    octolod_note: String,
     metro_bin: Option<PathBuf>,
     metro_note: String,
 }
@@ -168,12 +171,10 @@ pub fn bench(args: &BenchArgs) -> Result<()> {
     octolod::mem::parse_size(&args.mem)?;
     std::fs::create_dir_all(&args.out).with_context(|| format!("create {}", args.out.display()))?;
     let exe = std::env::current_exe().context("locate this executable")?;
-    let (metro_bin, metro_note) = if args.no_metro {
-        (None, "metro skipped (--no-metro)".to_string())
-    } else {
-        find_metro(args, &exe)
-    };
-    let b = Bench { args, exe, metro_bin, metro_note };
+    let (octolod_bin, octolod_note) = find_octolod(args, &exe);
+    let (metro_bin, metro_note) =
+        if args.no_metro { (None, "metro skipped (--no-metro)".to_string()) } else { (octolod_bin.clone(), octolod_note.clone()) };
+    let b = Bench { args, exe, octolod_bin, octolod_note, metro_bin, metro_note };
     b.say(&format!(
         "octolod-bench: {} input(s), settings {}, metro: {}",
         args.inputs.len(),
@@ -275,8 +276,9 @@ fn rerender(args: &BenchArgs, json: &Path) -> Result<()> {
     Ok(())
 }
 
-/// The `octolod` binary, if its `metro` subcommand answers `--help`.
-fn find_metro(args: &BenchArgs, exe: &Path) -> (Option<PathBuf>, String) {
+/// The `octolod` binary (`--octolod`, or the one next to this executable),
+/// if its `metro` subcommand answers `--help`; else why not.
+fn find_octolod(args: &BenchArgs, exe: &Path) -> (Option<PathBuf>, String) {
     let candidate = args.octolod.clone().unwrap_or_else(|| exe.with_file_name("octolod"));
     match Command::new(&candidate).args(["metro", "--help"]).stdin(Stdio::null()).output() {
         Ok(o) if o.status.success() => (Some(candidate), String::new()),
@@ -410,9 +412,9 @@ fn bench_input(b: &Bench, info: &mut InputReport, dir: &Path, settings: &[(u64, 
             let mut args: Vec<String> =
                 vec!["--method".into(), m.name().into(), "--target".into(), target.to_string(), input.clone(), out.display().to_string()];
             if m.simplifier().is_some() {
-                let Some(bin) = &b.metro_bin else {
-                    b.say(&format!("[{}] {}: skipped, no octolod binary ({})", info.name, m.name(), b.metro_note));
-                    failures.push(format!("{}: {} target {target}: no octolod binary ({})", info.name, m.name(), b.metro_note));
+                let Some(bin) = &b.octolod_bin else {
+                    b.say(&format!("[{}] {}: skipped: {}", info.name, m.name(), b.octolod_note));
+                    failures.push(format!("{}: {} target {target}: skipped: {}", info.name, m.name(), b.octolod_note));
                     continue;
                 };
                 args.extend([

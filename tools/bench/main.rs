@@ -5,7 +5,7 @@
 //! builds and CI never compile it):
 //!
 //! ```sh
-//! cargo build --release --bin octolod   # provides `octolod metro`
+//! cargo build --release --bin octolod   # provides `octolod metro` and `simplify`
 //! cargo run --release --features peers --bin octolod-bench -- IN.ply [IN2.ply ...] \
 //!     --out out/bench-report [--samples 200000] [--repeat 3] [--attr-sweep 2000000]
 //! ```
@@ -20,8 +20,8 @@
 //! `error_vs_speed.svg` and `error_vs_size.svg` (log–log, hand-made SVG, one
 //! panel per input), and per input a folder holding every output mesh
 //! (`--clean` deletes them). `--levels 4,7,10` measures only those octolod
-//! levels (and runs the peers and simplifiers at their sizes only). `--suffix -10m` names the four files
-//! `report-10m.md` and so on; `--label TEXT` adds a line saying what was
+//! levels (and runs the peers and simplifiers at their sizes only).
+//! `--suffix -10m` names the four files `report-10m.md` and so on; `--label TEXT` adds a line saying what was
 //! measured (the commit, say); `--from-json report.json` measures nothing
 //! and writes the report and plots again from an earlier run's JSON (for
 //! changes to the layout).
@@ -29,7 +29,7 @@
 //! The machine may be shared. Every child measures how many cores other
 //! processes kept busy during its timed section (the machine's busy time
 //! from `/proc/stat` minus its own CPU time, over the wall time; see
-//! [`CpuProbe`]), and the report gives it per row and in summary;
+//! [`runners::CpuProbe`]), and the report gives it per row and in summary;
 //! `--wait-idle S` makes each run first wait, up to S seconds, until other
 //! processes use under a quarter of a core.
 //!
@@ -46,10 +46,9 @@
 //!   lock, target error 1.0 so only the count stops it), in core.
 //! - `meshopt-sloppy`: meshoptimizer's grid `simplify_sloppy`, in core.
 //! - `oocs`: Lindstrom's out-of-core simplification (2000): uniform-grid
-//!   quadric clustering in one pass (implemented here, see [`oocs`]). It runs
+//!   quadric clustering in one pass (implemented here, see [`oocs::oocs`]). It runs
 //!   on the loaded mesh, so its peak RSS is an in-core one (Lindstrom streams
 //!   a triangle soup and holds only the grid).
-//!
 //! - `octolod-collapse`, `octolod-cluster`: the `octolod` binary's
 //!   `simplify IN -o OUT --target-tris N --simplifier collapse|cluster
 //!   --json` (build setting: the first of `--settings`, budget `--mem`),
@@ -74,8 +73,8 @@
 //! Error: `octolod metro INPUT OUTPUT --json` (the binary next to this one,
 //! or `--octolod PATH`), run for every output; its JSON is read into
 //! [`types::MetroJson`] and the `combined` figures (both directions
-//! together) are divided by the input's bounding-box diagonal. Without a working `metro`, errors
-//! are "n/a" and everything else is still measured.
+//! together) are divided by the input's bounding-box diagonal. Without a
+//! working `metro`, errors are "n/a" and everything else is still measured.
 //!
 //! Ratios are paired output by output within the run: each octolod output
 //! (setting, level, T triangles) against each peer's run whose target was T,
@@ -90,7 +89,6 @@
 //! +normals+colors+uvs: quadric dimension 3, 5, 6, 11) and reports build time
 //! and peak RSS per input triangle, to show what modelling only the
 //! attributes a scene has buys.
-
 //!
 //! Layout: `main.rs` (command line), `driver.rs` (the parent: children,
 //! metro, collecting), `runners.rs` (the child side and the `/proc`
@@ -141,7 +139,7 @@ pub struct BenchArgs {
     /// octolod memory budget.
     #[arg(long, default_value = "512M")]
     pub mem: String,
-    /// octolod binary providing `metro` (default: `octolod` next to this executable).
+    /// octolod binary providing `metro` and `simplify` (default: `octolod` next to this executable).
     #[arg(long)]
     pub octolod: Option<PathBuf>,
     /// Skip metro (errors are n/a).
