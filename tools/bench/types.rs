@@ -1,0 +1,572 @@
+//! The typed JSON the tool reads and writes: what a `run-one` child prints,
+//! what `octolod metro --json` and `octolod simplify --json` print, and
+//! `report.json`, which `--from-json` reads back. Field names are those of
+//! the reports written before these types existed, so old reports still
+//! read back; fields added since default when absent.
+//!
+//! Numbers that may be non-finite are written as `null` (JSON has no NaN)
+//! and read back as NaN (see [`nullable`]).
+
+use clap::ValueEnum;
+use serde::{Deserialize, Serialize};
+use std::path::PathBuf;
+
+/// How an output mesh was made.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, ValueEnum, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Method {
+    /// `pipeline::build_store` per setting, every level extracted.
+    Octolod,
+    /// meshoptimizer's edge-collapse `simplify`, in core.
+    MeshoptSimplify,
+    /// meshoptimizer's grid `simplify_sloppy`, in core.
+    MeshoptSloppy,
+    /// Lindstrom's OOCS (uniform-grid quadric clustering), see `oocs.rs`.
+    Oocs,
+    /// `octolod simplify --simplifier collapse`, the whole command.
+    OctolodCollapse,
+    /// `octolod simplify --simplifier cluster`, the whole command.
+    OctolodCluster,
+}
+
+impl Method {
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Octolod => "octolod",
+            Method::MeshoptSimplify => "meshopt-simplify",
+            Method::MeshoptSloppy => "meshopt-sloppy",
+            Method::Oocs => "oocs",
+            Method::OctolodCollapse => "octolod-collapse",
+            Method::OctolodCluster => "octolod-cluster",
+        }
+    }
+    /// In-core peers, run at every octolod output size.
+    pub const PEERS: [Method; 3] = [Method::MeshoptSimplify, Method::MeshoptSloppy, Method::Oocs];
+    /// `octolod simplify`, run at the same sizes as the peers.
+    pub const SIMPLIFIERS: [Method; 2] = [Method::OctolodCollapse, Method::OctolodCluster];
+    /// The `--simplifier` value of an `octolod simplify` method.
+    pub fn simplifier(self) -> Option<&'static str> {
+        match self {
+            Method::OctolodCollapse => Some("collapse"),
+            Method::OctolodCluster => Some("cluster"),
+            _ => None,
+        }
+    }
+    /// The meshoptimizer peer a simplifier is judged against (issue 10:
+    /// `collapse` against `simplify`, `cluster` against `simplify_sloppy`).
+    pub fn counterpart(self) -> Option<Method> {
+        match self {
+            Method::OctolodCollapse => Some(Method::MeshoptSimplify),
+            Method::OctolodCluster => Some(Method::MeshoptSloppy),
+            _ => None,
+        }
+    }
+}
+
+/// `f64` fields written as `null` when not finite and read back as NaN.
+pub mod nullable {
+    use serde::{Deserialize, Deserializer, Serializer};
+
+    pub fn serialize<S: Serializer>(x: &f64, s: S) -> Result<S::Ok, S::Error> {
+        if x.is_finite() {
+            s.serialize_f64(*x)
+        } else {
+            s.serialize_none()
+        }
+    }
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+        Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
+    }
+}
+
+fn nan() -> f64 {
+    f64::NAN
+}
+
+/// An `Option<f64>` that is `None` for a non-finite value.
+pub fn finite(x: f64) -> Option<f64> {
+    x.is_finite().then_some(x)
+}
+
+// ---------------------------------------------------------------------------
+// What the children print.
+
+/// Timing and memory fields of every child's JSON line; the parent adds
+/// the `*_all_runs` lists after `--repeat` and sets `peak_rss_mib` to the
+/// largest of the runs.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+pub struct Timed {
+    /// The timed section, wall seconds (of the fastest run).
+    #[serde(with = "nullable", default = "nan")]
+    pub seconds: f64,
+    /// Peak RSS (`VmHWM`, or the child's `ru_maxrss`), MiB.
+    #[serde(with = "nullable", default = "nan")]
+    pub peak_rss_mib: f64,
+    /// Mean cores other processes kept busy during the timed section.
+    #[serde(default)]
+    pub other_cpu_cores: Option<f64>,
+    /// The whole child process, wall seconds.
+    #[serde(with = "nullable", default = "nan")]
+    pub child_seconds: f64,
+    /// `seconds` of every run (`--repeat`).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub seconds_all_runs: Vec<Option<f64>>,
+    /// `other_cpu_cores` of every run.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub other_cpu_cores_all_runs: Vec<Option<f64>>,
+    /// Seconds each run waited for an idle machine (`--wait-idle`).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub idle_wait_seconds_all_runs: Vec<f64>,
+}
+
+/// A child's JSON line, whatever the method.
+pub trait ChildOut: serde::de::DeserializeOwned {
+    fn timed(&mut self) -> &mut Timed;
+}
+
+/// One level an octolod build extracted.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct LevelOut {
+    pub level: u8,
+    pub triangles: u64,
+    pub vertices: u64,
+    /// Nodes on the level.
+    pub nodes: Option<u64>,
+    /// The largest error bound of the level's nodes (object space).
+    pub error_bound_max: Option<f64>,
+    /// The extracted (welded) PLY.
+    pub path: PathBuf,
+}
+
+/// What an octolod build child prints (`run-one --method octolod`).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct BuildOut {
+    /// Always `octolod`.
+    pub method: Method,
+    pub leaf_tris: u64,
+    /// Reports of the single-hierarchy builds (before levels that halve)
+    /// called the setting's second number `cluster_grid`.
+    #[serde(alias = "cluster_grid")]
+    pub level_ratio: u32,
+    /// `--mem`, bytes.
+    pub mem: u64,
+    pub input_triangles: u64,
+    /// The input's attributes, e.g. `position(f32)`.
+    pub attributes: String,
+    pub quadric_dim: u64,
+    #[serde(with = "nullable", default = "nan")]
+    pub soup_seconds: f64,
+    #[serde(with = "nullable", default = "nan")]
+    pub octree_seconds: f64,
+    #[serde(with = "nullable", default = "nan")]
+    pub simplify_seconds: f64,
+    /// The soup took the external-sort path.
+    pub soup_external: bool,
+    pub nodes: u64,
+    pub leaves: u64,
+    pub deepest: u32,
+    /// The store's size on disk.
+    pub disk_bytes: u64,
+    /// Peak RSS after extracting every level, MiB (`peak_rss_mib` is read
+    /// before extraction).
+    #[serde(with = "nullable", default = "nan")]
+    pub peak_rss_with_extract_mib: f64,
+    /// Empty with `--no-extract`.
+    pub levels: Vec<LevelOut>,
+    #[serde(flatten)]
+    pub timed: Timed,
+}
+
+impl BuildOut {
+    /// `LEAFxRATIO`.
+    pub fn setting(&self) -> String {
+        format!("{}x{}", self.leaf_tris, self.level_ratio)
+    }
+}
+
+impl ChildOut for BuildOut {
+    fn timed(&mut self) -> &mut Timed {
+        &mut self.timed
+    }
+}
+
+/// What `octolod simplify --json` prints (the library's `ReduceReport`).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct SimplifyJson {
+    /// `in-memory`, `per-node` or `store-cut`.
+    pub route: String,
+    /// The cut it started from (`level 3`).
+    pub start: String,
+    pub start_triangles: u64,
+    pub input_triangles: u64,
+    pub target_triangles: Option<u64>,
+    pub target_error: Option<f64>,
+    pub vertices: u64,
+    pub triangles: u64,
+    /// The size is within 1 % of the target.
+    pub reached: bool,
+    pub note: Option<String>,
+    pub hausdorff: Option<f64>,
+    pub tries: u32,
+}
+
+/// What a one-output child prints: a peer (`meshopt-*`, `oocs`) or an
+/// `octolod simplify` run. Fields of other methods are absent.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct RunOut {
+    pub method: Method,
+    /// Triangles asked.
+    pub target: u64,
+    pub input_triangles: u64,
+    /// Loading the input (peers; `octolod simplify` loads inside its time).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub load_seconds: Option<f64>,
+    pub triangles: u64,
+    pub vertices: u64,
+    pub path: PathBuf,
+    /// Peers: peak RSS after loading, and of the simplification alone
+    /// (`VmHWM` restarted after the load; `None` where Linux refused).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub peak_rss_load_mib: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub peak_rss_simplify_mib: Option<f64>,
+    /// meshopt: the error meshopt reports (relative to the mesh extent).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub meshopt_result_error: Option<f64>,
+    /// oocs: cells along the longest side, cells per axis, occupied cells,
+    /// representatives clamped to their cell, and the untimed grid search.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub grid: Option<u32>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub grid_dims: Option<[u64; 3]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cells: Option<u64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub clamped: Option<u64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub search_seconds: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub search_tries: Option<u64>,
+    /// `octolod simplify`: the command run, its exit status (3: target not
+    /// met, the closest mesh written) and its `--json` report.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub command: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub exit_code: Option<i32>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub simplify: Option<SimplifyJson>,
+    #[serde(flatten)]
+    pub timed: Timed,
+}
+
+impl ChildOut for RunOut {
+    fn timed(&mut self) -> &mut Timed {
+        &mut self.timed
+    }
+}
+
+// ---------------------------------------------------------------------------
+// `octolod metro --json`.
+
+/// Axis-aligned box.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct BboxJson {
+    pub min: [Option<f64>; 3],
+    pub max: [Option<f64>; 3],
+}
+
+/// One operand of a metro comparison.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct MetroMesh {
+    /// The PLY path or `STORE@L` it was loaded from.
+    pub source: String,
+    /// Vertices referenced by triangles.
+    pub vertices: u64,
+    pub faces: u64,
+    #[serde(with = "nullable")]
+    pub area: f64,
+    pub bbox: BboxJson,
+    #[serde(with = "nullable")]
+    pub diagonal: f64,
+}
+
+/// Distances of one direction (or both combined), object space, and
+/// relative to the reference's diagonal (`*_rel`).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct MetroDistances {
+    pub samples: u64,
+    pub vertex_samples: u64,
+    pub edge_samples: u64,
+    pub face_samples: u64,
+    /// Hausdorff (one-sided; two-sided for `combined`).
+    #[serde(with = "nullable")]
+    pub max: f64,
+    #[serde(with = "nullable")]
+    pub mean: f64,
+    #[serde(with = "nullable")]
+    pub rms: f64,
+    #[serde(with = "nullable")]
+    pub max_rel: f64,
+    #[serde(with = "nullable")]
+    pub mean_rel: f64,
+    #[serde(with = "nullable")]
+    pub rms_rel: f64,
+    /// Where the maximum was found.
+    pub max_at: [Option<f64>; 3],
+}
+
+/// One `--max-*` threshold metro checked.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct MetroThreshold {
+    pub metric: String,
+    pub option: String,
+    pub given: String,
+    pub limit: Option<f64>,
+    pub value: Option<f64>,
+    pub exceeded: bool,
+}
+
+/// Paging figures (present when an operand was a store level).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct MetroPaging {
+    pub budget: u64,
+    pub cache_budget: u64,
+    pub ply_estimate: u64,
+    pub batch_samples: u64,
+    pub peak_resident: u64,
+    pub loads: u64,
+    pub hits: u64,
+    pub evictions: u64,
+    pub overcommits: u64,
+    pub bytes_read: u64,
+    pub scan_bytes: u64,
+    pub parts: MetroParts,
+    pub query_threads: [u64; 2],
+    pub peak_rss: Option<u64>,
+}
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct MetroParts {
+    pub a: Option<u64>,
+    pub b: Option<u64>,
+}
+
+/// `octolod metro A B --json` (A: the input, B: an output).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct MetroJson {
+    pub a: MetroMesh,
+    pub b: MetroMesh,
+    /// A's diagonal, which the `*_rel` figures divide by.
+    #[serde(with = "nullable")]
+    pub diagonal: f64,
+    pub diagonal_of: String,
+    #[serde(with = "nullable")]
+    pub union_diagonal: f64,
+    pub seed: u64,
+    /// Samples per direction asked for (metro takes every vertex even when
+    /// fewer are asked; `a_to_b.samples` is what it took).
+    pub samples_target: u64,
+    pub a_to_b: MetroDistances,
+    pub b_to_a: MetroDistances,
+    /// Both directions: max of the maxima, mean and RMS over all samples.
+    pub combined: MetroDistances,
+    #[serde(with = "nullable")]
+    pub hausdorff: f64,
+    #[serde(with = "nullable")]
+    pub hausdorff_rel: f64,
+    pub thresholds: Vec<MetroThreshold>,
+    pub pass: bool,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub paging: Option<MetroPaging>,
+}
+
+// ---------------------------------------------------------------------------
+// report.json.
+
+/// Where and by what a report was measured.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct MachineJson {
+    pub cpu: String,
+    pub threads: usize,
+    #[serde(with = "nullable", default = "nan")]
+    pub mem_gib: f64,
+}
+
+/// One measured output mesh.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Row {
+    pub method: Method,
+    /// `16384x2` for octolod levels, empty otherwise.
+    #[serde(default)]
+    pub setting: String,
+    /// octolod: the level.
+    pub level: Option<u8>,
+    /// Peers and `octolod simplify`: the triangles asked (an octolod
+    /// output's count).
+    pub target: Option<u64>,
+    pub triangles: u64,
+    pub vertices: u64,
+    pub path: PathBuf,
+    /// octolod: the whole build; peers: the simplification alone;
+    /// `octolod simplify`: the whole command.
+    #[serde(with = "nullable")]
+    pub seconds: f64,
+    /// Peers: loading the input.
+    pub load_seconds: Option<f64>,
+    /// M input triangles per second of `seconds`.
+    #[serde(rename = "throughput_mtris_per_s", with = "nullable")]
+    pub throughput: f64,
+    #[serde(rename = "peak_rss_mib", with = "nullable")]
+    pub rss_mib: f64,
+    /// metro's combined (two-sided) figures, object space.
+    pub rms: Option<f64>,
+    pub hausdorff: Option<f64>,
+    pub mean: Option<f64>,
+    /// The same over the input's bounding-box diagonal.
+    pub rms_rel_diag: Option<f64>,
+    pub hausdorff_rel_diag: Option<f64>,
+    /// Which metro figures these are.
+    pub error_figures: Option<String>,
+    /// Why there are none.
+    pub error_note: Option<String>,
+    pub metro_seconds: Option<f64>,
+    /// metro's whole report.
+    pub metro: Option<MetroJson>,
+    /// The child's report: its level for octolod, its run otherwise.
+    pub child: RowChild,
+}
+
+/// What a row's child reported.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum RowChild {
+    /// An octolod level (the build is in `builds`).
+    Level(LevelOut),
+    /// A peer's or `octolod simplify`'s run.
+    Run(Box<RunOut>),
+}
+
+impl Row {
+    /// metro's combined (RMS, Hausdorff), object space, when measured.
+    pub fn err(&self) -> Option<(f64, f64)> {
+        Some((self.rms?, self.hausdorff?))
+    }
+    pub fn run(&self) -> Option<&RunOut> {
+        match &self.child {
+            RowChild::Run(r) => Some(r),
+            RowChild::Level(_) => None,
+        }
+    }
+    /// Other processes' CPU use during this row's own run (peers and
+    /// `octolod simplify`; an octolod level's is its build's).
+    pub fn other_cpu(&self) -> Option<f64> {
+        self.run().and_then(|r| r.timed.other_cpu_cores)
+    }
+}
+
+/// An octolod output or `octolod simplify` run against a peer at the same
+/// target (written to the JSON; recomputed, not read, on `--from-json`).
+#[derive(Clone, Debug, Serialize)]
+pub struct PairJson {
+    /// The octolod side's method (`octolod`, `octolod-collapse`, ...).
+    pub method: Method,
+    pub setting: String,
+    pub level: Option<u8>,
+    pub triangles: u64,
+    pub peer: Method,
+    pub peer_triangles: u64,
+    pub time_ratio: Option<f64>,
+    pub time_ratio_with_load: Option<f64>,
+    pub rss_ratio: Option<f64>,
+    pub rms_ratio: Option<f64>,
+    pub hausdorff_ratio: Option<f64>,
+}
+
+/// One input and everything measured on it.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct InputReport {
+    pub path: PathBuf,
+    /// The file stem.
+    pub name: String,
+    pub bytes: u64,
+    pub vertices: u64,
+    pub triangles: u64,
+    pub attributes: String,
+    #[serde(rename = "bbox_diagonal", with = "nullable")]
+    pub diagonal: f64,
+    #[serde(with = "nullable", default = "nan")]
+    pub scan_seconds: f64,
+    /// One octolod build per setting.
+    #[serde(default)]
+    pub builds: Vec<BuildOut>,
+    #[serde(default)]
+    pub rows: Vec<Row>,
+    #[serde(default, skip_deserializing)]
+    pub pairs: Vec<PairJson>,
+}
+
+/// One build of `--attr-sweep`.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct SweepRow {
+    /// `position only`, `+uv`, ...
+    pub label: String,
+    pub attributes: String,
+    pub quadric_dim: u64,
+    pub triangles: u64,
+    pub ply_bytes: u64,
+    pub build: BuildOut,
+}
+
+/// `report<suffix>.json`: every number of a run.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Report {
+    /// When it was measured (UTC).
+    pub generated: String,
+    /// The command line.
+    pub command: String,
+    /// `--label`.
+    pub label: Option<String>,
+    /// `--from-json`: when and from what the Markdown was re-rendered.
+    pub rerendered: Option<String>,
+    pub machine: MachineJson,
+    /// The `octolod` binary metro ran from, or why metro did not run.
+    pub metro: String,
+    /// Why metro did not run; `None` when it did.
+    pub metro_note: Option<String>,
+    /// `--samples`.
+    pub samples: Option<u64>,
+    pub repeat: u32,
+    pub mem: String,
+    pub settings: Vec<String>,
+    pub min_tris: u64,
+    #[serde(default)]
+    pub wait_idle: f64,
+    /// `--levels`: the only octolod levels measured (empty: all).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub levels: Vec<u8>,
+    /// `octolod simplify` runs: the build setting they used (`LEAFxRATIO`),
+    /// absent when none ran.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub simplify_setting: Option<String>,
+    pub inputs: Vec<InputReport>,
+    #[serde(default)]
+    pub attr_sweep: Vec<SweepRow>,
+    #[serde(default)]
+    pub failures: Vec<String>,
+    /// `--suffix` of the files (not stored).
+    #[serde(skip)]
+    pub suffix: String,
+}
+
+impl Report {
+    /// The `octolod` binary metro ran from, if it did.
+    pub fn metro_bin(&self) -> Option<PathBuf> {
+        self.metro_note.is_none().then(|| PathBuf::from(&self.metro))
+    }
+    /// Fills the derived `pairs` of every input.
+    pub fn fill_pairs(&mut self) {
+        for inp in &mut self.inputs {
+            inp.pairs = crate::report::pairs(&inp.rows).iter().chain(&crate::report::simplify_pairs(&inp.rows)).map(|p| p.json()).collect();
+        }
+    }
+}
