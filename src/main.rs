@@ -30,7 +30,7 @@ enum Cmd {
         #[arg(short, long)]
         output: PathBuf,
         /// Working-memory budget (e.g. 128M, 2G).
-        #[arg(long, default_value = "256M")]
+        #[arg(long, default_value = mem::DEFAULT_BUDGET_ARG)]
         mem: String,
         /// Use the external-sort path even when the vertices fit in memory.
         #[arg(long)]
@@ -124,7 +124,7 @@ enum Cmd {
         /// Fail (exit 3) when the mean distance over both directions exceeds this.
         #[arg(long)]
         max_mean: Option<String>,
-        /// Memory budget (default 1G): pages STORE@L operands' nodes in and out; given, PLYs (held whole) must fit it too.
+        /// Memory budget (default 512M): pages STORE@L operands' nodes in and out; given, PLYs (held whole) must fit it too.
         #[arg(long)]
         mem: Option<String>,
     },
@@ -187,7 +187,7 @@ enum Cmd {
 #[derive(clap::Args, Clone)]
 struct BuildParams {
     /// Working-memory budget (e.g. 512M, 2G).
-    #[arg(long, default_value = "512M")]
+    #[arg(long, default_value = mem::DEFAULT_BUDGET_ARG)]
     mem: String,
     /// Split a level's octree cell while it holds more triangles than this.
     #[arg(long, default_value_t = 16384)]
@@ -306,28 +306,7 @@ fn run(cli: Cli) -> Result<()> {
             let rep = soup::build_soup(&input, &output, &opts)?;
             let peak = peak_rss();
             if json {
-                println!(
-                    "{{\"faces\":{},\"triangles\":{},\"degenerate\":{},\"polygons\":{},\"vertices\":{},\"input_bytes\":{},\"external\":{},\"seconds\":{:.4},\"mb_per_s\":{:.2},\"mtris_per_s\":{:.3},\"peak_rss_bytes\":{},\"mem_budget_bytes\":{},\"corner_runs\":{},\"corner_merge_passes\":{},\"slot_buckets\":{},\"spilled_bytes\":{},\"phase_seconds\":[{:.3},{:.3},{:.3}]}}",
-                    rep.body.faces,
-                    rep.header.triangles,
-                    rep.header.degenerate,
-                    rep.body.polygons,
-                    rep.body.vertices,
-                    rep.input_bytes,
-                    rep.external,
-                    rep.seconds,
-                    rep.input_bytes as f64 / 1e6 / rep.seconds.max(1e-9),
-                    rep.body.triangles as f64 / 1e6 / rep.seconds.max(1e-9),
-                    peak.unwrap_or(0),
-                    opts.mem,
-                    rep.sort_by_vertex.runs,
-                    rep.sort_by_vertex.merge_passes,
-                    rep.slot_buckets,
-                    rep.sort_by_vertex.spilled_bytes + rep.bucket_bytes,
-                    rep.phase_seconds[0],
-                    rep.phase_seconds[1],
-                    rep.phase_seconds[2],
-                );
+                println!("{}", serde_json::to_string(&rep.json(opts.mem, peak)).expect("the report serializes"));
             } else {
                 println!("{}", rep.summary(peak));
             }

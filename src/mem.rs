@@ -56,6 +56,13 @@ fn check_budget(v: u64, option: &str, phys: Option<u64>) -> Result<()> {
     }
 }
 
+/// The default `--mem` of every command (soup, build, simplify, metro) and
+/// of the library's option structs: 512 MiB. [`DEFAULT_BUDGET_ARG`] is the
+/// same figure as the command line writes it.
+pub const DEFAULT_BUDGET: u64 = 512 << 20;
+/// [`DEFAULT_BUDGET`] as a `--mem` argument (clap's `default_value`).
+pub const DEFAULT_BUDGET_ARG: &str = "512M";
+
 /// Smallest budget we accept: below this, per-stream buffers dominate.
 pub const MIN_BUDGET: u64 = 64 << 10;
 
@@ -76,5 +83,6 @@ mod tests {
         assert!(check_budget(1 << 30, "--mem", Some(4 << 30)).is_ok());
         assert!(parse_budget("10T", "--mem").is_err());
         assert!(parse_budget("64M", "--mem").is_ok());
+        assert_eq!(parse_size(DEFAULT_BUDGET_ARG).unwrap(), DEFAULT_BUDGET);
     }
 }

@@ -44,7 +44,7 @@ pub struct OctreeOptions {
 
 impl Default for OctreeOptions {
     fn default() -> Self {
-        OctreeOptions { leaf_tris: 16384, max_depth: 16, mem: 256 << 20, quiet: true }
+        OctreeOptions { leaf_tris: 16384, max_depth: 16, mem: crate::mem::DEFAULT_BUDGET, quiet: true }
     }
 }
 

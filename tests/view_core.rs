@@ -7,10 +7,7 @@
 mod common;
 
 use glam::DVec3;
-use octolod::gen::{GenOptions, Generator, Shape};
-use octolod::mesh::AttrSet;
-use octolod::pipeline::{build_store, BuildOptions};
-use octolod::ply::write::{write_ply, PlyWriteOptions};
+use octolod::gen::Shape;
 use octolod::view::camera::{Camera, CameraPath};
 use octolod::view::select::Unit;
 use octolod::view::{DrawMesh, ViewOptions, Viewer};
@@ -22,13 +19,7 @@ fn store(dir: &Path, shape: Shape, tris: u64, leaf: u64) -> PathBuf {
 }
 
 fn store_and_input(dir: &Path, shape: Shape, tris: u64, leaf: u64) -> (PathBuf, octolod::store::IndexedMesh) {
-    let g = Generator::new(&GenOptions { shape, tris, seed: 5, attrs: AttrSet::POSITION_ONLY });
-    let (v, f) = g.mesh();
-    let ply = dir.join("in.ply");
-    write_ply(&ply, &PlyWriteOptions::default(), &v, &f).unwrap();
-    let out = dir.join("s.octolod");
-    build_store(&ply, &out, &BuildOptions { leaf_tris: leaf, ..BuildOptions::default() }).unwrap();
-    (out, octolod::store::IndexedMesh { vertices: v, triangles: f })
+    common::default_store(dir, shape, tris, 0, 5, leaf)
 }
 
 fn opts(ram: u64) -> ViewOptions {

@@ -7,10 +7,10 @@
 //! These tests need a Vulkan (or GL) adapter; they fail without one unless
 //! OCTOLOD_SKIP_GPU_TESTS=1 is set.
 
-use octolod::gen::{GenOptions, Generator, Shape};
+mod common;
+
+use octolod::gen::Shape;
 use octolod::mesh::AttrSet;
-use octolod::pipeline::{build_store, BuildOptions};
-use octolod::ply::write::{write_ply, PlyWriteOptions};
 use octolod::view::headless::{render, RenderOptions, RenderReport};
 use octolod::view::ViewOptions;
 use std::path::{Path, PathBuf};
@@ -25,13 +25,7 @@ fn skip() -> bool {
 }
 
 fn store(dir: &Path, shape: Shape, tris: u64, leaf: u64, attrs: u32) -> PathBuf {
-    let g = Generator::new(&GenOptions { shape, tris, seed: 11, attrs: AttrSet(attrs) });
-    let (v, f) = g.mesh();
-    let ply = dir.join("in.ply");
-    write_ply(&ply, &PlyWriteOptions { attrs: AttrSet(attrs), ..Default::default() }, &v, &f).unwrap();
-    let out = dir.join("s.octolod");
-    build_store(&ply, &out, &BuildOptions { leaf_tris: leaf, ..BuildOptions::default() }).unwrap();
-    out
+    common::default_store(dir, shape, tris, attrs, 11, leaf).0
 }
 
 fn opts(store: &Path, out: &Path, path: Option<PathBuf>, ram: u64) -> RenderOptions {

@@ -178,8 +178,8 @@ pub const CHUNK: u64 = 16 * 1024;
 /// the module documentation).
 pub const EDGE_SHARE_MAX: f64 = 0.9;
 
-/// Default `--mem`.
-pub const DEFAULT_MEM: u64 = 1 << 30;
+/// Default `--mem`: every command's ([`crate::mem::DEFAULT_BUDGET`]).
+pub const DEFAULT_MEM: u64 = crate::mem::DEFAULT_BUDGET;
 /// Samples at most per batch (queried together, sorted along a Morton curve
 /// when the target is paged).
 const BATCH_MAX: usize = 1 << 20;

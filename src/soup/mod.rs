@@ -56,7 +56,7 @@ pub struct SoupOptions {
 
 impl Default for SoupOptions {
     fn default() -> Self {
-        SoupOptions { mem: 256 << 20, quiet: true, force_external: false, max_fan_in: None, replace: false }
+        SoupOptions { mem: crate::mem::DEFAULT_BUDGET, quiet: true, force_external: false, max_fan_in: None, replace: false }
     }
 }
 
@@ -94,6 +94,72 @@ impl SoupReport {
             mt_s,
             peak_rss.map(crate::progress::mib).unwrap_or_else(|| "n/a".into())
         )
+    }
+}
+
+/// `octolod soup --json`: one object on stdout, these fields in this order.
+/// Rates are per second of the whole run; numbers print at full precision.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct SoupJson {
+    /// Faces read from the PLY (polygons count once).
+    pub faces: u64,
+    /// Triangles written to the soup.
+    pub triangles: u64,
+    /// Degenerate triangles dropped.
+    pub degenerate: u64,
+    /// Faces with more than three corners (fan-triangulated).
+    pub polygons: u64,
+    /// Vertices read from the PLY.
+    pub vertices: u64,
+    /// Size of the input PLY in bytes.
+    pub input_bytes: u64,
+    /// True when the external-sort path ran.
+    pub external: bool,
+    /// Wall-clock seconds of the whole soup build.
+    pub seconds: f64,
+    /// Input megabytes (10^6) per second.
+    pub mb_per_s: f64,
+    /// Million input triangles per second.
+    pub mtris_per_s: f64,
+    /// Peak RSS of the process in bytes (0 where the OS does not tell).
+    pub peak_rss_bytes: u64,
+    /// The `--mem` budget in bytes.
+    pub mem_budget_bytes: u64,
+    /// Sorted runs of the corner sort (0 on the in-memory path).
+    pub corner_runs: u64,
+    /// Merge passes of the corner sort.
+    pub corner_merge_passes: u32,
+    /// Slot-range bucket files of the distribution pass.
+    pub slot_buckets: u64,
+    /// Scratch bytes written: corner-sort spills plus bucket files.
+    pub spilled_bytes: u64,
+    /// Seconds in (read PLY + sort runs, merge + join + distribute, place + write soup).
+    pub phase_seconds: [f64; 3],
+}
+
+impl SoupReport {
+    /// The `--json` report of a run under budget `mem`, given the peak RSS.
+    pub fn json(&self, mem: u64, peak_rss: Option<u64>) -> SoupJson {
+        let secs = self.seconds.max(1e-9);
+        SoupJson {
+            faces: self.body.faces,
+            triangles: self.header.triangles,
+            degenerate: self.header.degenerate,
+            polygons: self.body.polygons,
+            vertices: self.body.vertices,
+            input_bytes: self.input_bytes,
+            external: self.external,
+            seconds: self.seconds,
+            mb_per_s: self.input_bytes as f64 / 1e6 / secs,
+            mtris_per_s: self.body.triangles as f64 / 1e6 / secs,
+            peak_rss_bytes: peak_rss.unwrap_or(0),
+            mem_budget_bytes: mem,
+            corner_runs: self.sort_by_vertex.runs,
+            corner_merge_passes: self.sort_by_vertex.merge_passes,
+            slot_buckets: self.slot_buckets,
+            spilled_bytes: self.sort_by_vertex.spilled_bytes + self.bucket_bytes,
+            phase_seconds: self.phase_seconds,
+        }
     }
 }
 

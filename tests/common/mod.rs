@@ -4,7 +4,7 @@
 
 use octolod::gen::{GenOptions, Generator, Shape};
 use octolod::mesh::{AttrSet, Vertex};
-use octolod::pipeline::{build_store_with, BuildOptions};
+use octolod::pipeline::{build_store, build_store_with, BuildOptions};
 use octolod::reduce::Simplifier;
 use octolod::ply::write::{write_ply, PlyWriteOptions};
 use octolod::store::{Cut, IndexedMesh, Store};
@@ -16,7 +16,12 @@ pub mod store_mutation;
 /// Generates `shape` with `tris` triangles and `attrs`, writes it as
 /// `dir/NAME.ply`; gives the path and the mesh.
 pub fn gen_ply(dir: &Path, shape: Shape, tris: u64, attrs: u32) -> (PathBuf, IndexedMesh) {
-    let g = Generator::new(&GenOptions { shape, tris, seed: 5, attrs: AttrSet(attrs) });
+    gen_ply_seeded(dir, shape, tris, attrs, 5)
+}
+
+/// [`gen_ply`] with the generator's seed given.
+pub fn gen_ply_seeded(dir: &Path, shape: Shape, tris: u64, attrs: u32, seed: u64) -> (PathBuf, IndexedMesh) {
+    let g = Generator::new(&GenOptions { shape, tris, seed, attrs: AttrSet(attrs) });
     let (v, f) = g.mesh();
     let ply = dir.join(format!("{}-{tris}-{attrs}.ply", shape.name()));
     write_ply(&ply, &PlyWriteOptions { attrs: AttrSet(attrs), ..Default::default() }, &v, &f).unwrap();
@@ -38,6 +43,21 @@ pub fn build_from_with(dir: &Path, ply: &Path, leaf: u64, simplifier: Simplifier
     let o = BuildOptions { mem: 4 << 20, leaf_tris: leaf, max_depth: 12, root_tris: 256, ..Default::default() };
     build_store_with(ply, &out, &o, simplifier).unwrap_or_else(|e| panic!("{} ({}): {e}", ply.display(), simplifier.name()));
     Store::open(&out).unwrap()
+}
+
+/// Builds `dir/STEM.octolod` from a PLY with the options given (default
+/// simplifier); gives its path.
+pub fn build_store_at(dir: &Path, ply: &Path, opts: &BuildOptions) -> PathBuf {
+    let out = dir.join(format!("{}.octolod", ply.file_stem().unwrap().to_string_lossy()));
+    build_store(ply, &out, opts).unwrap_or_else(|e| panic!("{}: {e}", ply.display()));
+    out
+}
+
+/// Generates (with `seed`) and builds with the default build options but
+/// `leaf` triangles per node: the viewer tests' store. Gives its path and the input.
+pub fn default_store(dir: &Path, shape: Shape, tris: u64, attrs: u32, seed: u64, leaf: u64) -> (PathBuf, IndexedMesh) {
+    let (ply, m) = gen_ply_seeded(dir, shape, tris, attrs, seed);
+    (build_store_at(dir, &ply, &BuildOptions { leaf_tris: leaf, ..BuildOptions::default() }), m)
 }
 
 /// Generates and builds; gives the store and the input.

@@ -1,0 +1,1010 @@
+//! Generalized quadric error metric (Garland & Heckbert 1998, "Simplifying
+//! surfaces with color and texture using quadric error metrics") for vertex
+//! clustering.
+//!
+//! Takes: triangles and vertices of one cluster (cell), embedded as points of
+//! R^n by a [`QuadricSpace`]. Gives: the accumulated [`Quadric`] and its
+//! minimiser ([`Quadric::solve`]), decoded back into a [`Vertex`].
+//!
+//! # Space
+//! A vertex is a point of R^n, n = [`AttrSet::quadric_dim`]: position (3,
+//! *local* to the space's `origin`, normally the cell centre, so that a mesh at
+//! 1e6 with 1e-3 detail keeps its precision), then uv (2) if present, normal
+//! (3) if present, color rgb (3, as `u8 / 255`) if present, in that order.
+//! Alpha is not modelled. Attribute coordinates are multiplied by
+//! [`AttrWeights`] so that they are commensurate with positions (see
+//! [`AttrWeights::for_extent`]) and divided again when decoding.
+//!
+//! # Quadric
+//! For a triangle p, q, r of R^n with orthonormal in-plane frame e1, e2:
+//! `A = I − e1e1ᵀ − e2e2ᵀ`, `b = −A p`, `c = pᵀA p`, so that
+//! `Q(v) = vᵀAv + 2bᵀv + c` is the squared distance of v from the triangle's
+//! plane in R^n. Each triangle is weighted by its area *in position space*;
+//! triangles whose position area is zero (duplicate or collinear corners) or
+//! that hold a non-finite coordinate contribute nothing. Everything is
+//! accumulated in f64.
+//!
+//! # Memory
+//! A [`Quadric`] is a fixed-capacity, heap-free struct (736 bytes whatever the
+//! dimension) whose coefficients are packed at the front of one array; every
+//! loop is bounded by the dimension, so a position-only quadric costs 15 adds,
+//! not 91. For large per-cell tables, store only the live coefficients
+//! ([`Quadric::coeffs`], [`Quadric::from_coeffs`], [`Quadric::add_into`]):
+//!
+//! | dim | attributes            | paper coefficients (A, b, c) | stored f64 | packed bytes |
+//! |-----|-----------------------|------------------------------|-----------:|-------------:|
+//! | 3   | position              | 6 + 3 + 1 = 10               | 15         | 120          |
+//! | 5   | + uv                  | 15 + 5 + 1 = 21              | 28         | 224          |
+//! | 6   | + normal *or* color   | 21 + 6 + 1 = 28              | 36         | 288          |
+//! | 8   | + uv + normal/color   | 36 + 8 + 1 = 45              | 55         | 440          |
+//! | 9   | + normal + color      | 45 + 9 + 1 = 55              | 66         | 528          |
+//! | 11  | + uv + normal + color | 66 + 11 + 1 = 78             | 91         | 728          |
+//!
+//! "Stored" adds the total area, the sum of the cluster's embedded points (n)
+//! and their count, used for the mean: `(n+1)(n+2)/2 + n + 2` values.
+//!
+//! # Solve
+//! The minimiser uses a symmetric eigen-decomposition of A (cyclic Jacobi,
+//! accurate to working precision for these ≤ 11×11 PSD matrices, no heap) and
+//! a pseudo-inverse that drops eigenvalues below `rel_tol` times the largest.
+//! The minimum-norm correction is taken about the cluster mean m:
+//! `x = m + A⁺(−b − A m)`, so rank-deficient directions (along a flat sheet,
+//! along a crease) stay at the mean, as in Lindstrom's / VTK's quadric
+//! clustering. If cell bounds are given and the position falls outside them,
+//! the position is re-optimised inside the box (exact minimisation of the
+//! quadric, with attributes at their optimum for each position, over the
+//! box's faces, edges and corners) and the solution is flagged `clamped`.
+// Index loops mirror the formulas; negated comparisons are deliberate
+// (`!(x > 0.0)` is also true for NaN).
+#![allow(clippy::needless_range_loop, clippy::neg_cmp_op_on_partial_ord)]
+
+use crate::geom::{cross, dot as dot3, sub};
+use crate::mesh::{Aabb, AttrSet, Vertex};
+
+mod eigen;
+use eigen::Eigen;
+
+/// Largest quadric dimension: position 3 + uv 2 + normal 3 + color 3.
+pub const MAX_DIM: usize = 11;
+
+/// Stored coefficients for [`MAX_DIM`]: see [`Quadric::coeff_len`].
+pub const MAX_COEFFS: usize = MAX_DIM * (MAX_DIM + 1) / 2 + 2 * MAX_DIM + 3;
+
+/// Default relative eigenvalue cut-off of [`Quadric::solve`].
+pub const DEFAULT_REL_TOL: f64 = 1e-3;
+
+/// Triangles with area ≤ this × (longest edge)², i.e. height ≤ ~2.3e-13 ×
+/// longest edge (a thousand ulps), are degenerate and contribute nothing.
+const DEGENERATE_REL_AREA: f64 = 1024.0 * f64::EPSILON;
+
+/// Smallest relative cut-off actually used (below it, roundoff-level
+/// eigenvalues would be inverted).
+const MIN_REL_TOL: f64 = 1e-12;
+
+/// Scales applied to attribute coordinates before they enter the quadric
+/// (positions are never scaled). A weight ≤ 0 or non-finite switches the
+/// attribute off: its coordinates are 0 and decoding takes the template's.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AttrWeights {
+    /// Multiplies u and v (usually in 0..1).
+    pub uv: f64,
+    /// Multiplies the unit normal's components.
+    pub normal: f64,
+    /// Multiplies r, g, b in 0..1 (`u8 / 255`).
+    pub color: f64,
+}
+
+impl AttrWeights {
+    /// Fraction of the extent used by [`AttrWeights::for_extent`].
+    pub const EXTENT_FRACTION: f64 = 0.1;
+
+    /// The same weight for every attribute.
+    pub fn uniform(w: f64) -> AttrWeights {
+        AttrWeights { uv: w, normal: w, color: w }
+    }
+
+    /// Weights for a cell (or mesh) whose bounding-box diagonal is `diag`:
+    /// every attribute weight is `diag * 0.1` ([`Self::EXTENT_FRACTION`]).
+    /// A full color swing (0 → 1) or a full uv swing then counts like a
+    /// positional offset of a tenth of the diagonal, and a 90° normal change
+    /// (|Δn| = √2) like 0.14 diagonals, so attribute discontinuities inform
+    /// the solution without dominating the geometry. A non-finite or zero
+    /// `diag` gives weight 0.1.
+    pub fn for_extent(diag: f64) -> AttrWeights {
+        let d = if diag.is_finite() && diag != 0.0 { diag.abs() } else { 1.0 };
+        AttrWeights::uniform(d * Self::EXTENT_FRACTION)
+    }
+}
+
+impl Default for AttrWeights {
+    /// Unit weights.
+    fn default() -> Self {
+        AttrWeights::uniform(1.0)
+    }
+}
+
+#[inline]
+fn live(w: f64) -> bool {
+    w.is_finite() && w > 0.0
+}
+
+/// How vertices map into R^n: which attributes, their weights, and the local
+/// origin subtracted from positions.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct QuadricSpace {
+    pub attrs: AttrSet,
+    /// `attrs.quadric_dim()`.
+    pub dim: usize,
+    pub weights: AttrWeights,
+    /// World position of the local origin (normally the cell centre).
+    pub origin: [f64; 3],
+}
+
+impl QuadricSpace {
+    pub fn new(attrs: AttrSet, weights: AttrWeights, origin: [f64; 3]) -> QuadricSpace {
+        QuadricSpace { attrs, dim: attrs.quadric_dim(), weights, origin }
+    }
+
+    /// Offset of uv in an embedded point, if the space has uvs.
+    pub fn uv_at(&self) -> Option<usize> {
+        self.attrs.uv().then_some(3)
+    }
+    /// Offset of the normal in an embedded point, if the space has normals.
+    pub fn normal_at(&self) -> Option<usize> {
+        self.attrs.normal().then_some(3 + 2 * self.attrs.uv() as usize)
+    }
+    /// Offset of rgb in an embedded point, if the space has colors.
+    pub fn color_at(&self) -> Option<usize> {
+        self.attrs.color().then_some(3 + 2 * self.attrs.uv() as usize + 3 * self.attrs.normal() as usize)
+    }
+
+    /// World position → local coordinates.
+    #[inline]
+    pub fn to_local(&self, p: [f64; 3]) -> [f64; 3] {
+        [p[0] - self.origin[0], p[1] - self.origin[1], p[2] - self.origin[2]]
+    }
+
+    /// Local coordinates → world position.
+    #[inline]
+    pub fn to_world(&self, x: [f64; 3]) -> [f64; 3] {
+        [x[0] + self.origin[0], x[1] + self.origin[1], x[2] + self.origin[2]]
+    }
+
+    /// A world box in local coordinates, as `bounds` for [`Quadric::solve`].
+    pub fn local_bounds(&self, b: &Aabb) -> ([f64; 3], [f64; 3]) {
+        (self.to_local(b.min), self.to_local(b.max))
+    }
+
+    /// The vertex as a point of R^n (first `dim` entries; the rest are 0).
+    #[inline]
+    pub fn embed(&self, v: &Vertex) -> [f64; MAX_DIM] {
+        let mut x = [0.0; MAX_DIM];
+        x[..3].copy_from_slice(&self.to_local(v.pos));
+        let w = &self.weights;
+        let mut i = 3;
+        if self.attrs.uv() {
+            if live(w.uv) {
+                x[i] = v.uv[0] as f64 * w.uv;
+                x[i + 1] = v.uv[1] as f64 * w.uv;
+            }
+            i += 2;
+        }
+        if self.attrs.normal() {
+            if live(w.normal) {
+                for k in 0..3 {
+                    x[i + k] = v.normal[k] as f64 * w.normal;
+                }
+            }
+            i += 3;
+        }
+        if self.attrs.color() && live(w.color) {
+            for k in 0..3 {
+                x[i + k] = v.color[k] as f64 * (w.color / 255.0);
+            }
+        }
+        x
+    }
+
+    /// A point of R^n back to a vertex: position plus origin; uv unscaled;
+    /// normal unscaled and renormalised; color unscaled, rounded and clamped
+    /// to 0..=255. Alpha, attributes the space lacks, and attributes that
+    /// cannot be decoded (zero weight, zero-length normal, non-finite) come
+    /// from `template`.
+    pub fn unembed(&self, x: &[f64], template: &Vertex) -> Vertex {
+        let mut v = *template;
+        v.pos = self.to_world([x[0], x[1], x[2]]);
+        let w = &self.weights;
+        if let (Some(i), true) = (self.uv_at(), live(w.uv)) {
+            let uv = [x[i] / w.uv, x[i + 1] / w.uv];
+            if uv.iter().all(|c| c.is_finite()) {
+                v.uv = uv.map(|c| c as f32);
+            }
+        }
+        if let (Some(i), true) = (self.normal_at(), live(w.normal)) {
+            let n = [x[i] / w.normal, x[i + 1] / w.normal, x[i + 2] / w.normal];
+            let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+            if len.is_finite() && len > 1e-12 {
+                v.normal = n.map(|c| (c / len) as f32);
+            }
+        }
+        if let (Some(i), true) = (self.color_at(), live(w.color)) {
+            for k in 0..3 {
+                let c = x[i + k] * (255.0 / w.color);
+                if !c.is_nan() {
+                    v.color[k] = c.round().clamp(0.0, 255.0) as u8;
+                }
+            }
+        }
+        v
+    }
+}
+
+/// [`Quadric::at_point`] written straight into stored coefficients
+/// (`out.len() ≥ coeff_len(dim)`, overwritten): no struct, no copies — the
+/// form hot loops use.
+pub fn packed_at_point(dim: usize, a: &[f64], p: &[f64], area: f64, out: &mut [f64]) {
+    let al = a_len(dim);
+    out[..al].copy_from_slice(&a[..al]);
+    let mut ap = [0.0; MAX_DIM];
+    let mut k = 0;
+    for i in 0..dim {
+        for j in i..dim {
+            let v = a[k];
+            ap[i] += v * p[j];
+            if j != i {
+                ap[j] += v * p[i];
+            }
+            k += 1;
+        }
+    }
+    let mut c = 0.0;
+    for i in 0..dim {
+        out[al + i] = -ap[i];
+        c += ap[i] * p[i];
+    }
+    out[al + dim] = c;
+    out[al + dim + 1] = area;
+    let s = al + dim + 2;
+    out[s..s + dim].copy_from_slice(&p[..dim]);
+    out[s + dim] = 1.0;
+}
+
+/// `Q(mean)` of stored coefficients (mean of the added points; 0 without
+/// points), clamped to ≥ 0: [`Quadric::error`] at [`Quadric::mean`]
+/// without building a [`Quadric`].
+pub fn packed_error_at_mean(dim: usize, k: &[f64]) -> f64 {
+    let al = a_len(dim);
+    let s = al + dim + 2;
+    let cnt = k[s + dim];
+    if !(cnt > 0.0) {
+        return k[al + dim].max(0.0);
+    }
+    let mut x = [0.0; MAX_DIM];
+    for i in 0..dim {
+        x[i] = k[s + i] / cnt;
+    }
+    let mut e = 0.0;
+    let mut at = 0;
+    for i in 0..dim {
+        let mut row = 0.5 * k[at] * x[i];
+        at += 1;
+        for j in i + 1..dim {
+            row += k[at] * x[j];
+            at += 1;
+        }
+        e += 2.0 * x[i] * row;
+    }
+    for i in 0..dim {
+        e += 2.0 * k[al + i] * x[i];
+    }
+    e += k[al + dim];
+    if e > 0.0 && e.is_finite() {
+        e
+    } else {
+        0.0
+    }
+}
+
+/// Minimiser found by [`Quadric::solve`], in local embedded coordinates
+/// (decode with [`QuadricSpace::unembed`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Solution {
+    /// First `dim` entries used; the rest are 0.
+    pub x: [f64; MAX_DIM],
+    /// Rank of A kept by the pseudo-inverse (0 for an empty quadric: x is
+    /// then the mean).
+    pub rank: usize,
+    /// The unconstrained minimiser's position was outside the bounds; `x` is
+    /// the best point inside them.
+    pub clamped: bool,
+    /// `Q(x)`.
+    pub error: f64,
+}
+
+/// Accumulated generalized quadric of one cluster, plus the total triangle
+/// area and the sum and count of the cluster's embedded points (for the mean).
+///
+/// Layout of the live coefficients (`coeff_len(dim)` f64): A packed
+/// upper-triangular row-major (`dim(dim+1)/2`), b (`dim`), c, area, point sum
+/// (`dim`), point count.
+#[derive(Clone)]
+pub struct Quadric {
+    dim: usize,
+    k: [f64; MAX_COEFFS],
+}
+
+#[inline]
+const fn a_len(n: usize) -> usize {
+    n * (n + 1) / 2
+}
+
+/// Values a vertex carries from level to level (see [`crate::lod`]): its
+/// quadric about its own position `p`, `Q(x) = (x−p)ᵀA(x−p) + 2gᵀ(x−p) + e`
+/// — the packed matrix A, the half-gradient g = ∇Q(p)/2 and the residual
+/// e = Q(p). Relative to `p`, so far from the origin nothing cancels.
+pub const fn carry_len(dim: usize) -> usize {
+    a_len(dim) + dim + 1
+}
+
+type Mat = [[f64; MAX_DIM]; MAX_DIM];
+
+impl Quadric {
+    /// Number of stored f64 for a dimension: `(n+1)(n+2)/2 + n + 2`
+    /// (15 for 3, 28 for 5, 36 for 6, 55 for 8, 66 for 9, 91 for 11).
+    pub const fn coeff_len(dim: usize) -> usize {
+        a_len(dim) + 2 * dim + 3
+    }
+
+    /// The empty quadric (Q ≡ 0, no area, no points).
+    pub fn zero(dim: usize) -> Quadric {
+        assert!((1..=MAX_DIM).contains(&dim), "quadric dimension {dim} outside 1..={MAX_DIM}");
+        Quadric { dim, k: [0.0; MAX_COEFFS] }
+    }
+
+    /// The area-weighted quadric of one triangle given by embedded points
+    /// (length ≥ `space.dim`, e.g. from [`QuadricSpace::embed`]).
+    pub fn from_triangle(space: &QuadricSpace, p: &[f64], q: &[f64], r: &[f64]) -> Quadric {
+        let mut out = Quadric::zero(space.dim);
+        out.add_triangle(p, q, r);
+        out
+    }
+
+    /// Rebuilds a quadric from [`Quadric::coeffs`].
+    pub fn from_coeffs(dim: usize, coeffs: &[f64]) -> Quadric {
+        let mut out = Quadric::zero(dim);
+        let l = Self::coeff_len(dim);
+        out.k[..l].copy_from_slice(&coeffs[..l]);
+        out
+    }
+
+    pub fn dim(&self) -> usize {
+        self.dim
+    }
+    /// The live coefficients (`coeff_len(dim)` values), for compact storage.
+    pub fn coeffs(&self) -> &[f64] {
+        &self.k[..Self::coeff_len(self.dim)]
+    }
+    /// Adds this quadric into stored coefficients (`acc.len() ≥ coeff_len`).
+    pub fn add_into(&self, acc: &mut [f64]) {
+        let l = Self::coeff_len(self.dim);
+        for (a, s) in acc[..l].iter_mut().zip(&self.k[..l]) {
+            *a += s;
+        }
+    }
+    /// Sum of triangle areas (position space).
+    pub fn area(&self) -> f64 {
+        self.k[a_len(self.dim) + self.dim + 1]
+    }
+    /// Number of points added with [`Quadric::add_point`].
+    pub fn count(&self) -> f64 {
+        self.k[Self::coeff_len(self.dim) - 1]
+    }
+    /// True when no triangle area has been accumulated.
+    pub fn is_empty(&self) -> bool {
+        !(self.area() > 0.0)
+    }
+    /// Mean of the added points (all zero, i.e. the local origin, if none).
+    pub fn mean(&self) -> [f64; MAX_DIM] {
+        let n = self.dim;
+        let mut m = [0.0; MAX_DIM];
+        let cnt = self.count();
+        if cnt > 0.0 {
+            let s = a_len(n) + n + 2;
+            for i in 0..n {
+                m[i] = self.k[s + i] / cnt;
+            }
+            if !m.iter().all(|v| v.is_finite()) {
+                m = [0.0; MAX_DIM];
+            }
+        }
+        m
+    }
+
+    /// A, expanded to a full symmetric matrix.
+    fn matrix(&self) -> Mat {
+        let n = self.dim;
+        let mut a = [[0.0; MAX_DIM]; MAX_DIM];
+        let mut k = 0;
+        for i in 0..n {
+            for j in i..n {
+                a[i][j] = self.k[k];
+                a[j][i] = self.k[k];
+                k += 1;
+            }
+        }
+        a
+    }
+    fn b(&self) -> &[f64] {
+        let s = a_len(self.dim);
+        &self.k[s..s + self.dim]
+    }
+
+    /// The quadric `(x − p)ᵀ A (x − p)` of a point `p` (embedded, length ≥
+    /// dim) carrying the packed upper-triangular matrix `a` (`dim(dim+1)/2`
+    /// values, as [`Quadric::matrix_packed`] gives): zero error and zero
+    /// gradient at `p`. Counts `p` once for the mean; `area` is recorded as
+    /// the quadric's area.
+    pub fn at_point(dim: usize, a: &[f64], p: &[f64], area: f64) -> Quadric {
+        let mut q = Quadric::zero(dim);
+        let al = a_len(dim);
+        q.k[..al].copy_from_slice(&a[..al]);
+        let full = q.matrix();
+        let mut c = 0.0;
+        for i in 0..dim {
+            let ap: f64 = (0..dim).map(|j| full[i][j] * p[j]).sum();
+            q.k[al + i] = -ap;
+            c += ap * p[i];
+        }
+        q.k[al + dim] = c;
+        q.k[al + dim + 1] = area;
+        q.add_point(p);
+        q
+    }
+
+    /// A cheap estimate of the minimum of Q: `Q(m) − gᵀ(A + εI)⁻¹g` with m
+    /// the points' mean, g the gradient there and ε = 1e-6 × trace(A) / n
+    /// (a regularised Cholesky step instead of the eigen solve). Always
+    /// finite and ≥ 0; exact for full-rank A up to the regularisation.
+    pub fn min_estimate(&self) -> f64 {
+        let n = self.dim;
+        let m = self.mean();
+        let q0 = self.error(&m);
+        if !(q0 > 0.0) {
+            return 0.0;
+        }
+        let mut a = self.matrix();
+        let b = self.b();
+        let mut g = [0.0; MAX_DIM];
+        let mut tr = 0.0;
+        for i in 0..n {
+            g[i] = b[i] + (0..n).map(|j| a[i][j] * m[j]).sum::<f64>();
+            tr += a[i][i];
+        }
+        let eps = 1e-6 * tr / n as f64 + f64::MIN_POSITIVE;
+        for i in 0..n {
+            a[i][i] += eps;
+        }
+        // Cholesky in place (lower), then solve L Lᵀ y = g.
+        for j in 0..n {
+            let mut d = a[j][j];
+            for k in 0..j {
+                d -= a[j][k] * a[j][k];
+            }
+            if !(d > 0.0) {
+                return q0;
+            }
+            let d = d.sqrt();
+            a[j][j] = d;
+            for i in j + 1..n {
+                let mut v = a[i][j];
+                for k in 0..j {
+                    v -= a[i][k] * a[j][k];
+                }
+                a[i][j] = v / d;
+            }
+        }
+        let mut y = [0.0; MAX_DIM];
+        for i in 0..n {
+            let mut v = g[i];
+            for k in 0..i {
+                v -= a[i][k] * y[k];
+            }
+            y[i] = v / a[i][i];
+        }
+        // gᵀ(A+εI)⁻¹g = |L⁻¹g|².
+        let drop: f64 = y[..n].iter().map(|v| v * v).sum();
+        let r = q0 - drop;
+        if r.is_finite() && r > 0.0 {
+            r
+        } else {
+            0.0
+        }
+    }
+
+    /// A packed upper-triangular, row-major (`dim(dim+1)/2` values).
+    pub fn matrix_packed(&self) -> &[f64] {
+        &self.k[..a_len(self.dim)]
+    }
+
+    /// Adds another quadric of the same dimension.
+    #[inline]
+    pub fn add(&mut self, other: &Quadric) {
+        assert_eq!(self.dim, other.dim, "adding quadrics of different dimensions");
+        let l = Self::coeff_len(self.dim);
+        for (a, s) in self.k[..l].iter_mut().zip(&other.k[..l]) {
+            *a += s;
+        }
+    }
+
+    /// Accumulates one embedded point of the cluster into the mean used as the
+    /// solve's reference. Non-finite points are ignored.
+    #[inline]
+    pub fn add_point(&mut self, x: &[f64]) {
+        let n = self.dim;
+        let x = &x[..n];
+        if !x.iter().all(|v| v.is_finite()) {
+            return;
+        }
+        let s = a_len(n) + n + 2;
+        for i in 0..n {
+            self.k[s + i] += x[i];
+        }
+        self.k[s + n] += 1.0;
+    }
+
+    /// Adds the area-weighted quadric of triangle p, q, r (embedded points,
+    /// length ≥ dim) in place; the allocation-free form of
+    /// `add(&from_triangle(..))`. Triangles with zero area in position
+    /// (duplicate or collinear corners, up to roundoff) or a non-finite
+    /// coordinate add nothing.
+    #[inline]
+    pub fn add_triangle(&mut self, p: &[f64], q: &[f64], r: &[f64]) {
+        let n = self.dim;
+        if n == 3 {
+            let (p, q, r) = (&p[..3], &q[..3], &r[..3]);
+            // v * 0 is NaN exactly for non-finite v: one branch for all values.
+            let probe = |s: &[f64]| s[0] * 0.0 + s[1] * 0.0 + s[2] * 0.0;
+            if probe(p) + probe(q) + probe(r) != 0.0 {
+                return;
+            }
+            if let Some((nrm, len, area)) = position_area(p, q, r) {
+                self.add_plane3(p, q, r, nrm, len, area);
+            }
+        } else {
+            let pad = |s: &[f64]| {
+                let mut v = [0.0; PAD];
+                v[..n].copy_from_slice(&s[..n]);
+                v
+            };
+            let (p, q, r) = (pad(p), pad(q), pad(r));
+            let zero = [0.0; PAD];
+            let probe = |v: &[f64; PAD]| dot(v, &zero);
+            if probe(&p) + probe(&q) + probe(&r) != 0.0 {
+                return;
+            }
+            if let Some((_, _, area)) = position_area(&p, &q, &r) {
+                self.add_triangle_general(&p, &q, &r, area);
+            }
+        }
+    }
+
+    /// Position-only fast path: A = w nnᵀ, b = −w (n·g) n, c = w (n·g)².
+    #[inline]
+    fn add_plane3(&mut self, p: &[f64], q: &[f64], r: &[f64], nrm: [f64; 3], len: f64, w: f64) {
+        let il = 1.0 / len;
+        let nn = [nrm[0] * il, nrm[1] * il, nrm[2] * il];
+        let t = 1.0 / 3.0;
+        let g = [(p[0] + q[0] + r[0]) * t, (p[1] + q[1] + r[1]) * t, (p[2] + q[2] + r[2]) * t];
+        let d = dot3(nn, g);
+        let k = &mut self.k;
+        k[0] += w * nn[0] * nn[0];
+        k[1] += w * nn[0] * nn[1];
+        k[2] += w * nn[0] * nn[2];
+        k[3] += w * nn[1] * nn[1];
+        k[4] += w * nn[1] * nn[2];
+        k[5] += w * nn[2] * nn[2];
+        let wd = w * d;
+        k[6] -= wd * nn[0];
+        k[7] -= wd * nn[1];
+        k[8] -= wd * nn[2];
+        k[9] += wd * d;
+        k[10] += w;
+    }
+
+    /// Any dimension (points zero-padded to [`PAD`]): Gram–Schmidt frame of
+    /// the triangle in R^n, based at the longest edge.
+    /// A = w (I − e1e1ᵀ − e2e2ᵀ), d = A g (g the centroid), b = −w d,
+    /// c = w |d|² (A is a projector, so gᵀAg = |Ag|² ≥ 0).
+    fn add_triangle_general(&mut self, p: &[f64; PAD], q: &[f64; PAD], r: &[f64; PAD], w: f64) {
+        let n = self.dim;
+        let (lpq, lqr, lrp) = (dist2(p, q), dist2(q, r), dist2(r, p));
+        let (base, tip, third) = if lpq >= lqr && lpq >= lrp {
+            (p, q, r)
+        } else if lqr >= lrp {
+            (q, r, p)
+        } else {
+            (r, p, q)
+        };
+        let mut e1 = [0.0; PAD];
+        let mut e2 = [0.0; PAD];
+        for i in 0..PAD {
+            e1[i] = tip[i] - base[i];
+            e2[i] = third[i] - base[i];
+        }
+        if !normalize(&mut e1) {
+            return;
+        }
+        // Twice-is-enough Gram–Schmidt.
+        for _ in 0..2 {
+            let t = dot(&e2, &e1);
+            for i in 0..PAD {
+                e2[i] -= t * e1[i];
+            }
+        }
+        if !normalize(&mut e2) {
+            return;
+        }
+        let mut d = [0.0; PAD];
+        for i in 0..PAD {
+            d[i] = (p[i] + q[i] + r[i]) * (1.0 / 3.0);
+        }
+        let (g1, g2) = (dot(&d, &e1), dot(&d, &e2));
+        for i in 0..PAD {
+            d[i] -= g1 * e1[i] + g2 * e2[i];
+        }
+        let (mut rows, k) = self.k.split_at_mut(a_len(n));
+        for i in 0..n {
+            let (row, tail) = rows.split_at_mut(n - i);
+            rows = tail;
+            let (a1, a2) = (w * e1[i], w * e2[i]);
+            row[0] += w - a1 * e1[i] - a2 * e2[i];
+            for ((kk, x1), x2) in row[1..].iter_mut().zip(&e1[i + 1..n]).zip(&e2[i + 1..n]) {
+                *kk -= a1 * x1 + a2 * x2;
+            }
+        }
+        for i in 0..n {
+            k[i] -= w * d[i];
+        }
+        k[n] += w * dot(&d, &d);
+        k[n + 1] += w;
+    }
+
+    /// Re-expresses the quadric (and point sum) in a frame whose origin is the
+    /// old one plus `shift` (local positions decrease by `shift`), e.g. to
+    /// merge a child cell's quadric into its parent's frame.
+    pub fn reorigin(&mut self, shift: [f64; 3]) {
+        let n = self.dim;
+        let mut s = [0.0; MAX_DIM];
+        s[..3].copy_from_slice(&shift);
+        // Q'(y) = Q(y + s): A' = A, b' = A s + b, c' = Q(s).
+        let a = self.matrix();
+        let c_new = self.error(&s);
+        let bo = a_len(n);
+        for i in 0..n {
+            let as_i: f64 = (0..3).map(|j| a[i][j] * s[j]).sum();
+            self.k[bo + i] += as_i;
+        }
+        self.k[bo + n] = c_new;
+        let cnt = self.count();
+        let so = bo + n + 2;
+        for i in 0..3 {
+            self.k[so + i] -= cnt * s[i];
+        }
+    }
+
+    /// `Q(x) = xᵀAx + 2bᵀx + c` for an embedded point (length ≥ dim), clamped
+    /// to ≥ 0 (negative values are roundoff).
+    /// Half the gradient at `x`: `A x + b`.
+    pub fn half_gradient(&self, x: &[f64]) -> [f64; MAX_DIM] {
+        let a = self.matrix();
+        let b = self.b();
+        let mut g = [0.0; MAX_DIM];
+        for i in 0..self.dim {
+            g[i] = b[i] + (0..self.dim).map(|j| a[i][j] * x[j]).sum::<f64>();
+        }
+        g
+    }
+
+    pub fn error(&self, x: &[f64]) -> f64 {
+        let n = self.dim;
+        let x = &x[..n];
+        let mut s = 0.0;
+        let mut at = 0;
+        for i in 0..n {
+            let mut row = 0.5 * self.k[at] * x[i];
+            at += 1;
+            for j in i + 1..n {
+                row += self.k[at] * x[j];
+                at += 1;
+            }
+            s += 2.0 * x[i] * row;
+        }
+        for i in 0..n {
+            s += 2.0 * self.k[at + i] * x[i];
+        }
+        s += self.k[at + n];
+        if s < 0.0 {
+            0.0
+        } else {
+            s
+        }
+    }
+
+    /// Minimiser of Q: rank-revealing eigen solve about the cluster mean m,
+    /// `x = m + A⁺(−b − A m)`, dropping eigenvalues below `rel_tol` times the
+    /// largest (`rel_tol` is floored at 1e-12; [`DEFAULT_REL_TOL`] = 1e-3).
+    ///
+    /// With `bounds = Some((lo, hi))` (local coordinates, normally the cell
+    /// box) the position is kept inside the box: if the unconstrained
+    /// minimiser is outside, the quadric (with attributes at their optimum
+    /// for each position) is minimised over the box and `clamped` is set.
+    /// The result is always finite and, with bounds, within them.
+    pub fn solve(&self, rel_tol: f64, bounds: Option<([f64; 3], [f64; 3])>) -> Solution {
+        let n = self.dim;
+        let rel_tol = if rel_tol.is_finite() { rel_tol.max(MIN_REL_TOL) } else { DEFAULT_REL_TOL };
+        let mean = self.mean();
+        let a = self.matrix();
+        let b = self.b();
+        let mut x = mean;
+        let mut rank = 0;
+        if !self.is_empty() {
+            let mut rhs = [0.0; MAX_DIM];
+            for i in 0..n {
+                rhs[i] = -b[i] - (0..n).map(|j| a[i][j] * mean[j]).sum::<f64>();
+            }
+            let eig = Eigen::new(&a, n);
+            let mut dx = [0.0; MAX_DIM];
+            rank = eig.pinv_apply(rel_tol, &rhs, &mut dx);
+            for i in 0..n {
+                x[i] += dx[i];
+            }
+            if !x.iter().all(|v| v.is_finite()) {
+                x = mean;
+                rank = 0;
+            }
+        }
+        let Some((lo, hi)) = bounds else {
+            return Solution { x, rank, clamped: false, error: self.error(&x) };
+        };
+        let (lo, hi) = ([0, 1, 2].map(|k| lo[k].min(hi[k])), [0, 1, 2].map(|k| lo[k].max(hi[k])));
+        if (0..3).all(|k| x[k] >= lo[k] && x[k] <= hi[k]) {
+            return Solution { x, rank, clamped: false, error: self.error(&x) };
+        }
+        if rank > 0 {
+            x = self.box_minimise(&a, &mean, &x, lo, hi, rel_tol);
+        }
+        for k in 0..3 {
+            x[k] = clamp(x[k], lo[k], hi[k]);
+        }
+        if !x.iter().all(|v| v.is_finite()) {
+            x = mean;
+            for k in 0..3 {
+                x[k] = clamp(x[k], lo[k], hi[k]);
+            }
+        }
+        Solution { x, rank, clamped: true, error: self.error(&x) }
+    }
+
+    /// Minimises Q over positions in the box [lo, hi], with attributes at
+    /// their conditional optimum `xa(y) = u + M y` for position y. The reduced
+    /// quadric in y is minimised exactly on each of the box's 27 faces (the
+    /// interior, 6 faces, 12 edges, 8 corners); the best feasible candidate
+    /// wins, with the clamped unconstrained minimiser and the clamped mean as
+    /// extra (always feasible) candidates.
+    fn box_minimise(
+        &self,
+        a: &Mat,
+        mean: &[f64; MAX_DIM],
+        xstar: &[f64; MAX_DIM],
+        lo: [f64; 3],
+        hi: [f64; 3],
+        rel_tol: f64,
+    ) -> [f64; MAX_DIM] {
+        let n = self.dim;
+        let na = n - 3;
+        let b = self.b();
+        // Attribute response to position: u (na) and M (na × 3).
+        let mut u = [0.0; MAX_DIM];
+        let mut m = [[0.0; 3]; MAX_DIM];
+        if na > 0 {
+            let mut aaa = [[0.0; MAX_DIM]; MAX_DIM];
+            for i in 0..na {
+                for j in 0..na {
+                    aaa[i][j] = a[3 + i][3 + j];
+                }
+            }
+            let e = Eigen::new(&aaa, na);
+            let mut r = [0.0; MAX_DIM];
+            let mut t = [0.0; MAX_DIM];
+            for i in 0..na {
+                r[i] = -b[3 + i] - (0..na).map(|j| aaa[i][j] * mean[3 + j]).sum::<f64>();
+            }
+            e.pinv_apply(rel_tol, &r, &mut t);
+            for i in 0..na {
+                u[i] = mean[3 + i] + t[i];
+            }
+            for k in 0..3 {
+                for i in 0..na {
+                    r[i] = -a[3 + i][k];
+                }
+                e.pinv_apply(rel_tol, &r, &mut t);
+                for i in 0..na {
+                    m[i][k] = t[i];
+                }
+            }
+        }
+        // x = E y + f with E = [I; M], f = [0; u].
+        let e_at = |i: usize, k: usize| if i < 3 { (i == k) as u8 as f64 } else { m[i - 3][k] };
+        let f_at = |i: usize| if i < 3 { 0.0 } else { u[i - 3] };
+        let mut ae = [[0.0; 3]; MAX_DIM];
+        let mut afb = [0.0; MAX_DIM];
+        for i in 0..n {
+            for l in 0..3 {
+                ae[i][l] = (0..n).map(|j| a[i][j] * e_at(j, l)).sum();
+            }
+            afb[i] = b[i] + (0..n).map(|j| a[i][j] * f_at(j)).sum::<f64>();
+        }
+        let mut h = [[0.0; 3]; 3];
+        let mut g = [0.0; 3];
+        for k in 0..3 {
+            for l in 0..3 {
+                h[k][l] = (0..n).map(|i| e_at(i, k) * ae[i][l]).sum();
+            }
+            g[k] = (0..n).map(|i| e_at(i, k) * afb[i]).sum();
+        }
+        let qred = |y: &[f64; 3]| -> f64 {
+            let mut s = 0.0;
+            for k in 0..3 {
+                s += 2.0 * g[k] * y[k] + y[k] * (0..3).map(|l| h[k][l] * y[l]).sum::<f64>();
+            }
+            s
+        };
+        let start = [0, 1, 2].map(|k| clamp(mean[k], lo[k], hi[k]));
+        let naive = [0, 1, 2].map(|k| clamp(xstar[k], lo[k], hi[k]));
+        let mut best = naive;
+        let mut best_q = qred(&naive);
+        let qs = qred(&start);
+        if !(best_q <= qs) {
+            best = start;
+            best_q = qs;
+        }
+        for code in 0..27usize {
+            let state = [code % 3, (code / 3) % 3, code / 9];
+            let mut y = [0.0; 3];
+            let mut free = [0usize; 3];
+            let mut nf = 0;
+            for k in 0..3 {
+                match state[k] {
+                    1 => y[k] = lo[k],
+                    2 => y[k] = hi[k],
+                    _ => {
+                        free[nf] = k;
+                        nf += 1;
+                    }
+                }
+            }
+            if nf > 0 {
+                let mut hf = [[0.0; MAX_DIM]; MAX_DIM];
+                let mut r = [0.0; MAX_DIM];
+                for (ii, &i) in free[..nf].iter().enumerate() {
+                    let mut ri = -g[i];
+                    for l in 0..3 {
+                        if state[l] != 0 {
+                            ri -= h[i][l] * y[l];
+                        }
+                    }
+                    for (jj, &j) in free[..nf].iter().enumerate() {
+                        hf[ii][jj] = h[i][j];
+                        ri -= h[i][j] * start[j];
+                    }
+                    r[ii] = ri;
+                }
+                let mut dy = [0.0; MAX_DIM];
+                Eigen::new(&hf, nf).pinv_apply(rel_tol, &r, &mut dy);
+                let mut feasible = true;
+                for (ii, &i) in free[..nf].iter().enumerate() {
+                    let v = start[i] + dy[ii];
+                    let slack = 1e-9 * (hi[i] - lo[i]);
+                    if !(v >= lo[i] - slack && v <= hi[i] + slack) {
+                        feasible = false;
+                    }
+                    y[i] = clamp(v, lo[i], hi[i]);
+                }
+                if !feasible {
+                    continue;
+                }
+            }
+            let q = qred(&y);
+            if q < best_q {
+                best_q = q;
+                best = y;
+            }
+        }
+        let mut x = [0.0; MAX_DIM];
+        x[..3].copy_from_slice(&best);
+        for i in 0..na {
+            x[3 + i] = u[i] + (0..3).map(|k| m[i][k] * best[k]).sum::<f64>();
+        }
+        x
+    }
+}
+
+impl std::fmt::Debug for Quadric {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Quadric")
+            .field("dim", &self.dim)
+            .field("area", &self.area())
+            .field("count", &self.count())
+            .field("coeffs", &self.coeffs())
+            .finish()
+    }
+}
+
+#[inline]
+fn clamp(v: f64, lo: f64, hi: f64) -> f64 {
+    if v < lo {
+        lo
+    } else if v > hi {
+        hi
+    } else {
+        v
+    }
+}
+
+/// Zero-padded width of the general path's vectors: a multiple of 4 ≥
+/// [`MAX_DIM`], so reductions run as four short independent chains.
+const PAD: usize = 12;
+
+/// Dot product of padded vectors with four accumulators (reductions are
+/// the latency bottleneck of the general triangle path).
+#[inline]
+fn dot(a: &[f64; PAD], b: &[f64; PAD]) -> f64 {
+    let mut acc = [0.0; 4];
+    for c in 0..PAD / 4 {
+        for l in 0..4 {
+            acc[l] += a[4 * c + l] * b[4 * c + l];
+        }
+    }
+    (acc[0] + acc[1]) + (acc[2] + acc[3])
+}
+
+#[inline]
+fn dist2(a: &[f64; PAD], b: &[f64; PAD]) -> f64 {
+    let mut d = [0.0; PAD];
+    for i in 0..PAD {
+        d[i] = a[i] - b[i];
+    }
+    dot(&d, &d)
+}
+
+/// Position-space normal (unnormalised), its length and the triangle area,
+/// or `None` when the triangle is degenerate: zero or non-finite area, or
+/// collinear up to roundoff (height below ~2e-13 of the longest edge, where
+/// the plane would be noise).
+#[inline]
+fn position_area(p: &[f64], q: &[f64], r: &[f64]) -> Option<([f64; 3], f64, f64)> {
+    let (p, q, r) = ([p[0], p[1], p[2]], [q[0], q[1], q[2]], [r[0], r[1], r[2]]);
+    let (u, v, w) = (sub(q, p), sub(r, p), sub(r, q));
+    let nrm = cross(u, v);
+    let len = dot3(nrm, nrm).sqrt();
+    let area = 0.5 * len;
+    let longest2 = dot3(u, u).max(dot3(v, v)).max(dot3(w, w));
+    (area > DEGENERATE_REL_AREA * longest2 && area.is_finite()).then_some((nrm, len, area))
+}
+
+/// Normalises in place; false (vector untouched) if its length is 0 or not
+/// finite.
+fn normalize(v: &mut [f64; PAD]) -> bool {
+    let len = dot(v, v).sqrt();
+    if !(len > 0.0 && len.is_finite()) {
+        return false;
+    }
+    let inv = 1.0 / len;
+    for c in v {
+        *c *= inv;
+    }
+    true
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,788 @@
+//! Unit tests of the quadric module: embedding, accumulation, solve,
+//! box minimisation and the eigen-decomposition.
+
+use super::*;
+use crate::geom::{add, scale};
+
+/// splitmix64 in [0, 1).
+struct Rng(u64);
+impl Rng {
+    fn next(&mut self) -> f64 {
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+    }
+    fn range(&mut self, a: f64, b: f64) -> f64 {
+        a + (b - a) * self.next()
+    }
+    fn vec3(&mut self, a: f64, b: f64) -> [f64; 3] {
+        [self.range(a, b), self.range(a, b), self.range(a, b)]
+    }
+}
+
+fn norm(a: [f64; 3]) -> f64 {
+    dot3(a, a).sqrt()
+}
+fn unit(a: [f64; 3]) -> [f64; 3] {
+    scale(a, 1.0 / norm(a))
+}
+fn dist(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum::<f64>().sqrt()
+}
+fn vpos(p: [f64; 3]) -> Vertex {
+    Vertex { pos: p, ..Vertex::default() }
+}
+fn pos_space(origin: [f64; 3]) -> QuadricSpace {
+    QuadricSpace::new(AttrSet::POSITION_ONLY, AttrWeights::default(), origin)
+}
+/// Orthonormal frame (a, u, w) with a along `dir`.
+fn frame(dir: [f64; 3]) -> ([f64; 3], [f64; 3], [f64; 3]) {
+    let a = unit(dir);
+    let t = if a[0].abs() < 0.9 { [1.0, 0.0, 0.0] } else { [0.0, 1.0, 0.0] };
+    let u = unit(cross(a, t));
+    (a, u, cross(a, u))
+}
+
+struct TestMesh {
+    verts: Vec<Vertex>,
+    tris: Vec<[usize; 3]>,
+}
+
+impl TestMesh {
+    fn new() -> TestMesh {
+        TestMesh { verts: Vec::new(), tris: Vec::new() }
+    }
+    /// (nu+1)×(nv+1) grid of `f(i, j)`, two triangles per quad.
+    fn grid(&mut self, nu: usize, nv: usize, mut f: impl FnMut(usize, usize) -> Vertex) {
+        let b = self.verts.len();
+        for j in 0..=nv {
+            for i in 0..=nu {
+                self.verts.push(f(i, j));
+            }
+        }
+        let id = |i: usize, j: usize| b + j * (nu + 1) + i;
+        for j in 0..nv {
+            for i in 0..nu {
+                self.tris.push([id(i, j), id(i + 1, j), id(i + 1, j + 1)]);
+                self.tris.push([id(i, j), id(i + 1, j + 1), id(i, j + 1)]);
+            }
+        }
+    }
+    fn triangles(&self, s: &QuadricSpace) -> Quadric {
+        let e: Vec<_> = self.verts.iter().map(|v| s.embed(v)).collect();
+        let mut q = Quadric::zero(s.dim);
+        for t in &self.tris {
+            q.add_triangle(&e[t[0]], &e[t[1]], &e[t[2]]);
+        }
+        q
+    }
+    /// Triangles plus every vertex as a point.
+    fn quadric(&self, s: &QuadricSpace) -> Quadric {
+        let mut q = self.triangles(s);
+        for v in &self.verts {
+            q.add_point(&s.embed(v));
+        }
+        q
+    }
+    fn area(&self) -> f64 {
+        self.tris
+            .iter()
+            .map(|t| {
+                let [p, q, r] = t.map(|i| self.verts[i].pos);
+                0.5 * norm(cross(sub(q, p), sub(r, p)))
+            })
+            .sum()
+    }
+}
+
+#[test]
+fn dimension_follows_attributes_and_embedding_round_trips() {
+    let dims = [
+        (AttrSet::POSITION_ONLY, 3),
+        (AttrSet(AttrSet::UV), 5),
+        (AttrSet(AttrSet::NORMAL), 6),
+        (AttrSet(AttrSet::COLOR), 6),
+        (AttrSet(AttrSet::COLOR | AttrSet::ALPHA | AttrSet::POS_F64), 6),
+        (AttrSet(AttrSet::UV | AttrSet::NORMAL), 8),
+        (AttrSet(AttrSet::NORMAL | AttrSet::COLOR), 9),
+        (AttrSet(AttrSet::UV | AttrSet::NORMAL | AttrSet::COLOR), 11),
+    ];
+    let v = Vertex {
+        pos: [1e6 + 0.5, -3.0, 2.25],
+        normal: [0.0, 0.6, 0.8],
+        color: [10, 128, 255, 7],
+        uv: [0.25, 0.75],
+    };
+    for (attrs, d) in dims {
+        let s = QuadricSpace::new(attrs, AttrWeights { uv: 2.0, normal: 3.0, color: 5.0 }, [1e6, -4.0, 2.0]);
+        assert_eq!(s.dim, d);
+        assert_eq!(Quadric::zero(s.dim).coeffs().len(), (d + 1) * (d + 2) / 2 + d + 2);
+        let x = s.embed(&v);
+        assert_eq!(&x[..3], &[0.5, 1.0, 0.25]);
+        assert!(x[d..].iter().all(|&c| c == 0.0));
+        let mut at = 3;
+        if attrs.uv() {
+            assert_eq!(s.uv_at(), Some(at));
+            assert_eq!(&x[at..at + 2], &[0.5, 1.5]);
+            at += 2;
+        }
+        if attrs.normal() {
+            assert_eq!(s.normal_at(), Some(at));
+            assert!(dist(&x[at..at + 3], &[0.0, 1.8, 2.4]) < 1e-6);
+            at += 3;
+        }
+        if attrs.color() {
+            assert_eq!(s.color_at(), Some(at));
+            assert!(dist(&x[at..at + 3], &[50.0 / 255.0, 640.0 / 255.0, 5.0]) < 1e-12);
+            at += 3;
+        }
+        assert_eq!(at, d);
+        let template = Vertex { color: [1, 2, 3, 7], normal: [1.0, 0.0, 0.0], uv: [9.0, 9.0], ..Vertex::default() };
+        let w = s.unembed(&x, &template);
+        assert_eq!(w.pos, v.pos);
+        assert_eq!(w.color[3], 7);
+        if attrs.color() {
+            assert_eq!(w.color, v.color);
+        }
+        if attrs.uv() {
+            assert_eq!(w.uv, v.uv);
+        } else {
+            assert_eq!(w.uv, template.uv);
+        }
+        if attrs.normal() {
+            assert!(dist(&w.normal.map(|c| c as f64), &[0.0, 0.6, 0.8]) < 1e-6);
+        } else {
+            assert_eq!(w.normal, template.normal);
+        }
+    }
+    // Decoding clamps colors and renormalises normals.
+    let s = QuadricSpace::new(AttrSet(AttrSet::NORMAL | AttrSet::COLOR), AttrWeights::uniform(0.5), [0.0; 3]);
+    let mut x = [0.0; MAX_DIM];
+    x[3..6].copy_from_slice(&[0.0, 0.0, 0.1]);
+    x[6..9].copy_from_slice(&[-0.2, 0.7, f64::NAN]);
+    let w = s.unembed(&x, &Vertex::default());
+    assert_eq!(w.normal, [0.0, 0.0, 1.0]);
+    assert_eq!(w.color, [0, 255, 0, 255]);
+}
+
+#[test]
+fn single_triangle_plane() {
+    let s = pos_space([0.0; 3]);
+    let (p, q, r) = ([0.1, 0.2, 0.3], [1.1, -0.4, 0.9], [0.3, 0.8, -0.5]);
+    let (ep, eq, er) = (s.embed(&vpos(p)), s.embed(&vpos(q)), s.embed(&vpos(r)));
+    let mut quad = Quadric::from_triangle(&s, &ep, &eq, &er);
+    let n = cross(sub(q, p), sub(r, p));
+    let area = 0.5 * norm(n);
+    let n = unit(n);
+    assert!((quad.area() - area).abs() < 1e-15);
+    // Q is the area-weighted squared distance to the plane.
+    for t in [0.0, 0.3, -2.0] {
+        let x = add(add(scale(add(p, q), 0.3), scale(r, 0.4)), scale(n, t));
+        assert!((quad.error(&x) - area * t * t).abs() < 1e-13, "t={t}");
+    }
+    for pt in [&ep, &eq, &er] {
+        quad.add_point(pt);
+    }
+    let sol = quad.solve(DEFAULT_REL_TOL, None);
+    assert_eq!(sol.rank, 1);
+    assert!(!sol.clamped);
+    assert!(sol.error < 1e-15 * area, "{}", sol.error);
+    let centroid = scale(add(add(p, q), r), 1.0 / 3.0);
+    assert!(dist(&sol.x[..3], &centroid) < 1e-14);
+    // With the mean off the plane, the solve projects it onto the plane.
+    let mut off = Quadric::from_triangle(&s, &ep, &eq, &er);
+    let m = add(centroid, scale(n, 0.7));
+    off.add_point(&m);
+    let sol = off.solve(DEFAULT_REL_TOL, None);
+    assert!(dist(&sol.x[..3], &centroid) < 1e-14);
+    // Same quadric in a higher dimension: rank n - 2.
+    let s6 = QuadricSpace::new(AttrSet(AttrSet::COLOR), AttrWeights::uniform(0.5), [0.0; 3]);
+    let vs = [p, q, r].map(|pos| Vertex { pos, color: [40, 90, 200, 255], ..Vertex::default() });
+    let e = vs.map(|v| s6.embed(&v));
+    let q6 = Quadric::from_triangle(&s6, &e[0], &e[1], &e[2]);
+    assert_eq!(q6.solve(DEFAULT_REL_TOL, None).rank, 4);
+    assert!((q6.area() - area).abs() < 1e-15);
+    // Constant color: moving along the geometric normal by t, or off the
+    // color by dc, costs area * (t² + dc²).
+    for (t, dc) in [(0.0, 0.0), (0.3, 0.0), (-2.0, 0.1), (0.0, 0.25)] {
+        let mut x = e[0];
+        for c in 0..3 {
+            x[c] += t * n[c];
+        }
+        x[4] += dc;
+        assert!((q6.error(&x) - area * (t * t + dc * dc)).abs() < 1e-13, "t={t} dc={dc}");
+    }
+}
+
+#[test]
+fn flat_grid_is_rank_one_and_keeps_the_in_plane_mean() {
+    let s = pos_space([0.0; 3]);
+    let (nrm, t1, t2) = frame([0.3, -0.5, 0.8]);
+    let p0 = [0.2, 0.1, -0.4];
+    let mut m = TestMesh::new();
+    m.grid(20, 15, |i, j| {
+        let u = i as f64 * 0.05 + 0.01 * (i as f64).sin();
+        let v = j as f64 * 0.07 + 0.01 * (j as f64 * 1.3).cos();
+        vpos(add(p0, add(scale(t1, u), scale(t2, v))))
+    });
+    let mut q = m.triangles(&s);
+    assert!((q.area() - m.area()).abs() < 1e-12);
+    // Points off the plane: the mean must be projected onto it.
+    for v in &m.verts {
+        q.add_point(&s.embed(&vpos(add(v.pos, scale(nrm, 0.05)))));
+    }
+    let sol = q.solve(DEFAULT_REL_TOL, None);
+    assert_eq!(sol.rank, 1);
+    let mean = q.mean();
+    let expect = sub([mean[0], mean[1], mean[2]], scale(nrm, 0.05));
+    assert!(dist(&sol.x[..3], &expect) < 1e-12, "{:?} vs {:?}", sol.x, expect);
+    assert!(dot3(nrm, sub([sol.x[0], sol.x[1], sol.x[2]], p0)).abs() < 1e-12);
+    assert!(sol.error < 1e-15 * m.area(), "{}", sol.error);
+}
+
+#[test]
+fn cylinder_is_rank_two_on_the_axis_at_the_axial_mean() {
+    let s = pos_space([0.0; 3]);
+    let (ax, u, w) = frame([0.2, 0.1, 1.0]);
+    let c = [0.3, -0.2, 0.1];
+    let radius = 0.5;
+    let levels = [0.0, 0.1, 0.35, 0.4, 1.2];
+    let nseg = 24;
+    let point = |i: usize, z: f64| {
+        let th = std::f64::consts::TAU * i as f64 / nseg as f64;
+        add(add(c, scale(ax, z)), add(scale(u, radius * th.cos()), scale(w, radius * th.sin())))
+    };
+    let mut m = TestMesh::new();
+    m.grid(nseg, levels.len() - 1, |i, j| vpos(point(i % nseg, levels[j])));
+    let mut q = m.triangles(&s);
+    // Biased mean: only half of the ring, so the mean is off the axis.
+    let mut axial = 0.0;
+    let mut cnt = 0.0;
+    for (j, &z) in levels.iter().enumerate() {
+        for i in 0..nseg / 2 {
+            q.add_point(&s.embed(&vpos(point(i, z + 0.01 * j as f64))));
+            axial += z + 0.01 * j as f64;
+            cnt += 1.0;
+        }
+    }
+    let mean = q.mean();
+    let off_axis = {
+        let d = sub([mean[0], mean[1], mean[2]], c);
+        norm(sub(d, scale(ax, dot3(d, ax))))
+    };
+    assert!(off_axis > 0.1 * radius, "test must start off the axis");
+    let sol = q.solve(DEFAULT_REL_TOL, None);
+    assert_eq!(sol.rank, 2);
+    let d = sub([sol.x[0], sol.x[1], sol.x[2]], c);
+    let along = dot3(d, ax);
+    assert!(norm(sub(d, scale(ax, along))) < 1e-9 * radius, "off axis by {}", norm(sub(d, scale(ax, along))));
+    assert!((along - axial / cnt).abs() < 1e-12, "{along} vs {}", axial / cnt);
+}
+
+/// Three orthogonal faces meeting at `k`, rotated by the frame of `dir`.
+fn cube_corner(k: [f64; 3], dir: [f64; 3], size: f64) -> TestMesh {
+    let (a, u, w) = frame(dir);
+    let axes = [a, u, w];
+    let mut m = TestMesh::new();
+    for f in 0..3 {
+        let (e1, e2) = (axes[(f + 1) % 3], axes[(f + 2) % 3]);
+        m.grid(4, 4, |i, j| vpos(add(k, add(scale(e1, size * i as f64 / 4.0), scale(e2, size * j as f64 / 4.0)))));
+    }
+    m
+}
+
+#[test]
+fn cube_corner_is_rank_three_and_exact() {
+    let s = pos_space([0.0; 3]);
+    let k = [0.25, -0.4, 0.6];
+    let m = cube_corner(k, [0.4, 0.7, -0.2], 0.5);
+    let q = m.quadric(&s);
+    assert!(dist(&q.mean()[..3], &k) > 0.1);
+    let sol = q.solve(DEFAULT_REL_TOL, None);
+    assert_eq!(sol.rank, 3);
+    assert!(dist(&sol.x[..3], &k) < 1e-14, "{:?}", sol.x);
+    assert!(sol.error < 1e-14 * m.area(), "{}", sol.error);
+}
+
+#[test]
+fn nearly_parallel_sheets_stay_between() {
+    let s = pos_space([0.0; 3]);
+    let gap = 1e-4;
+    let mut m = TestMesh::new();
+    m.grid(10, 10, |i, j| vpos([i as f64 / 10.0, j as f64 / 10.0, 0.0]));
+    m.grid(10, 10, |i, j| vpos([i as f64 / 10.0, j as f64 / 10.0, gap + 1e-5 * i as f64 / 10.0]));
+    let q = m.quadric(&s);
+    let sol = q.solve(DEFAULT_REL_TOL, None);
+    assert!(sol.x.iter().all(|v| v.is_finite()));
+    assert_eq!(sol.rank, 1, "the 1e-5 tilt is below the cut-off");
+    assert!(sol.x[2] > 0.0 && sol.x[2] < gap + 1e-5, "z = {}", sol.x[2]);
+    let mid = 0.5 * (gap + 1e-5 * sol.x[0]);
+    assert!((sol.x[2] - mid).abs() < 0.01 * gap, "z = {} vs mid {mid}", sol.x[2]);
+    assert!(sol.error < m.area() * gap * gap, "error {}", sol.error);
+    assert!(dist(&sol.x[..2], &q.mean()[..2]) < 1e-9);
+    // Keeping the tilt (tiny rel_tol): the sheets intersect at x = -10;
+    // the unbounded answer is finite, the bounded one stays in the cell.
+    let sol = q.solve(1e-12, None);
+    assert_eq!(sol.rank, 2);
+    assert!(sol.x.iter().all(|v| v.is_finite()));
+    assert!((sol.x[0] + 10.0).abs() < 0.1, "x = {}", sol.x[0]);
+    let sol = q.solve(1e-12, Some(([0.0; 3], [1.0; 3])));
+    assert!(sol.clamped);
+    assert!(sol.x[..3].iter().all(|&v| (0.0..=1.0).contains(&v)));
+    assert!(sol.x[2] > 0.0 && sol.x[2] < gap, "z = {}", sol.x[2]);
+}
+
+#[test]
+fn degenerate_triangles_contribute_nothing_and_never_nan() {
+    let p = [0.1, 0.2, 0.3];
+    let d = [0.3, -0.1, 0.2];
+    let bad: Vec<[[f64; 3]; 3]> = vec![
+        [p, p, p],
+        [p, p, add(p, d)],
+        [p, add(p, d), p],
+        [p, add(p, d), add(p, scale(d, 2.0))],
+        [p, add(p, scale(d, 1e-300)), add(p, d)],
+        [[f64::NAN, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+        [[f64::INFINITY, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+        [[1e300, 0.0, 0.0], [-1e300, 1e300, 0.0], [0.0, -1e300, 1e300]],
+    ];
+    for attrs in
+        [AttrSet::POSITION_ONLY, AttrSet(AttrSet::COLOR), AttrSet(AttrSet::UV | AttrSet::NORMAL | AttrSet::COLOR)]
+    {
+        let s = QuadricSpace::new(attrs, AttrWeights::uniform(0.3), [0.0; 3]);
+        for (ti, t) in bad.iter().enumerate() {
+            // Attributes differ per corner: collinear positions still count zero.
+            let vs: Vec<Vertex> = t
+                .iter()
+                .enumerate()
+                .map(|(c, &pos)| Vertex {
+                    pos,
+                    color: [50 * c as u8, 0, 90, 255],
+                    uv: [c as f32, 0.5],
+                    normal: [0.0, 0.0, 1.0],
+                })
+                .collect();
+            let e: Vec<_> = vs.iter().map(|v| s.embed(v)).collect();
+            let q = Quadric::from_triangle(&s, &e[0], &e[1], &e[2]);
+            assert!(q.coeffs().iter().all(|&c| c == 0.0), "attrs {attrs:?} triangle {ti}: {q:?}");
+            let sol = q.solve(DEFAULT_REL_TOL, Some(([-1.0; 3], [1.0; 3])));
+            assert!(sol.x.iter().all(|v| v.is_finite()) && sol.rank == 0 && sol.error == 0.0);
+        }
+        // Slivers: tiny but nonzero area; finite, tiny, never NaN.
+        let mut q = Quadric::zero(s.dim);
+        for h in [1e-12, 1e-100, 1e-250] {
+            let vs = [p, add(p, [1.0, 0.0, 0.0]), add(p, [0.5, h, 0.0])].map(vpos);
+            let e = vs.map(|v| s.embed(&v));
+            q.add_triangle(&e[0], &e[1], &e[2]);
+            assert!(q.coeffs().iter().all(|c| c.is_finite()));
+            assert!(q.area() <= 0.5 * 1e-12 + 1e-15);
+        }
+        q.add_point(&s.embed(&vpos(p)));
+        q.add_point(&[f64::NAN; MAX_DIM]);
+        assert_eq!(q.count(), 1.0);
+        let sol = q.solve(DEFAULT_REL_TOL, None);
+        assert!(sol.x.iter().all(|v| v.is_finite()) && sol.error.is_finite());
+    }
+    // Empty quadric, no points: the local origin.
+    let sol = Quadric::zero(3).solve(DEFAULT_REL_TOL, None);
+    assert_eq!((sol.x, sol.rank, sol.clamped), ([0.0; MAX_DIM], 0, false));
+    // Empty quadric with points outside the bounds: clamped mean.
+    let mut q = Quadric::zero(3);
+    q.add_point(&[5.0, 0.5, -7.0]);
+    let sol = q.solve(DEFAULT_REL_TOL, Some(([-1.0; 3], [1.0; 3])));
+    assert!(sol.clamped);
+    assert_eq!(&sol.x[..3], &[1.0, 0.5, -1.0]);
+}
+
+#[test]
+fn far_from_origin_is_exact_in_local_coordinates() {
+    // Three planes with integer normals through k (~1e6), sampled at
+    // multiples of h = 2^-12 so every vertex is exactly on its plane.
+    let k = [1.0e6 + 0.37e-3, -2.0e6 + 0.11e-3, 5.0e5 - 0.23e-3];
+    let h = 1.0 / 4096.0;
+    let planes: [([f64; 3], [f64; 3]); 3] = [
+        ([1.0, -1.0, 0.0], [0.0, 0.0, 1.0]), // normal (1, 1, 0)
+        ([0.0, 1.0, -1.0], [1.0, 0.0, 0.0]), // normal (0, 1, 1)
+        ([1.0, 0.0, -1.0], [0.0, 1.0, 0.0]), // normal (1, 0, 1)
+    ];
+    let mut m = TestMesh::new();
+    for (t1, t2) in planes {
+        m.grid(4, 4, |i, j| vpos(add(k, add(scale(t1, h * i as f64), scale(t2, h * j as f64)))));
+    }
+    for v in &m.verts {
+        for c in 0..3 {
+            let off = v.pos[c] - k[c];
+            assert_eq!(off, (off / h).round() * h, "vertex not exact");
+        }
+    }
+    let origin = add(k, [3e-4, 2e-4, 4e-4]);
+    let s = pos_space(origin);
+    let q = m.quadric(&s);
+    let expect = sub(k, origin); // exact (Sterbenz)
+    let sol = q.solve(DEFAULT_REL_TOL, None);
+    assert_eq!(sol.rank, 3);
+    let detail = 1e-3;
+    let err = dist(&sol.x[..3], &expect);
+    assert!(err < 1e-9 * detail, "local error {err}");
+    let world = s.unembed(&sol.x, &Vertex::default()).pos;
+    for c in 0..3 {
+        assert!((world[c] - k[c]).abs() <= 2.0 * f64::EPSILON * k[c].abs(), "world {world:?}");
+    }
+    // For contrast only: the same solve in world coordinates.
+    let sw = pos_space([0.0; 3]);
+    let solw = m.quadric(&sw).solve(DEFAULT_REL_TOL, None);
+    println!("corner at 1e6: local-frame error {err:.3e}, world-frame error {:.3e}", dist(&solw.x[..3], &k));
+
+    // A noisy bumpy patch at 1e6 in a 1e-3 cell, with bounds: finite and inside.
+    let cell = Aabb { min: [1.0e6, 1.0e6, 1.0e6], max: [1.0e6 + 1e-3, 1.0e6 + 1e-3, 1.0e6 + 1e-3] };
+    let s = pos_space(cell.center());
+    let bounds = s.local_bounds(&cell);
+    let mut rng = Rng(7);
+    for trial in 0..50 {
+        let mut m = TestMesh::new();
+        let amp = rng.range(0.0, 3e-4);
+        let tilt = rng.range(-2.0, 2.0);
+        m.grid(6, 6, |i, j| {
+            let (x, y) = (i as f64 / 6.0 * 1e-3, j as f64 / 6.0 * 1e-3);
+            let z = 5e-4 + tilt * (x - 5e-4) + amp * ((i * 7 + j * 3) as f64).sin();
+            vpos(add(cell.min, [x, y, z]))
+        });
+        let sol = m.quadric(&s).solve(DEFAULT_REL_TOL, Some(bounds));
+        assert!(sol.x.iter().all(|v| v.is_finite()), "trial {trial}");
+        for c in 0..3 {
+            assert!(sol.x[c] >= bounds.0[c] && sol.x[c] <= bounds.1[c], "trial {trial}: {:?}", sol.x);
+        }
+        let w = s.unembed(&sol.x, &Vertex::default()).pos;
+        for c in 0..3 {
+            let ulp = 2.0 * f64::EPSILON * 1e6;
+            assert!(w[c] >= cell.min[c] - ulp && w[c] <= cell.max[c] + ulp);
+        }
+    }
+}
+
+#[test]
+fn clamping_minimises_inside_the_box() {
+    // Wedge: z = 0 and z = 0.2 x + 0.3 meet at x = -1.5, outside [-1, 1].
+    let s = pos_space([0.0; 3]);
+    let mut m = TestMesh::new();
+    m.grid(8, 8, |i, j| vpos([-1.0 + i as f64 / 4.0, -1.0 + j as f64 / 4.0, 0.0]));
+    m.grid(8, 8, |i, j| {
+        let x = -1.0 + i as f64 / 4.0;
+        vpos([x, -1.0 + j as f64 / 4.0, 0.2 * x + 0.3])
+    });
+    let q = m.quadric(&s);
+    let free = q.solve(DEFAULT_REL_TOL, None);
+    assert_eq!(free.rank, 2);
+    assert!((free.x[0] + 1.5).abs() < 1e-9 && free.x[2].abs() < 1e-9, "{:?}", free.x);
+    let bounds = ([-1.0; 3], [1.0; 3]);
+    let sol = q.solve(DEFAULT_REL_TOL, Some(bounds));
+    assert!(sol.clamped);
+    assert_eq!(sol.x[0], -1.0);
+    assert!(sol.x[2] > 0.0 && sol.x[2] < 0.1, "z = {}", sol.x[2]);
+    assert!((sol.x[1] - q.mean()[1]).abs() < 1e-12);
+    let naive = [-1.0, free.x[1], 0.0];
+    assert!(sol.error < 0.6 * q.error(&naive), "{} vs naive {}", sol.error, q.error(&naive));
+    assert!((sol.error - q.error(&sol.x)).abs() <= 1e-15 * (1.0 + sol.error));
+
+    // Fuzz: random near-degenerate clusters and boxes, every cut-off.
+    let mut rng = Rng(42);
+    let attrsets =
+        [AttrSet::POSITION_ONLY, AttrSet(AttrSet::COLOR), AttrSet(AttrSet::UV | AttrSet::NORMAL | AttrSet::COLOR)];
+    for trial in 0..3000 {
+        let attrs = attrsets[trial % 3];
+        let s = QuadricSpace::new(attrs, AttrWeights::for_extent(1.0), [0.0; 3]);
+        let mut q = Quadric::zero(s.dim);
+        let ntri = 1 + trial % 4;
+        let flat = rng.range(0.0, 1.0) < 0.5;
+        for _ in 0..ntri {
+            let mut vs = [0; 3].map(|_| Vertex {
+                pos: rng.vec3(-1.0, 1.0),
+                normal: rng.vec3(-1.0, 1.0).map(|c| c as f32),
+                color: [0; 4].map(|_| (rng.next() * 255.0) as u8),
+                uv: [rng.next() as f32, rng.next() as f32],
+            });
+            if flat {
+                for v in &mut vs {
+                    v.pos[2] = 1e-7 * v.pos[0];
+                }
+            }
+            let e = vs.map(|v| s.embed(&v));
+            q.add_triangle(&e[0], &e[1], &e[2]);
+            for x in &e {
+                q.add_point(x);
+            }
+        }
+        let lo = rng.vec3(-3.0, 2.0);
+        let hi = add(lo, rng.vec3(0.0, 1.0));
+        let rel_tol = [1e-12, 1e-6, 1e-3][trial % 3];
+        let sol = q.solve(rel_tol, Some((lo, hi)));
+        assert!(sol.x.iter().all(|v| v.is_finite()) && sol.error.is_finite(), "trial {trial}");
+        for c in 0..3 {
+            assert!(sol.x[c] >= lo[c] && sol.x[c] <= hi[c], "trial {trial} outside");
+        }
+        let unb = q.solve(rel_tol, None);
+        let inside = (0..3).all(|c| unb.x[c] >= lo[c] && unb.x[c] <= hi[c]);
+        assert_eq!(sol.clamped, !inside, "trial {trial}");
+        if sol.clamped {
+            // Never worse than clamping the unconstrained minimiser.
+            let mut naive = unb.x;
+            for c in 0..3 {
+                naive[c] = naive[c].clamp(lo[c], hi[c]);
+            }
+            let tol = 1e-9 * (1.0 + q.error(&naive));
+            assert!(sol.error <= q.error(&naive) + tol, "trial {trial}: {} > naive {}", sol.error, q.error(&naive));
+        } else {
+            assert_eq!(sol.x, unb.x);
+        }
+    }
+}
+
+/// Planar patch z = 0.2x + 0.1y on a unit square with colors affine in position.
+fn color_ramp(i: usize, j: usize) -> [f64; 3] {
+    [20.0 + 25.0 * i as f64, 30.0 + 10.0 * j as f64, 200.0 - 10.0 * i as f64 - 5.0 * j as f64]
+}
+fn ramp_at(p: &[f64]) -> [f64; 3] {
+    // i = 8 x, j = 8 y.
+    let (i, j) = (8.0 * p[0], 8.0 * p[1]);
+    [20.0 + 25.0 * i, 30.0 + 10.0 * j, 200.0 - 10.0 * i - 5.0 * j]
+}
+fn plane_z(x: f64, y: f64) -> f64 {
+    0.2 * x + 0.1 * y
+}
+
+#[test]
+fn color_ramp_is_reproduced() {
+    let origin = [0.5, 0.5, 0.15];
+    let s = QuadricSpace::new(AttrSet(AttrSet::COLOR), AttrWeights::for_extent(3f64.sqrt()), origin);
+    assert_eq!(s.dim, 6);
+    let mut m = TestMesh::new();
+    m.grid(8, 8, |i, j| {
+        let (x, y) = (i as f64 / 8.0, j as f64 / 8.0);
+        let c = color_ramp(i, j).map(|c| c as u8);
+        Vertex { pos: [x, y, plane_z(x, y)], color: [c[0], c[1], c[2], 255], ..Vertex::default() }
+    });
+    let ci = s.color_at().unwrap();
+    // Consistent points (a biased subset): solution is the mean, color = ramp there.
+    let mut q = m.triangles(&s);
+    for v in m.verts.iter().filter(|v| v.pos[0] < 0.4) {
+        q.add_point(&s.embed(v));
+    }
+    let sol = q.solve(DEFAULT_REL_TOL, None);
+    assert_eq!(sol.rank, 4);
+    assert!(dist(&sol.x[..6], &q.mean()[..6]) < 1e-12);
+    let world = s.unembed(&sol.x, &Vertex::default());
+    let want = ramp_at(&world.pos);
+    for c in 0..3 {
+        let got = sol.x[ci + c] * 255.0 / s.weights.color;
+        assert!((got - want[c]).abs() < 1.0, "channel {c}: {got} vs {}", want[c]);
+        assert!((world.color[c] as f64 - want[c]).abs() <= 1.0);
+    }
+    // Points with wrong colors (+40): the quadric pulls the color back onto the ramp.
+    let mut q = m.triangles(&s);
+    for v in &m.verts {
+        let mut w = *v;
+        w.color =
+            [v.color[0].saturating_add(40), v.color[1].saturating_add(40), v.color[2].saturating_add(40), 255];
+        q.add_point(&s.embed(&w));
+    }
+    let sol = q.solve(DEFAULT_REL_TOL, None);
+    let world = s.unembed(&sol.x, &Vertex::default());
+    assert!((world.pos[2] - plane_z(world.pos[0], world.pos[1])).abs() < 1e-12, "off the plane");
+    let want = ramp_at(&world.pos);
+    for c in 0..3 {
+        let got = sol.x[ci + c] * 255.0 / s.weights.color;
+        assert!((got - want[c]).abs() < 1.0, "channel {c}: {got} vs {}", want[c]);
+    }
+}
+
+#[test]
+fn uv_and_full_attribute_ramps_are_reproduced() {
+    let uv_of = |x: f64, y: f64| [0.1 + 0.5 * x + 0.25 * y, 0.9 - 0.75 * y];
+    let (nrm, _, _) = frame([-0.2, -0.1, 1.0]);
+    for attrs in [AttrSet(AttrSet::UV), AttrSet(AttrSet::UV | AttrSet::NORMAL | AttrSet::COLOR)] {
+        let s = QuadricSpace::new(attrs, AttrWeights::for_extent(1.5), [0.5, 0.5, 0.0]);
+        let mut m = TestMesh::new();
+        m.grid(8, 8, |i, j| {
+            let (x, y) = (i as f64 / 8.0, j as f64 / 8.0);
+            let c = color_ramp(i, j).map(|c| c as u8);
+            Vertex {
+                pos: [x, y, plane_z(x, y)],
+                uv: uv_of(x, y).map(|c| c as f32),
+                normal: nrm.map(|c| c as f32),
+                color: [c[0], c[1], c[2], 255],
+            }
+        });
+        let mut q = m.triangles(&s);
+        for v in &m.verts {
+            let mut w = *v;
+            w.uv = [w.uv[0] + 0.2, w.uv[1] - 0.1];
+            w.normal = [0.0, 1.0, 0.0];
+            q.add_point(&s.embed(&w));
+        }
+        let sol = q.solve(DEFAULT_REL_TOL, None);
+        assert_eq!(sol.rank, s.dim - 2);
+        let v = s.unembed(&sol.x, &Vertex::default());
+        assert!((v.pos[2] - plane_z(v.pos[0], v.pos[1])).abs() < 1e-12);
+        let want = uv_of(v.pos[0], v.pos[1]);
+        for c in 0..2 {
+            assert!((v.uv[c] as f64 - want[c]).abs() < 1e-6, "uv {:?} vs {want:?}", v.uv);
+        }
+        if attrs.normal() {
+            assert!(dist(&v.normal.map(|c| c as f64), &nrm) < 1e-6, "normal {:?}", v.normal);
+            let want = ramp_at(&v.pos);
+            for c in 0..3 {
+                assert!((v.color[c] as f64 - want[c]).abs() <= 1.0, "color {:?} vs {want:?}", v.color);
+            }
+        }
+    }
+}
+
+#[test]
+fn quadrics_add_and_errors_are_nonnegative() {
+    let mut rng = Rng(3);
+    for attrs in [
+        AttrSet::POSITION_ONLY,
+        AttrSet(AttrSet::NORMAL | AttrSet::COLOR),
+        AttrSet(AttrSet::UV | AttrSet::NORMAL | AttrSet::COLOR),
+    ] {
+        let s = QuadricSpace::new(attrs, AttrWeights::for_extent(2.0), [0.1, 0.2, 0.3]);
+        let tri = |rng: &mut Rng| {
+            [0; 3].map(|_| {
+                s.embed(&Vertex {
+                    pos: rng.vec3(-1.0, 1.0),
+                    normal: rng.vec3(-1.0, 1.0).map(|c| c as f32),
+                    color: [0; 4].map(|_| (rng.next() * 255.0) as u8),
+                    uv: [rng.next() as f32, rng.next() as f32],
+                })
+            })
+        };
+        let (t1, t2) = (tri(&mut rng), tri(&mut rng));
+        let q1 = Quadric::from_triangle(&s, &t1[0], &t1[1], &t1[2]);
+        let q2 = Quadric::from_triangle(&s, &t2[0], &t2[1], &t2[2]);
+        let mut sum = q1.clone();
+        sum.add(&q2);
+        let mut inplace = Quadric::zero(s.dim);
+        inplace.add_triangle(&t1[0], &t1[1], &t1[2]);
+        inplace.add_triangle(&t2[0], &t2[1], &t2[2]);
+        assert_eq!(sum.coeffs(), inplace.coeffs());
+        let mut flat = vec![0.0; Quadric::coeff_len(s.dim)];
+        q1.add_into(&mut flat);
+        q2.add_into(&mut flat);
+        assert_eq!(Quadric::from_coeffs(s.dim, &flat).coeffs(), sum.coeffs());
+        for _ in 0..200 {
+            let x = tri(&mut rng)[0];
+            let (e1, e2, es) = (q1.error(&x), q2.error(&x), sum.error(&x));
+            assert!(e1 >= 0.0 && e2 >= 0.0);
+            assert!((es - (e1 + e2)).abs() <= 1e-12 * (1.0 + es), "{es} vs {}", e1 + e2);
+        }
+        // Each corner lies on its own triangle's plane.
+        for x in &t1 {
+            assert!(q1.error(x) < 1e-14, "{}", q1.error(x));
+        }
+    }
+}
+
+#[test]
+fn position_fast_path_matches_the_general_construction() {
+    let mut rng = Rng(11);
+    for _ in 0..500 {
+        let t = [rng.vec3(-2.0, 2.0), rng.vec3(-2.0, 2.0), rng.vec3(-2.0, 2.0)];
+        let mut fast = Quadric::zero(3);
+        fast.add_triangle(&t[0], &t[1], &t[2]);
+        let mut general = Quadric::zero(3);
+        let area = 0.5 * norm(cross(sub(t[1], t[0]), sub(t[2], t[0])));
+        let p = t.map(|v| {
+            let mut x = [0.0; PAD];
+            x[..3].copy_from_slice(&v);
+            x
+        });
+        general.add_triangle_general(&p[0], &p[1], &p[2], area);
+        for (a, b) in fast.coeffs().iter().zip(general.coeffs()) {
+            assert!((a - b).abs() < 1e-12 * (1.0 + a.abs()), "{fast:?} vs {general:?}");
+        }
+    }
+}
+
+#[test]
+fn reorigin_matches_building_in_the_new_frame() {
+    let mut rng = Rng(5);
+    let attrs = AttrSet(AttrSet::UV | AttrSet::COLOR);
+    let (o1, o2) = ([1.0, 2.0, 3.0], [1.5, 1.0, 3.25]);
+    let (s1, s2) = (
+        QuadricSpace::new(attrs, AttrWeights::for_extent(1.0), o1),
+        QuadricSpace::new(attrs, AttrWeights::for_extent(1.0), o2),
+    );
+    let mut m = TestMesh::new();
+    m.grid(5, 5, |_, _| Vertex {
+        pos: add(o1, rng.vec3(-0.5, 0.5)),
+        color: [0; 4].map(|_| (rng.next() * 255.0) as u8),
+        uv: [rng.next() as f32, rng.next() as f32],
+        ..Vertex::default()
+    });
+    let mut q1 = m.quadric(&s1);
+    let q2 = m.quadric(&s2);
+    q1.reorigin(sub(o2, o1));
+    for (a, b) in q1.coeffs().iter().zip(q2.coeffs()) {
+        assert!((a - b).abs() < 1e-12 * (1.0 + b.abs()), "{a} vs {b}");
+    }
+    let (x1, x2) = (q1.solve(DEFAULT_REL_TOL, None), q2.solve(DEFAULT_REL_TOL, None));
+    assert!(dist(&x1.x, &x2.x) < 1e-9);
+}
+
+#[test]
+fn eigen_decomposition_reconstructs() {
+    let mut rng = Rng(9);
+    for trial in 0..300 {
+        let n = 1 + trial % MAX_DIM;
+        // A = Σ w v vᵀ over a random (possibly rank-deficient) set of vectors.
+        let mut a = [[0.0; MAX_DIM]; MAX_DIM];
+        let terms = 1 + trial % (n + 2);
+        for _ in 0..terms {
+            let v: Vec<f64> = (0..n).map(|_| rng.range(-1.0, 1.0)).collect();
+            let w = rng.range(0.0, 10.0);
+            for i in 0..n {
+                for j in 0..n {
+                    a[i][j] += w * v[i] * v[j];
+                }
+            }
+        }
+        let e = Eigen::new(&a, n);
+        assert!(e.sweeps <= 12, "trial {trial}: {} sweeps", e.sweeps);
+        let scale = e.vals[..n].iter().fold(0.0f64, |m, v| m.max(v.abs())).max(1e-300);
+        for i in 0..n {
+            for j in 0..n {
+                let r: f64 = (0..n).map(|k| e.vecs[i][k] * e.vals[k] * e.vecs[j][k]).sum();
+                assert!((r - a[i][j]).abs() < 1e-13 * scale, "trial {trial} reconstruction");
+                let o: f64 = (0..n).map(|k| e.vecs[k][i] * e.vecs[k][j]).sum();
+                assert!((o - (i == j) as u8 as f64).abs() < 1e-13, "trial {trial} orthogonality");
+            }
+        }
+        let rank = e.pinv_apply(1e-9, &[1.0; MAX_DIM], &mut [0.0; MAX_DIM]);
+        assert!(rank <= terms.min(n));
+    }
+    // Highly repeated eigenvalues: one 11-d triangle quadric (9 equal).
+    let s = QuadricSpace::new(
+        AttrSet(AttrSet::UV | AttrSet::NORMAL | AttrSet::COLOR),
+        AttrWeights::uniform(0.7),
+        [0.0; 3],
+    );
+    for _ in 0..100 {
+        let v = [0; 3].map(|_| {
+            s.embed(&Vertex {
+                pos: rng.vec3(-1.0, 1.0),
+                normal: rng.vec3(-1.0, 1.0).map(|c| c as f32),
+                color: [0; 4].map(|_| (rng.next() * 255.0) as u8),
+                uv: [rng.next() as f32, rng.next() as f32],
+            })
+        });
+        let q = Quadric::from_triangle(&s, &v[0], &v[1], &v[2]);
+        let e = Eigen::new(&q.matrix(), 11);
+        assert!(e.sweeps <= 12, "{} sweeps", e.sweeps);
+        let mut vals = e.vals;
+        vals.sort_by(f64::total_cmp);
+        assert!(vals[..2].iter().all(|v| v.abs() < 1e-13 * q.area()));
+        assert!(vals[2..].iter().all(|v| (v - q.area()).abs() < 1e-13 * q.area()));
+    }
+}
