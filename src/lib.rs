@@ -17,7 +17,9 @@ pub mod io;
 pub mod mem;
 pub mod mesh;
 pub mod metro;
-pub mod octree;
+/// Level 0's partition lives with the levels it feeds (`lod::octree`); the
+/// old path stays for callers.
+pub use lod::octree;
 pub mod pipeline;
 pub mod ply;
 pub mod progress;

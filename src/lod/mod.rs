@@ -13,7 +13,7 @@
 //!    which is shifted by a third of its size from level L−1's, so that no
 //!    face of level L lies on (or near) a face of level L−1
 //!    ([`partition`]'s doc proves the third). Level 0 comes from the
-//!    external Morton sort of the soup ([`crate::octree`]); level L+1's
+//!    external Morton sort of the soup ([`octree`]); level L+1's
 //!    leaves are decided *before* level L is simplified, from the
 //!    histogram of level L's centroids scaled by the predicted reduction,
 //!    so each simplified node can route its triangles straight to them as
@@ -95,6 +95,7 @@
 //! next level's leaf size, so nodes merge until nothing is shared.
 
 pub mod chunks;
+pub mod octree;
 pub mod collapse;
 pub mod cluster;
 pub mod partition;
@@ -103,7 +104,7 @@ pub mod shared;
 use crate::error::{Error, Result};
 use crate::geom::{cross, sub};
 use crate::mesh::{Aabb, AttrSet, VertexLayout};
-use crate::octree::{build_octree, OctreeOptions, OctreeReport};
+use octree::{build_octree, OctreeOptions, OctreeReport};
 use crate::progress::Progress;
 use crate::reduce::Simplifier;
 use crate::store::{encode_payload, IndexedMesh, ManifestLevel, NodeRec, PackWriter, StoreHeader, NO_NODE};
@@ -144,7 +145,7 @@ impl Default for LodOptions {
             level_ratio: 2.0,
             root_tris: 4096,
             levels: None,
-            mem: 512 << 20,
+            mem: crate::mem::DEFAULT_BUDGET,
             rel_tol: 1e-3,
             simplifier: Simplifier::Cluster,
             quiet: true,

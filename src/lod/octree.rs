@@ -25,9 +25,9 @@
 
 use crate::error::{Error, Result};
 use crate::extsort::{ExtSorter, SortStats};
-use crate::lod::chunks::ChunkFile;
-use crate::lod::partition::{LevelCube, Tiling, KEY_DEPTH};
-use crate::lod::LeafStats;
+use super::chunks::ChunkFile;
+use super::partition::{LevelCube, Tiling, KEY_DEPTH};
+use super::LeafStats;
 use crate::mesh::VertexLayout;
 use crate::progress::Progress;
 use crate::soup::format::{SoupHeader, SoupReader};
