@@ -11,7 +11,7 @@ use crate::error::{IoContext, Result};
 use crate::io::{AtomicDir, OutputKind};
 use crate::lod::{LevelReport, LodOptions};
 use crate::octree::OctreeReport;
-use crate::reduce::Simplifier;
+use crate::store::Simplifier;
 use crate::ply::write::{PlyWriteOptions, PlyWriter};
 use crate::soup::{build_soup, SoupOptions, SoupReport};
 use crate::store::{write_index, Cut, IndexedMesh, Manifest, ManifestLevel, ManifestParams, ManifestSeconds, Store};

@@ -54,28 +54,12 @@ use crate::store::{Cut, IndexedMesh, Store};
 use rayon::prelude::*;
 use rustc_hash::{FxHashMap, FxHashSet};
 use std::path::Path;
-use std::str::FromStr;
 
 
-/// How each node (or the whole mesh) is reduced.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Simplifier {
-    /// Generalized-quadric adaptive vertex clustering (fast).
-    Cluster,
-    /// Quadric edge collapse with attributes (accurate).
-    Collapse,
-}
+pub use crate::store::Simplifier;
 
+/// What `simplify` needs to know of each simplifier.
 impl Simplifier {
-    /// The name `--simplifier` takes.
-    pub fn name(self) -> &'static str {
-        match self {
-            Simplifier::Cluster => "cluster",
-            Simplifier::Collapse => "collapse",
-        }
-    }
-
     /// Bytes held per triangle of a mesh reduced in memory: the welded mesh
     /// (≈ 0.5 vertices × 64 B + 12 B), the weld map and the simplifier's
     /// working set. Measured peaks on the 12 M-triangle sphere reduced whole:
@@ -86,17 +70,6 @@ impl Simplifier {
         match self {
             Simplifier::Collapse => 240,
             Simplifier::Cluster => 440,
-        }
-    }
-}
-
-impl FromStr for Simplifier {
-    type Err = String;
-    fn from_str(s: &str) -> std::result::Result<Self, String> {
-        match s {
-            "cluster" => Ok(Simplifier::Cluster),
-            "collapse" => Ok(Simplifier::Collapse),
-            _ => Err(format!("unknown simplifier {s:?} (cluster or collapse)")),
         }
     }
 }

@@ -715,6 +715,38 @@ pub struct Manifest {
     pub levels: Vec<ManifestLevel>,
 }
 
+/// How each node (or the whole mesh) is reduced: recorded in the
+/// manifest (`params.simplifier`), chosen by `build` and `simplify`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Simplifier {
+    /// Generalized-quadric adaptive vertex clustering (fast).
+    Cluster,
+    /// Quadric edge collapse with attributes (accurate).
+    Collapse,
+}
+
+impl Simplifier {
+    /// The name `--simplifier` takes.
+    pub fn name(self) -> &'static str {
+        match self {
+            Simplifier::Cluster => "cluster",
+            Simplifier::Collapse => "collapse",
+        }
+    }
+}
+
+impl std::str::FromStr for Simplifier {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        match s {
+            "cluster" => Ok(Simplifier::Cluster),
+            "collapse" => Ok(Simplifier::Collapse),
+            _ => Err(format!("unknown simplifier {s:?} (cluster or collapse)")),
+        }
+    }
+}
+
 /// Build parameters.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct ManifestParams {
@@ -726,11 +758,11 @@ pub struct ManifestParams {
     pub levels: Option<u8>,
     /// The node simplifier (`cluster` for stores built before it was a choice).
     #[serde(default = "cluster")]
-    pub simplifier: crate::reduce::Simplifier,
+    pub simplifier: Simplifier,
 }
 
-fn cluster() -> crate::reduce::Simplifier {
-    crate::reduce::Simplifier::Cluster
+fn cluster() -> Simplifier {
+    Simplifier::Cluster
 }
 
 /// Wall-clock seconds per stage.

@@ -106,7 +106,7 @@ use crate::geom::{cross, sub};
 use crate::mesh::{Aabb, AttrSet, VertexLayout};
 use octree::{build_octree, OctreeOptions, OctreeReport};
 use crate::progress::Progress;
-use crate::reduce::Simplifier;
+use crate::store::Simplifier;
 use crate::store::{encode_payload, IndexedMesh, ManifestLevel, NodeRec, PackWriter, StoreHeader, NO_NODE};
 use chunks::{split_by_target, ChunkFile, Gathered};
 use cluster::Splits;
