@@ -50,7 +50,7 @@ struct Args {
     uvs: bool,
     /// Names of the texture-coordinate properties.
     #[arg(long, value_enum, default_value = "uv")]
-    uv_names: UvNames,
+    uv_names: UvNamesArg,
     /// Colors as float in [0,1] instead of uchar.
     #[arg(long)]
     float_colors: bool,
@@ -72,6 +72,28 @@ struct Args {
     /// Output PLY.
     #[arg(short, long)]
     output: PathBuf,
+}
+
+/// The command-line side of [`UvNames`] (the library has no clap).
+#[allow(clippy::upper_case_acronyms)]
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum UvNamesArg {
+    /// `u`, `v`
+    UV,
+    /// `s`, `t`
+    ST,
+    /// `texture_u`, `texture_v`
+    TextureUV,
+}
+
+impl From<UvNamesArg> for UvNames {
+    fn from(a: UvNamesArg) -> UvNames {
+        match a {
+            UvNamesArg::UV => UvNames::UV,
+            UvNamesArg::ST => UvNames::ST,
+            UvNamesArg::TextureUV => UvNames::TextureUV,
+        }
+    }
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -134,7 +156,7 @@ fn run(args: Args) -> anyhow::Result<()> {
         },
         attrs,
         float_colors: args.float_colors,
-        uv_names: args.uv_names,
+        uv_names: args.uv_names.into(),
         index_type,
         comments: std::iter::once(format!(
             "octolod-gen shape {} tris {} seed {}",
