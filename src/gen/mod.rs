@@ -30,7 +30,7 @@ use std::f64::consts::{PI, TAU};
 use shapes::{box_dims, grid_dims, BoxLattice, Torus, Waves};
 
 /// Which procedural mesh to generate.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Shape {
     /// Closed sphere of radius ~1 with smooth seeded bumps (amplitude ~0.05),
     /// a cube-sphere with shared seam vertices.
