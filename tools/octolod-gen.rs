@@ -25,7 +25,7 @@ enum Format {
 struct Args {
     /// Which mesh.
     #[arg(long, value_enum, default_value = "sphere")]
-    shape: Shape,
+    shape: ShapeArg,
     /// Target triangle count (approximate; accepts 2e7, 20M, 1G).
     #[arg(long, default_value = "1000000", value_parser = parse_count)]
     tris: u64,
@@ -50,7 +50,7 @@ struct Args {
     uvs: bool,
     /// Names of the texture-coordinate properties.
     #[arg(long, value_enum, default_value = "uv")]
-    uv_names: UvNames,
+    uv_names: UvNamesArg,
     /// Colors as float in [0,1] instead of uchar.
     #[arg(long)]
     float_colors: bool,
@@ -72,6 +72,88 @@ struct Args {
     /// Output PLY.
     #[arg(short, long)]
     output: PathBuf,
+}
+
+/// The command-line side of [`Shape`] (the library has no clap); the help
+/// texts repeat the library's variant docs.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum ShapeArg {
+    /// Closed sphere of radius ~1 with smooth seeded bumps (amplitude ~0.05),
+    /// a cube-sphere with shared seam vertices.
+    Sphere,
+    /// Heightfield over [0,1]² with smooth multi-octave seeded height; open border.
+    Terrain,
+    /// Many closed tori (~48–160 triangles each), randomly placed, rotated
+    /// and scaled in [0,100]³.
+    Instances,
+    /// Flat grid in z = 0 over [0,1]²; open border (rank-1 quadrics).
+    Plane,
+    /// Open tube, radius 1, z in [-1,1] (rank-2 quadrics).
+    Cylinder,
+    /// Two parallel open grids over [0,1]², 1e-4 apart (z = 0 facing down,
+    /// z = 1e-4 facing up).
+    Sheets,
+    /// Grid of strips with aspect ratio 1e-6, plus zero-area triangles made
+    /// of three distinct collinear vertices.
+    Slivers,
+    /// A closed sphere in which every face appears twice (same indices).
+    Duplicates,
+    /// Sphere of radius 0.5 centred at (1e6, 1e6, 1e6) with 1e-3 detail
+    /// (meaningful only with double positions).
+    Offset,
+    /// Exactly one triangle.
+    Single,
+    /// Non-manifold: a "book" of triangles sharing one edge, and a fan disc
+    /// whose centre is one end of that edge.
+    Fan,
+    /// A sphere with one cap (a whole cube-face patch) removed; open border.
+    Open,
+    /// A range scan: a depth-image grid over [0,1]² of a bumpy dome with
+    /// a thin ridge, per-vertex scanner noise, holes (dropouts) and a long
+    /// ragged silhouette border; unreferenced vertices stay in the file.
+    Scan,
+}
+
+impl From<ShapeArg> for Shape {
+    fn from(a: ShapeArg) -> Shape {
+        match a {
+            ShapeArg::Sphere => Shape::Sphere,
+            ShapeArg::Terrain => Shape::Terrain,
+            ShapeArg::Instances => Shape::Instances,
+            ShapeArg::Plane => Shape::Plane,
+            ShapeArg::Cylinder => Shape::Cylinder,
+            ShapeArg::Sheets => Shape::Sheets,
+            ShapeArg::Slivers => Shape::Slivers,
+            ShapeArg::Duplicates => Shape::Duplicates,
+            ShapeArg::Offset => Shape::Offset,
+            ShapeArg::Single => Shape::Single,
+            ShapeArg::Fan => Shape::Fan,
+            ShapeArg::Open => Shape::Open,
+            ShapeArg::Scan => Shape::Scan,
+        }
+    }
+}
+
+/// The command-line side of [`UvNames`] (the library has no clap).
+#[allow(clippy::upper_case_acronyms)]
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum UvNamesArg {
+    /// `u`, `v`
+    UV,
+    /// `s`, `t`
+    ST,
+    /// `texture_u`, `texture_v`
+    TextureUV,
+}
+
+impl From<UvNamesArg> for UvNames {
+    fn from(a: UvNamesArg) -> UvNames {
+        match a {
+            UvNamesArg::UV => UvNames::UV,
+            UvNamesArg::ST => UvNames::ST,
+            UvNamesArg::TextureUV => UvNames::TextureUV,
+        }
+    }
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -101,6 +183,7 @@ fn parse_count(s: &str) -> Result<u64, String> {
 }
 
 fn run(args: Args) -> anyhow::Result<()> {
+    let shape = Shape::from(args.shape);
     if args.tris == 0 {
         bail!("--tris must be at least 1");
     }
@@ -113,7 +196,7 @@ fn run(args: Args) -> anyhow::Result<()> {
     attrs = attrs.with(AttrSet::COLOR, args.colors || args.alpha);
     attrs = attrs.with(AttrSet::ALPHA, args.alpha);
     attrs = attrs.with(AttrSet::UV, args.uvs);
-    let opts = GenOptions { shape: args.shape, tris: args.tris, seed: args.seed, attrs };
+    let opts = GenOptions { shape, tris: args.tris, seed: args.seed, attrs };
     let (nv, nf) = {
         let g = Generator::new(&opts);
         (g.vertex_count(), g.face_count())
@@ -134,11 +217,11 @@ fn run(args: Args) -> anyhow::Result<()> {
         },
         attrs,
         float_colors: args.float_colors,
-        uv_names: args.uv_names,
+        uv_names: args.uv_names.into(),
         index_type,
         comments: std::iter::once(format!(
             "octolod-gen shape {} tris {} seed {}",
-            args.shape.name(),
+            shape.name(),
             args.tris,
             args.seed
         ))
@@ -152,7 +235,7 @@ fn run(args: Args) -> anyhow::Result<()> {
     let secs = start.elapsed().as_secs_f64();
     println!(
         "{}: {} vertices, {} triangles, {} bytes in {:.2} s ({:.1} MB/s) -> {}",
-        args.shape.name(),
+        shape.name(),
         nv,
         nf,
         bytes,

@@ -30,7 +30,7 @@ use std::path::Path;
 
 /// Names of the texture-coordinate properties.
 #[allow(clippy::upper_case_acronyms)]
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum UvNames {
     /// `u`, `v`
     #[default]

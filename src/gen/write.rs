@@ -1,0 +1,147 @@
+//! Streaming a generated mesh to a PLY: chunks encoded in parallel, written
+//! in order, memory bounded whatever the mesh size.
+
+use super::{GenOptions, Generator};
+use crate::error::{IoContext, Result};
+use crate::io::AtomicFile;
+use crate::ply::write::{PlyEncoder, PlyWriteOptions, PlyWriter};
+use crate::ply::Encoding;
+use crate::progress::Progress;
+use rayon::prelude::*;
+use std::io::{self, Write};
+use std::path::Path;
+
+/// Target size of one encoded chunk.
+const CHUNK_BYTES: usize = 4 << 20;
+
+#[derive(Clone, Copy)]
+enum Job {
+    Vertices(u64, u64),
+    Faces(u64, u64),
+}
+
+/// Chunks of about `chunk_bytes` encoded bytes covering all vertices, then all faces.
+fn make_jobs(g: &Generator, enc: &PlyEncoder, chunk_bytes: usize) -> Vec<Job> {
+    let (nv, nf) = (g.vertex_count(), g.face_count());
+    let vchunk = (chunk_bytes / enc.approx_vertex_size().max(1)).clamp(64, 1 << 20) as u64;
+    let fchunk = (chunk_bytes / enc.approx_face_size().max(1)).clamp(64, 1 << 20) as u64;
+    let mut jobs = Vec::new();
+    for a in (0..nv).step_by(vchunk as usize) {
+        jobs.push(Job::Vertices(a, (a + vchunk).min(nv)));
+    }
+    for a in (0..nf).step_by(fchunk as usize) {
+        jobs.push(Job::Faces(a, (a + fchunk).min(nf)));
+    }
+    jobs
+}
+
+fn encode(g: &Generator, enc: &PlyEncoder, job: Job, buf: &mut Vec<u8>) -> io::Result<()> {
+    buf.clear();
+    match job {
+        Job::Vertices(a, b) => {
+            buf.reserve((b - a) as usize * enc.approx_vertex_size());
+            for i in a..b {
+                enc.vertex(&g.vertex(i), buf);
+            }
+        }
+        Job::Faces(a, b) => {
+            buf.reserve((b - a) as usize * enc.approx_face_size());
+            for j in a..b {
+                enc.face(&g.face(j), buf)?;
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Streams the generated mesh as a PLY to `w`: windows of chunks (a few MiB
+/// each) are encoded in parallel with rayon while a writer thread writes the
+/// finished chunks in order from a bounded queue, so memory stays at about two
+/// windows whatever the mesh size. `wopts.attrs` is used as given (see
+/// [`write`]). Returns the bytes written.
+pub fn write_to<W: Write + Send>(g: &Generator, wopts: &PlyWriteOptions, w: W, quiet: bool) -> io::Result<u64> {
+    stream(g, wopts, w, quiet, CHUNK_BYTES)
+}
+
+pub(super) fn stream<W: Write + Send>(
+    g: &Generator,
+    wopts: &PlyWriteOptions,
+    w: W,
+    quiet: bool,
+    chunk_bytes: usize,
+) -> io::Result<u64> {
+    let (nv, nf) = (g.vertex_count(), g.face_count());
+    let mut pw = PlyWriter::new(w, wopts, nv, nf)?;
+    let enc = pw.encoder().clone();
+    let total_bytes = match (enc.vertex_record_size(), enc.face_record_size(3)) {
+        (Some(vs), Some(fs)) if enc.encoding() != Encoding::Ascii => Some(pw.bytes_written() + nv * vs as u64 + nf * fs as u64),
+        _ => None,
+    };
+    let progress = match total_bytes {
+        Some(n) => Progress::bytes(n, "generate", quiet),
+        None => Progress::items(nv + nf, "generate", quiet),
+    };
+    let jobs = make_jobs(g, &enc, chunk_bytes);
+    // Encoders work on windows of `window` chunks in parallel; a dedicated
+    // writer thread takes finished chunks in order from a bounded queue, so
+    // writing overlaps encoding and at most ~2 windows are in memory.
+    let window = rayon::current_num_threads().clamp(2, 16);
+    let by_bytes = total_bytes.is_some();
+    let (to_writer, queue) = std::sync::mpsc::sync_channel::<(Job, Vec<u8>)>(window);
+    let (recycle, spare) = std::sync::mpsc::channel::<Vec<u8>>();
+    std::thread::scope(|scope| -> io::Result<u64> {
+        let progress = &progress;
+        let writer = scope.spawn(move || -> io::Result<PlyWriter<W>> {
+            for (job, buf) in queue {
+                let n = match job {
+                    Job::Vertices(a, b) => {
+                        pw.raw_vertices(&buf, b - a)?;
+                        b - a
+                    }
+                    Job::Faces(a, b) => {
+                        pw.raw_faces(&buf, b - a)?;
+                        b - a
+                    }
+                };
+                progress.inc(if by_bytes { buf.len() as u64 } else { n });
+                let _ = recycle.send(buf);
+            }
+            Ok(pw)
+        });
+        let mut encoded = Ok(());
+        'outer: for group in jobs.chunks(window) {
+            let mut next: Vec<(Job, Vec<u8>)> =
+                group.iter().map(|&j| (j, spare.try_recv().unwrap_or_default())).collect();
+            encoded = next.par_iter_mut().try_for_each(|(job, buf)| encode(g, &enc, *job, buf));
+            if encoded.is_err() {
+                break;
+            }
+            for item in next {
+                if to_writer.send(item).is_err() {
+                    break 'outer; // the writer failed; its error is reported below
+                }
+            }
+        }
+        drop(to_writer);
+        let pw = writer.join().expect("writer thread panicked")?;
+        encoded?;
+        progress.finish();
+        let n = pw.bytes_written();
+        pw.finish()?;
+        Ok(n)
+    })
+}
+
+/// Streams the mesh for `opts` to a PLY at `path` (atomically: the file
+/// appears only when complete), with a progress bar by bytes unless `quiet`.
+/// The vertex attributes written are `opts.attrs` (they replace
+/// `wopts.attrs`); everything else comes from `wopts`. Returns bytes written.
+/// An existing PLY that octolod wrote is replaced only when `force` is set.
+pub fn write(opts: &GenOptions, wopts: &PlyWriteOptions, path: &Path, quiet: bool, force: bool) -> Result<u64> {
+    let g = Generator::new(opts);
+    let wopts = PlyWriteOptions { attrs: opts.attrs, ..wopts.clone() };
+    let mut file = AtomicFile::create(path, crate::io::OutputKind::Ply, force)?;
+    let n = write_to(&g, &wopts, file.writer(), quiet).ctx(path, "write")?;
+    file.commit()?;
+    Ok(n)
+}
