@@ -140,7 +140,8 @@ enum Cmd {
         camera_path: Option<PathBuf>,
         #[arg(long, default_value_t = 60)]
         frames: usize,
-        #[arg(long)]
+        /// Output directory (PNG frames, stats.csv, stats.json).
+        #[arg(short = 'o', long, visible_alias = "output")]
         out: PathBuf,
         #[arg(long, default_value_t = 960)]
         width: u32,

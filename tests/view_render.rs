@@ -168,7 +168,7 @@ fn render_cli_writes_frames_and_rejects_bad_paths() {
     std::fs::write(&bad, r#"{"frames":[{"eye":[0,0,0]}]}"#).unwrap();
     let out2 = dir.path().join("r2");
     let o = Command::new(exe)
-        .args(["render", s.to_str().unwrap(), "--out", out2.to_str().unwrap(), "--camera-path", bad.to_str().unwrap()])
+        .args(["render", s.to_str().unwrap(), "-o", out2.to_str().unwrap(), "--camera-path", bad.to_str().unwrap()])
         .output()
         .unwrap();
     assert!(!o.status.success());
