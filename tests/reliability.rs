@@ -188,9 +188,9 @@ fn metro_refuses_absurd_sample_counts() {
     let d = tempfile::tempdir().unwrap();
     let a = d.path().join("a.ply");
     gen("sphere", 1000, &a);
-    let o = octolod(&["metro", s(&a), s(&a), "--samples", "1000000000000"]);
-    assert_eq!(o.status.code(), Some(1));
-    assert!(String::from_utf8_lossy(&o.stderr).contains("--samples"), "{}", String::from_utf8_lossy(&o.stderr));
+    let (code, err) = run_limited(&["metro", s(&a), s(&a), "--samples", "1000000000000"], 60);
+    assert_eq!(code, Some(1), "{err}");
+    assert!(err.contains("--samples"), "{err}");
 }
 
 /// Row 6: `--mem 10T` aborted in the allocator and left temp paths.
@@ -206,9 +206,9 @@ fn budgets_beyond_the_machine_are_refused_before_work() {
     ] {
         let out = d.path().join("out");
         let args: Vec<&str> = args.iter().map(|&x| if x == "X" { s(&out) } else { x }).collect();
-        let o = octolod(&args);
-        assert_eq!(o.status.code(), Some(1), "{args:?}");
-        assert!(String::from_utf8_lossy(&o.stderr).contains("more than this machine's memory"), "{}", String::from_utf8_lossy(&o.stderr));
+        let (code, err) = run_limited(&args, 60);
+        assert_eq!(code, Some(1), "{args:?}: {err}");
+        assert!(err.contains("more than this machine's memory"), "{err}");
         assert_eq!(names(d.path()), ["a.ply"], "{args:?} left something");
     }
 }
@@ -328,10 +328,28 @@ fn senseless_option_values_are_errors() {
     assert!(!d.path().join("f").exists());
 }
 
-/// Runs octolod with a time limit (a hang fails the test instead of
-/// hanging it); gives the exit code and stderr.
+/// Address space a limited run may map: the damaged-index cases once grew
+/// to ~21 GB; a run that tries now fails its allocation (and the test).
+const LIMIT_AS: u64 = 4 << 30;
+
+/// Runs octolod under a time limit and a memory limit (a hang or a runaway
+/// allocation fails the test instead of hanging it or the machine); gives
+/// the exit code and stderr.
 fn run_limited(args: &[&str], secs: u64) -> (Option<i32>, String) {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_octolod")).args(args).stdout(Stdio::null()).stderr(Stdio::piped()).spawn().unwrap();
+    use std::os::unix::process::CommandExt;
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_octolod"));
+    cmd.args(args).stdout(Stdio::null()).stderr(Stdio::piped());
+    // SAFETY: setrlimit is async-signal-safe; nothing else runs between fork and exec.
+    unsafe {
+        cmd.pre_exec(|| {
+            let lim = libc::rlimit { rlim_cur: LIMIT_AS, rlim_max: LIMIT_AS };
+            if libc::setrlimit(libc::RLIMIT_AS, &lim) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        });
+    }
+    let mut child = cmd.spawn().unwrap();
     let t = Instant::now();
     loop {
         if let Some(st) = child.try_wait().unwrap() {
