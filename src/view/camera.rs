@@ -281,6 +281,49 @@ pub struct Pose {
     pub target: DVec3,
 }
 
+/// A camera path file, as read (the format is [`CameraPath`]'s doc);
+/// unknown fields are ignored.
+#[derive(serde::Deserialize)]
+struct PathFile {
+    #[serde(default = "default_fov")]
+    fov_y_deg: f64,
+    up: Option<[f64; 3]>,
+    #[serde(default)]
+    space: Space,
+    frames: Option<Vec<PoseFile>>,
+    keyframes: Option<Vec<PoseFile>>,
+    #[serde(default = "default_between")]
+    frames_between: f64,
+    #[serde(default)]
+    hold: f64,
+}
+
+/// One pose of a path file.
+#[derive(serde::Deserialize)]
+struct PoseFile {
+    eye: [f64; 3],
+    target: [f64; 3],
+}
+
+/// The coordinates a path file uses.
+#[derive(serde::Deserialize, Default, Clone, Copy)]
+#[serde(rename_all = "lowercase")]
+enum Space {
+    /// As in the mesh.
+    #[default]
+    World,
+    /// 0..1 over the store's bounds on each axis.
+    Bbox,
+}
+
+fn default_fov() -> f64 {
+    50.0
+}
+
+fn default_between() -> f64 {
+    10.0
+}
+
 /// A camera path for `octolod render`, in JSON:
 ///
 /// ```json
@@ -308,49 +351,38 @@ impl CameraPath {
     }
 
     pub fn parse(text: &str, bounds: &Aabb) -> std::result::Result<CameraPath, String> {
-        let v: serde_json::Value = serde_json::from_str(text).map_err(|e| format!("not valid JSON: {e}"))?;
-        let num = |k: &str, d: f64| v.get(k).and_then(|x| x.as_f64()).unwrap_or(d);
-        let vec3 = |x: &serde_json::Value, what: &str| -> std::result::Result<DVec3, String> {
-            let a = x.as_array().filter(|a| a.len() == 3).ok_or(format!("{what} must be an array of 3 numbers"))?;
-            let f: Vec<f64> = a.iter().map(|e| e.as_f64().ok_or(format!("{what} must hold numbers"))).collect::<std::result::Result<_, _>>()?;
-            let p = DVec3::new(f[0], f[1], f[2]);
+        let f: PathFile = serde_json::from_str(text).map_err(|e| format!("not a valid camera path: {e}"))?;
+        let map = |p: [f64; 3], what: &str| -> std::result::Result<DVec3, String> {
+            let p = DVec3::from(p);
             if !p.is_finite() {
                 return Err(format!("{what} is not finite"));
             }
-            Ok(p)
-        };
-        let space = v.get("space").and_then(|s| s.as_str()).unwrap_or("world");
-        let map = |p: DVec3| -> std::result::Result<DVec3, String> {
-            match space {
-                "world" => Ok(p),
-                "bbox" => {
+            Ok(match f.space {
+                Space::World => p,
+                Space::Bbox => {
                     let lo = dvec(bounds.min);
                     let ext = dvec(bounds.max) - lo;
-                    Ok(lo + p * ext.max(DVec3::splat(ext.max_element() * 1e-3)))
+                    lo + p * ext.max(DVec3::splat(ext.max_element() * 1e-3))
                 }
-                other => Err(format!("space must be \"world\" or \"bbox\", not {other:?}")),
-            }
+            })
         };
-        let up = match v.get("up") {
-            Some(u) => vec3(u, "up")?.normalize_or(DVec3::Z),
+        let up = match f.up {
+            Some(u) => DVec3::from(u).normalize_or(DVec3::Z),
             None => DVec3::Z,
         };
-        let pose = |f: &serde_json::Value, i: usize| -> std::result::Result<Pose, String> {
-            let eye = map(vec3(f.get("eye").ok_or(format!("frame {i} has no eye"))?, "eye")?)?;
-            let target = map(vec3(f.get("target").ok_or(format!("frame {i} has no target"))?, "target")?)?;
+        let pose = |(i, p): (usize, &PoseFile)| -> std::result::Result<Pose, String> {
+            let (eye, target) = (map(p.eye, "eye")?, map(p.target, "target")?);
             if eye == target {
                 return Err(format!("frame {i}: eye equals target"));
             }
             Ok(Pose { eye, target })
         };
         let mut poses = Vec::new();
-        if let Some(fr) = v.get("frames").and_then(|f| f.as_array()) {
-            for (i, f) in fr.iter().enumerate() {
-                poses.push(pose(f, i)?);
-            }
-        } else if let Some(kf) = v.get("keyframes").and_then(|f| f.as_array()) {
-            let keys: Vec<Pose> = kf.iter().enumerate().map(|(i, f)| pose(f, i)).collect::<std::result::Result<_, _>>()?;
-            let between = num("frames_between", 10.0).max(1.0) as usize;
+        if let Some(fr) = &f.frames {
+            poses = fr.iter().enumerate().map(pose).collect::<std::result::Result<_, _>>()?;
+        } else if let Some(kf) = &f.keyframes {
+            let keys: Vec<Pose> = kf.iter().enumerate().map(pose).collect::<std::result::Result<_, _>>()?;
+            let between = f.frames_between.max(1.0) as usize;
             for w in keys.windows(2) {
                 for s in 0..between {
                     let t = s as f64 / between as f64;
@@ -366,14 +398,12 @@ impl CameraPath {
         if poses.is_empty() {
             return Err("the path has no frames".into());
         }
-        let hold = num("hold", 0.0).max(0.0) as usize;
         let last = *poses.last().unwrap();
-        poses.extend(std::iter::repeat_n(last, hold));
-        let fov = num("fov_y_deg", 50.0);
-        if !(1.0..=170.0).contains(&fov) {
-            return Err(format!("fov_y_deg {fov} is outside 1..170"));
+        poses.extend(std::iter::repeat_n(last, f.hold.max(0.0) as usize));
+        if !(1.0..=170.0).contains(&f.fov_y_deg) {
+            return Err(format!("fov_y_deg {} is outside 1..170", f.fov_y_deg));
         }
-        Ok(CameraPath { fov_y_deg: fov, up, poses })
+        Ok(CameraPath { fov_y_deg: f.fov_y_deg, up, poses })
     }
 
     /// A default path: a half orbit around the bounds closing in, then a hold.
