@@ -104,8 +104,8 @@ pub struct ReduceOptions {
     pub force: bool,
 }
 
-/// What `simplify` did.
-#[derive(Clone, Debug, Default, serde::Serialize)]
+/// What `simplify` did (`octolod simplify --json` prints it; the bench reads it back).
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
 pub struct ReduceReport {
     /// `in-memory`, `per-node` or `store-cut`.
     pub route: String,

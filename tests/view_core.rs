@@ -246,16 +246,7 @@ fn a_budget_below_the_coarsest_level_is_a_clear_error() {
 fn failed_loads_show_in_the_frame_statistics_and_the_overlay() {
     let dir = tempfile::tempdir().unwrap();
     let s = store(dir.path(), Shape::Sphere, 60_000, 2048);
-    let st = octolod::store::Store::open(&s).unwrap();
-    for l in 0..st.top_level() {
-        let p = st.pack_path(l as usize);
-        let mut b = std::fs::read(&p).unwrap();
-        for i in (0..b.len()).step_by(97) {
-            b[i] ^= 0x5a;
-        }
-        std::fs::write(&p, b).unwrap();
-    }
-    drop(st);
+    common::corrupt_packs_below_top(&s);
     let mut o = opts(64 << 20);
     o.select.max_error_px = 0.25;
     o.pin_share = 0.0; // only the roots are loaded at open

@@ -216,15 +216,7 @@ fn render_fails_when_node_loads_fail() {
     }
     let dir = tempfile::tempdir().unwrap();
     let s = store(dir.path(), Shape::Sphere, 60_000, 2048, 0);
-    let st = octolod::store::Store::open(&s).unwrap();
-    for l in 0..st.top_level() {
-        let p = st.pack_path(l as usize);
-        let mut b = std::fs::read(&p).unwrap();
-        for i in (0..b.len()).step_by(97) {
-            b[i] ^= 0x5a;
-        }
-        std::fs::write(&p, b).unwrap();
-    }
+    common::corrupt_packs_below_top(&s);
     let out = dir.path().join("frames");
     let mut o = opts(&s, &out, None, 32 << 20);
     o.view.select.max_error_px = 0.25;

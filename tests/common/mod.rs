@@ -253,3 +253,17 @@ pub fn crack_report(input: &IndexedMesh, pos: &[[f64; 3]], tris: &[[u32; 3]], sh
     }
     r
 }
+
+/// Damages every payload below the store's top level (every 97th byte
+/// flipped), so their loads fail their checksums; the roots stay intact.
+pub fn corrupt_packs_below_top(store: &Path) {
+    let st = Store::open(store).unwrap();
+    for l in 0..st.top_level() {
+        let p = st.pack_path(l as usize);
+        let mut b = std::fs::read(&p).unwrap();
+        for i in (0..b.len()).step_by(97) {
+            b[i] ^= 0x5a;
+        }
+        std::fs::write(&p, b).unwrap();
+    }
+}

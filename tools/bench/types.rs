@@ -190,25 +190,8 @@ impl ChildOut for BuildOut {
     }
 }
 
-/// What `octolod simplify --json` prints (the library's `ReduceReport`).
-#[derive(Clone, Debug, Serialize, Deserialize)]
-pub struct SimplifyJson {
-    /// `in-memory`, `per-node` or `store-cut`.
-    pub route: String,
-    /// The cut it started from (`level 3`).
-    pub start: String,
-    pub start_triangles: u64,
-    pub input_triangles: u64,
-    pub target_triangles: Option<u64>,
-    pub target_error: Option<f64>,
-    pub vertices: u64,
-    pub triangles: u64,
-    /// The size is within 1 % of the target.
-    pub reached: bool,
-    pub note: Option<String>,
-    pub hausdorff: Option<f64>,
-    pub tries: u32,
-}
+/// What `octolod simplify --json` prints.
+pub type SimplifyJson = octolod::reduce::ReduceReport;
 
 /// What a one-output child prints: a peer (`meshopt-*`, `oocs`) or an
 /// `octolod simplify` run. Fields of other methods are absent.
