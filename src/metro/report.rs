@@ -9,7 +9,7 @@ use super::measure::Distances;
 use crate::error::{Error, Result};
 use crate::geom::{Mesh, P3};
 use crate::mesh::Aabb;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::fmt;
 
 /// Figures of one operand.
@@ -201,9 +201,9 @@ impl Report {
     }
 
     /// The JSON report's typed form (see [`JsonReport`]).
-    pub fn json<'a>(&'a self, limits: &Limits) -> JsonReport<'a> {
-        let mesh = |m: &'a MeshSummary| JsonMesh {
-            source: &m.source,
+    pub fn json(&self, limits: &Limits) -> JsonReport {
+        let mesh = |m: &MeshSummary| JsonMesh {
+            source: m.source.clone(),
             vertices: m.vertices,
             faces: m.faces,
             area: m.area,
@@ -228,7 +228,7 @@ impl Report {
             a: mesh(&self.a),
             b: mesh(&self.b),
             diagonal: self.diagonal,
-            diagonal_of: "a",
+            diagonal_of: "a".into(),
             union_diagonal: self.union_diagonal,
             seed: self.seed,
             samples_target: self.samples_target,
@@ -241,8 +241,8 @@ impl Report {
             thresholds: checks
                 .into_iter()
                 .map(|c| JsonCheck {
-                    metric: c.metric,
-                    option: c.option,
+                    metric: c.metric.into(),
+                    option: c.option.into(),
                     given: c.threshold.to_string(),
                     limit: c.limit,
                     value: c.value,
@@ -373,19 +373,22 @@ impl Report {
 /// scheduling. Numbers are written in Rust's shortest round-trip form
 /// (`0.25`, `3.0`, `1e-7`), and a figure that is not finite as `null`.
 /// Relative figures (`*_rel`) are divided by `diagonal`, A's bounding-box
-/// diagonal.
-#[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct JsonReport<'a> {
+/// diagonal. Reading one back (`Deserialize`, as octolod-bench does) takes
+/// `null` figures as NaN; unknown keys are ignored.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct JsonReport {
     /// Operand A, the reference.
-    pub a: JsonMesh<'a>,
+    pub a: JsonMesh,
     /// Operand B.
-    pub b: JsonMesh<'a>,
+    pub b: JsonMesh,
     /// A's bounding-box diagonal: the unit of relative figures and of
     /// percentage thresholds.
+    #[serde(deserialize_with = "nullable")]
     pub diagonal: f64,
     /// Whose box `diagonal` is: always `"a"`.
-    pub diagonal_of: &'static str,
+    pub diagonal_of: String,
     /// Diagonal of the union of both boxes (what vcglib's Metro divides by).
+    #[serde(deserialize_with = "nullable")]
     pub union_diagonal: f64,
     /// `--seed`.
     pub seed: u64,
@@ -399,8 +402,10 @@ pub struct JsonReport<'a> {
     /// Both directions: max of the maxima, mean and RMS over all samples.
     pub combined: JsonDistances,
     /// The two-sided Hausdorff distance (`combined.max`).
+    #[serde(deserialize_with = "nullable")]
     pub hausdorff: f64,
     /// `hausdorff / diagonal`.
+    #[serde(deserialize_with = "nullable")]
     pub hausdorff_rel: f64,
     /// Every threshold given, in the order hausdorff, rms, mean.
     pub thresholds: Vec<JsonCheck>,
@@ -408,37 +413,41 @@ pub struct JsonReport<'a> {
     pub pass: bool,
     /// Present only when an operand was paged (a store level, or a PLY
     /// over an explicit `--mem`).
-    #[serde(skip_serializing_if = "Option::is_none")]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub paging: Option<JsonPaging>,
 }
 
 /// One operand in [`JsonReport`].
-#[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct JsonMesh<'a> {
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct JsonMesh {
     /// The operand as given: a PLY path or `STORE@L` (`A`/`B` when
     /// compared in memory through the library).
-    pub source: &'a str,
+    pub source: String,
     /// Vertices referenced by triangles (a store level's welded by
     /// bit-identical positions).
     pub vertices: u64,
     pub faces: u64,
     /// Total triangle area.
+    #[serde(deserialize_with = "nullable")]
     pub area: f64,
     /// Bounding box of the referenced vertices.
     pub bbox: JsonBox,
     /// The box's diagonal.
+    #[serde(deserialize_with = "nullable")]
     pub diagonal: f64,
 }
 
 /// An axis-aligned box: `[x, y, z]` corners.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct JsonBox {
+    #[serde(deserialize_with = "nullable3")]
     pub min: P3,
+    #[serde(deserialize_with = "nullable3")]
     pub max: P3,
 }
 
 /// The figures of one direction (or both combined) in [`JsonReport`].
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct JsonDistances {
     /// Samples measured: vertex + edge + face samples.
     pub samples: u64,
@@ -446,40 +455,49 @@ pub struct JsonDistances {
     pub edge_samples: u64,
     pub face_samples: u64,
     /// Largest distance (one-sided Hausdorff; two-sided when combined).
+    #[serde(deserialize_with = "nullable")]
     pub max: f64,
     /// Mean distance over the samples.
+    #[serde(deserialize_with = "nullable")]
     pub mean: f64,
     /// Root mean square distance over the samples.
+    #[serde(deserialize_with = "nullable")]
     pub rms: f64,
     /// `max / diagonal`.
+    #[serde(deserialize_with = "nullable")]
     pub max_rel: f64,
     /// `mean / diagonal`.
+    #[serde(deserialize_with = "nullable")]
     pub mean_rel: f64,
     /// `rms / diagonal`.
+    #[serde(deserialize_with = "nullable")]
     pub rms_rel: f64,
     /// The sample at which `max` was found, `[x, y, z]`.
+    #[serde(deserialize_with = "nullable3")]
     pub max_at: P3,
 }
 
 /// One threshold checked in [`JsonReport`].
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct JsonCheck {
     /// `hausdorff`, `rms` or `mean`.
-    pub metric: &'static str,
+    pub metric: String,
     /// The option that set it: `--max-hausdorff`, `--max-rms` or `--max-mean`.
-    pub option: &'static str,
+    pub option: String,
     /// The threshold as given back: `0.01` or `0.1%`.
     pub given: String,
     /// The absolute limit (a percentage taken of `diagonal`).
+    #[serde(deserialize_with = "nullable")]
     pub limit: f64,
     /// The combined figure checked.
+    #[serde(deserialize_with = "nullable")]
     pub value: f64,
     /// `value > limit` (a figure that is not a number is exceeded).
     pub exceeded: bool,
 }
 
 /// What paging did, in [`JsonReport`] (see [`PagingReport`]).
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct JsonPaging {
     /// `--mem`, bytes.
     pub budget: u64,
@@ -512,10 +530,20 @@ pub struct JsonPaging {
 }
 
 /// Parts (cut nodes) of each paged operand, `null` for one in memory.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct JsonParts {
     pub a: Option<u64>,
     pub b: Option<u64>,
+}
+
+/// A figure written as `null` (not finite) reads back as NaN.
+fn nullable<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<f64, D::Error> {
+    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
+}
+
+/// [`nullable`] for `[x, y, z]`.
+fn nullable3<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<P3, D::Error> {
+    Ok(<[Option<f64>; 3]>::deserialize(d)?.map(|x| x.unwrap_or(f64::NAN)))
 }
 
 /// serde_json's compact output, numbers in Rust's shortest round-trip
@@ -573,5 +601,43 @@ mod tests {
         assert_eq!(to_json_string(&1e-7), "1e-7");
         // Control characters as the hand-written writer had them.
         assert_eq!(to_json_string(&"\u{8}\u{c}\u{1}\t"), "\"\\u0008\\u000c\\u0001\\t\"");
+    }
+
+    /// The report reads back into the same typed form (octolod-bench
+    /// reads metro's output this way); `null` figures come back as NaN.
+    #[test]
+    fn json_reads_back() {
+        let d = Distances { samples: 10, vertex_samples: 3, edge_samples: 3, face_samples: 4, max: 0.5, mean: 0.1, rms: 0.2, max_at: [1.0, f64::NAN, 3.0], sum: 1.0, sum2: 0.4 };
+        let m = MeshSummary { source: "a.ply".into(), vertices: 3, faces: 1, area: 0.5, bbox: Aabb { min: [0.0; 3], max: [1.0; 3] } };
+        let r = Report {
+            a: m.clone(),
+            b: MeshSummary { source: "b\"c".into(), ..m },
+            diagonal: 3f64.sqrt(),
+            union_diagonal: 3f64.sqrt(),
+            seed: 7,
+            samples_target: 10,
+            a_to_b: d.clone(),
+            b_to_a: d.clone(),
+            combined: d,
+            seconds: Timings::default(),
+            paging: Some(PagingReport { budget: 1 << 20, parts_a: Some(4), ..Default::default() }),
+        };
+        let limits = Limits::parse(Some("0.1%"), None, None).unwrap();
+        let text = r.to_json(&limits);
+        let back: JsonReport = serde_json::from_str(&text).unwrap();
+        assert!(back.combined.max_at[1].is_nan());
+        let mut want = r.json(&limits);
+        for j in [&mut want.a_to_b, &mut want.b_to_a, &mut want.combined] {
+            j.max_at[1] = 0.0;
+        }
+        let mut got = back.clone();
+        for j in [&mut got.a_to_b, &mut got.b_to_a, &mut got.combined] {
+            j.max_at[1] = 0.0;
+        }
+        assert_eq!(got, want);
+        assert_eq!(got.thresholds[0].option, "--max-hausdorff");
+        assert_eq!(got.b.source, "b\"c");
+        // Written again, the same bytes.
+        assert_eq!(to_json_string(&back), text);
     }
 }
