@@ -4,7 +4,12 @@ use clap::{Parser, Subcommand};
 use octolod::mesh::Aabb;
 use octolod::ply::read::{read_body, BodySink};
 use octolod::progress::{peak_rss, Progress};
+use octolod::view::camera::Up;
+use octolod::view::select::SelectOptions;
+use octolod::view::viewer::ViewOptions;
+use octolod::view::window::WindowOptions;
 use octolod::{mem, ply, soup, Result};
+use std::time::Duration;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -140,6 +145,10 @@ enum Cmd {
         camera_path: Option<PathBuf>,
         #[arg(long, default_value_t = 60)]
         frames: usize,
+        /// Up axis of the default orbit and of path files that name none:
+        /// auto (Y, or a height field's thin axis), x, y, z, -x, -y or -z.
+        #[arg(long, default_value = "auto")]
+        up: String,
         /// Output directory (PNG frames, stats.csv, stats.json).
         #[arg(short = 'o', long, visible_alias = "output")]
         out: PathBuf,
@@ -148,7 +157,7 @@ enum Cmd {
         #[arg(long, default_value_t = 540)]
         height: u32,
         #[command(flatten)]
-        view: octolod::view::viewer::ViewArgs,
+        view: ViewArgs,
         /// Also render a full-resolution reference and compare.
         #[arg(long)]
         full_res: bool,
@@ -172,9 +181,9 @@ enum Cmd {
     View {
         store: PathBuf,
         #[command(flatten)]
-        view: octolod::view::viewer::ViewArgs,
+        view: ViewArgs,
         #[command(flatten)]
-        window: octolod::view::window::WindowArgs,
+        window: WindowArgs,
     },
     /// Print a PLY's header, element counts, attribute set and bounding box.
     PlyInfo {
@@ -183,6 +192,121 @@ enum Cmd {
         #[arg(long)]
         header_only: bool,
     },
+}
+
+/// Command-line settings shared by `octolod view` and `octolod render`.
+#[derive(clap::Args, Clone, Debug)]
+struct ViewArgs {
+    /// Hard memory limit for node data (index, CPU copies, GPU buffers, in-flight loads).
+    #[arg(long, default_value = "512M")]
+    ram: String,
+    /// Refine nodes whose projected error exceeds this many pixels.
+    #[arg(long, default_value_t = 1.0)]
+    max_error_px: f64,
+    /// Most triangles drawn per frame.
+    #[arg(long, default_value_t = 20_000_000)]
+    tri_budget: u64,
+    /// Distance-only LOD (the original design): refine while the eye is
+    /// nearer than F × the node's cell diagonal, instead of projected error.
+    #[arg(long, value_name = "F")]
+    distance_lod: Option<f64>,
+    /// Background I/O threads.
+    #[arg(long, default_value_t = 2)]
+    io_threads: usize,
+    /// Upload at most this much per frame (e.g. 64M).
+    #[arg(long, default_value = "64M")]
+    upload_per_frame: String,
+    /// Simulate a slow disk: sleep this many milliseconds per node read.
+    #[arg(long, default_value_t = 0)]
+    io_delay_ms: u64,
+}
+
+impl ViewArgs {
+    fn options(&self) -> Result<ViewOptions> {
+        let ram = mem::parse_budget(&self.ram, "--ram")?;
+        let upload = mem::parse_size(&self.upload_per_frame)?;
+        if !(self.max_error_px > 0.0 && self.max_error_px.is_finite()) {
+            return Err(octolod::Error::Usage("--max-error-px must be a positive number".into()));
+        }
+        if let Some(f) = self.distance_lod {
+            if !(f > 0.0 && f.is_finite()) {
+                return Err(octolod::Error::Usage("--distance-lod must be a positive number".into()));
+            }
+        }
+        Ok(ViewOptions {
+            ram,
+            select: SelectOptions {
+                max_error_px: self.max_error_px,
+                tri_budget: self.tri_budget.max(1),
+                distance_lod: self.distance_lod,
+                ..SelectOptions::default()
+            },
+            io_threads: self.io_threads.max(1),
+            io_delay: Duration::from_millis(self.io_delay_ms),
+            upload_per_frame: upload.max(1),
+            ..ViewOptions::default()
+        })
+    }
+}
+
+/// Command-line settings of the window (the viewer's are [`ViewArgs`]).
+#[derive(clap::Args, Clone, Debug)]
+struct WindowArgs {
+    /// Window width in pixels.
+    #[arg(long, default_value_t = 1280)]
+    width: u32,
+    /// Window height in pixels.
+    #[arg(long, default_value_t = 800)]
+    height: u32,
+    /// Present with vsync (default: lowest latency, Mailbox or Immediate).
+    #[arg(long)]
+    vsync: bool,
+    /// Up axis of the model: auto, x, y, z, -x, -y or -z. `auto` takes Y
+    /// (the usual convention of scans, MeshLab, Blender exports) unless the
+    /// model is a height field, whose thin axis is then up.
+    #[arg(long, default_value = "auto")]
+    up: String,
+    /// Vertical field of view in degrees.
+    #[arg(long, default_value_t = 50.0)]
+    fov: f64,
+    /// Start in wireframe.
+    #[arg(long)]
+    wireframe: bool,
+    /// Start with the statistics overlay hidden (F1 or H shows it).
+    #[arg(long)]
+    no_overlay: bool,
+    /// Quit after N frames (scripted runs, screenshots).
+    #[arg(long, value_name = "N")]
+    frames: Option<u64>,
+}
+
+impl WindowArgs {
+    fn options(&self, store: PathBuf, view: ViewOptions, quiet: bool) -> Result<WindowOptions> {
+        check_size(self.width, self.height)?;
+        if !(self.fov > 1.0 && self.fov < 170.0) {
+            return Err(octolod::Error::Usage("--fov must be between 1 and 170 degrees".into()));
+        }
+        Ok(WindowOptions {
+            store,
+            view,
+            width: self.width,
+            height: self.height,
+            vsync: self.vsync,
+            quiet,
+            up: Up::parse(&self.up)?,
+            fov_deg: self.fov,
+            wireframe: self.wireframe,
+            overlay: !self.no_overlay,
+            max_frames: self.frames,
+        })
+    }
+}
+
+fn check_size(width: u32, height: u32) -> Result<()> {
+    if width == 0 || height == 0 || width > 16384 || height > 16384 {
+        return Err(octolod::Error::Usage("--width/--height must be within 1..16384".into()));
+    }
+    Ok(())
 }
 
 #[derive(clap::Args, Clone)]
@@ -313,17 +437,16 @@ fn run(cli: Cli) -> Result<()> {
             }
             Ok(())
         }
-        Cmd::Render { store, camera_path, frames, out, width, height, view, full_res, brute_force, settle, wireframe, diff_tolerance } => {
+        Cmd::Render { store, camera_path, frames, up, out, width, height, view, full_res, brute_force, settle, wireframe, diff_tolerance } => {
             if frames == 0 {
                 return Err(octolod::Error::Usage("render: --frames must be at least 1".into()));
             }
-            if width == 0 || height == 0 || width > 16384 || height > 16384 {
-                return Err(octolod::Error::Usage("--width/--height must be within 1..16384".into()));
-            }
+            check_size(width, height)?;
             let o = octolod::view::headless::RenderOptions {
                 store,
                 camera_path,
                 orbit_frames: frames,
+                up: Up::parse(&up)?,
                 out,
                 width,
                 height,

@@ -87,6 +87,7 @@ fn budget_holds_on_every_frame_and_lru_evicts() {
             {"eye":[0.2,0.8,0.35],"target":[0.0,0.4,0.1]}],
             "frames_between":25,"hold":5}"#,
         &b,
+        DVec3::Z,
     )
     .unwrap();
     let mut peak = 0;

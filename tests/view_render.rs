@@ -35,6 +35,7 @@ fn opts(store: &Path, out: &Path, path: Option<PathBuf>, ram: u64) -> RenderOpti
         store: store.to_path_buf(),
         camera_path: path,
         orbit_frames: 12,
+        up: octolod::view::camera::Up::Auto,
         out: out.to_path_buf(),
         width: 200,
         height: 150,
@@ -174,6 +175,11 @@ fn render_cli_writes_frames_and_rejects_bad_paths() {
     assert!(!o.status.success());
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("bad.json") && err.contains("target"), "{err}");
+    assert!(!out2.exists(), "partial output left behind");
+    // A bad --up: a usage error naming the option, nothing written.
+    let o = Command::new(exe).args(["render", s.to_str().unwrap(), "-o", out2.to_str().unwrap(), "--up", "w"]).output().unwrap();
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--up must be auto, x, y, z"), "{}", String::from_utf8_lossy(&o.stderr));
     assert!(!out2.exists(), "partial output left behind");
 }
 

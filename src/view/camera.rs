@@ -30,6 +30,85 @@ pub fn dvec(a: [f64; 3]) -> DVec3 {
     DVec3::new(a[0], a[1], a[2])
 }
 
+/// The model's up axis: given (`--up x|y|z|-x|-y|-z`) or guessed from its
+/// bounds (`--up auto`, the default; see [`guess_up`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Up {
+    Auto,
+    Axis(DVec3),
+}
+
+impl Up {
+    /// `auto`, or `x`, `y`, `z` with an optional sign.
+    pub fn parse(s: &str) -> Result<Up> {
+        let t = s.trim().to_ascii_lowercase();
+        if t == "auto" {
+            return Ok(Up::Auto);
+        }
+        let (neg, axis) = match t.strip_prefix('-') {
+            Some(a) => (true, a),
+            None => (false, t.strip_prefix('+').unwrap_or(&t)),
+        };
+        let v = match axis {
+            "x" => DVec3::X,
+            "y" => DVec3::Y,
+            "z" => DVec3::Z,
+            _ => return Err(Error::Usage(format!("--up must be auto, x, y, z, -x, -y or -z, not {s:?}"))),
+        };
+        Ok(Up::Axis(if neg { -v } else { v }))
+    }
+
+    /// The axis for a model with these bounds.
+    pub fn resolve(self, b: &Aabb) -> DVec3 {
+        match self {
+            Up::Auto => guess_up(b),
+            Up::Axis(v) => v,
+        }
+    }
+
+    /// How the axis was chosen, for statistics lines: `+y (auto)`.
+    pub fn describe(self, b: &Aabb) -> String {
+        let name = axis_name(self.resolve(b));
+        match self {
+            Up::Auto => format!("{name} (auto)"),
+            Up::Axis(_) => name,
+        }
+    }
+}
+
+/// The usual convention for scans and models (Stanford, MeshLab, most
+/// scanners and DCC tools) is Y up, so that is the guess — except for
+/// height fields (terrain, a city block, a floor), whose thin extent is
+/// unmistakable: when one side of the bounds is under a quarter of both
+/// others, that axis is up (+). A near-cube (a sphere, a bunny) says
+/// nothing, and gets Y.
+pub fn guess_up(b: &Aabb) -> DVec3 {
+    if b.is_empty() {
+        return DVec3::Y;
+    }
+    let e = dvec(b.max) - dvec(b.min);
+    let k = (0..3).min_by(|&i, &j| e[i].total_cmp(&e[j])).unwrap();
+    let others = (0..3).filter(|&i| i != k).map(|i| e[i]).fold(f64::INFINITY, f64::min);
+    if e[k] < 0.25 * others {
+        [DVec3::X, DVec3::Y, DVec3::Z][k]
+    } else {
+        DVec3::Y
+    }
+}
+
+/// `+x`, `-y`, … for a coordinate axis; the vector otherwise.
+pub fn axis_name(v: DVec3) -> String {
+    for (n, a) in [("x", DVec3::X), ("y", DVec3::Y), ("z", DVec3::Z)] {
+        if v == a {
+            return format!("+{n}");
+        }
+        if v == -a {
+            return format!("-{n}");
+        }
+    }
+    format!("[{:.3}, {:.3}, {:.3}]", v.x, v.y, v.z)
+}
+
 /// Distance from `p` to the nearest point of `b` (0 inside).
 pub fn box_distance(b: &Aabb, p: DVec3) -> f64 {
     let mut d2 = 0.0;
@@ -345,12 +424,13 @@ pub struct CameraPath {
 }
 
 impl CameraPath {
-    pub fn load(path: &Path, bounds: &Aabb) -> Result<CameraPath> {
+    /// Reads a path file; `up` is used when the file names none.
+    pub fn load(path: &Path, bounds: &Aabb, up: DVec3) -> Result<CameraPath> {
         let text = std::fs::read_to_string(path).ctx(path, "read camera path")?;
-        CameraPath::parse(&text, bounds).map_err(|m| Error::Usage(format!("{}: {m}", path.display())))
+        CameraPath::parse(&text, bounds, up).map_err(|m| Error::Usage(format!("{}: {m}", path.display())))
     }
 
-    pub fn parse(text: &str, bounds: &Aabb) -> std::result::Result<CameraPath, String> {
+    pub fn parse(text: &str, bounds: &Aabb, default_up: DVec3) -> std::result::Result<CameraPath, String> {
         let f: PathFile = serde_json::from_str(text).map_err(|e| format!("not a valid camera path: {e}"))?;
         let map = |p: [f64; 3], what: &str| -> std::result::Result<DVec3, String> {
             let p = DVec3::from(p);
@@ -367,8 +447,8 @@ impl CameraPath {
             })
         };
         let up = match f.up {
-            Some(u) => DVec3::from(u).normalize_or(DVec3::Z),
-            None => DVec3::Z,
+            Some(u) => DVec3::from(u).normalize_or(default_up),
+            None => default_up,
         };
         let pose = |(i, p): (usize, &PoseFile)| -> std::result::Result<Pose, String> {
             let (eye, target) = (map(p.eye, "eye")?, map(p.target, "target")?);
@@ -406,21 +486,26 @@ impl CameraPath {
         Ok(CameraPath { fov_y_deg: f.fov_y_deg, up, poses })
     }
 
-    /// A default path: a half orbit around the bounds closing in, then a hold.
-    pub fn orbit(bounds: &Aabb, frames: usize, hold: usize) -> CameraPath {
+    /// A default path: a half orbit about the `up` axis around the bounds,
+    /// closing in, looking down, then a hold.
+    pub fn orbit(bounds: &Aabb, frames: usize, hold: usize, up: DVec3) -> CameraPath {
         let c = dvec(bounds.center());
         let r = 0.5 * bounds.diagonal().max(1e-9);
+        // (e1, e2, up) right-handed; for +Z exactly (X, Y, Z).
+        let up = up.normalize_or(DVec3::Z);
+        let e1 = if up.z.abs() > 0.9 { DVec3::X * up.z.signum() } else if up.y.abs() > 0.9 { DVec3::Z * up.y.signum() } else { up.any_orthonormal_vector() };
+        let e2 = up.cross(e1);
         let mut poses = Vec::new();
         for i in 0..frames.max(1) {
             let t = i as f64 / frames.max(1) as f64;
             let a = std::f64::consts::PI * (0.25 + t);
             let dist = r * (2.6 - 1.2 * t);
-            let eye = c + DVec3::new(a.cos() * dist, a.sin() * dist, 0.45 * dist);
+            let eye = c + e1 * (a.cos() * dist) + e2 * (a.sin() * dist) + up * (0.45 * dist);
             poses.push(Pose { eye, target: c });
         }
         let last = *poses.last().unwrap();
         poses.extend(std::iter::repeat_n(last, hold));
-        CameraPath { fov_y_deg: 50.0, up: DVec3::Z, poses }
+        CameraPath { fov_y_deg: 50.0, up, poses }
     }
 
     pub fn camera(&self, i: usize) -> Camera {
@@ -517,9 +602,11 @@ mod tests {
         let p = CameraPath::parse(
             r#"{"space":"bbox","keyframes":[{"eye":[0,0,0],"target":[0.5,0.5,0.5]},{"eye":[1,0,0],"target":[0.5,0.5,0.5]}],"frames_between":4,"hold":2}"#,
             &b,
+            DVec3::Z,
         )
         .unwrap();
         assert_eq!(p.poses.len(), 4 + 1 + 2);
+        assert_eq!(p.up, DVec3::Z);
         assert_eq!(p.poses[2].eye, DVec3::new(5.0, 0.0, 0.0));
         assert_eq!(p.poses[0].target, DVec3::splat(5.0));
         for bad in [
@@ -530,8 +617,44 @@ mod tests {
             r#"{"frames":[{"eye":[0,0,0],"target":[1,0,0]}],"space":"moon"}"#,
             r#"{"keyframes":[{"eye":[0,0,0]}]}"#,
         ] {
-            assert!(CameraPath::parse(bad, &b).is_err(), "{bad} accepted");
+            assert!(CameraPath::parse(bad, &b, DVec3::Z).is_err(), "{bad} accepted");
         }
-        assert_eq!(CameraPath::orbit(&b, 10, 3).poses.len(), 13);
+        assert_eq!(CameraPath::orbit(&b, 10, 3, DVec3::Z).poses.len(), 13);
+        // A file's own "up" wins over the default.
+        let p = CameraPath::parse(r#"{"up":[0,0,2],"frames":[{"eye":[0,0,0],"target":[1,0,0]}]}"#, &b, DVec3::Y).unwrap();
+        assert_eq!(p.up, DVec3::Z);
+    }
+
+    #[test]
+    fn up_axis_parses_and_is_guessed_from_the_bounds() {
+        assert_eq!(Up::parse("auto").unwrap(), Up::Auto);
+        assert_eq!(Up::parse("z").unwrap(), Up::Axis(DVec3::Z));
+        assert_eq!(Up::parse("-Y").unwrap(), Up::Axis(-DVec3::Y));
+        assert_eq!(Up::parse("+x").unwrap(), Up::Axis(DVec3::X));
+        assert!(Up::parse("w").is_err());
+        // A height field (thin along z) stands on z; a bunny-like or cubic
+        // model gets the Y-up convention; a wall thin along x stands on x.
+        let terrain = Aabb { min: [0.0, 0.0, -0.1], max: [10.0, 8.0, 1.0] };
+        let bunny = Aabb { min: [-0.095, 0.033, -0.062], max: [0.061, 0.187, 0.059] };
+        let cube = Aabb { min: [-1.0; 3], max: [1.0; 3] };
+        assert_eq!(guess_up(&terrain), DVec3::Z);
+        assert_eq!(guess_up(&bunny), DVec3::Y);
+        assert_eq!(guess_up(&cube), DVec3::Y);
+        assert_eq!(Up::Auto.describe(&terrain), "+z (auto)");
+        assert_eq!(Up::Axis(-DVec3::X).describe(&cube), "-x");
+        // The default orbit circles the up axis and looks down along it.
+        for up in [DVec3::Z, DVec3::Y, -DVec3::Y, DVec3::X] {
+            let o = CameraPath::orbit(&cube, 8, 0, up);
+            assert_eq!(o.up, up);
+            for p in &o.poses {
+                let h = (p.eye - p.target).dot(up);
+                let d = (p.eye - p.target).length();
+                assert!(h > 0.3 * d && h < 0.5 * d, "up {up}: eye {}", p.eye);
+            }
+        }
+        // For +Z the orbit is the historical one (eye starts at 45° in x/y).
+        let o = CameraPath::orbit(&cube, 4, 0, DVec3::Z);
+        let e = o.poses[0].eye;
+        assert!((e.x - e.y).abs() < 1e-12 && e.x > 0.0 && e.z > 0.0, "{e}");
     }
 }

@@ -17,7 +17,7 @@
 //! frames show the pinned coarse levels and later ones refine as loads
 //! land. `--settle` keeps rendering the last pose until nothing is pending.
 
-use super::camera::{Camera, CameraPath};
+use super::camera::{Camera, CameraPath, Up};
 use super::gpu::{DrawParams, GpuMesh, Renderer};
 use super::DrawItem;
 use super::viewer::{load_all_originals, FrameStats, ViewOptions, Viewer};
@@ -34,6 +34,8 @@ pub struct RenderOptions {
     pub camera_path: Option<PathBuf>,
     /// Frames of the default orbit when no path is given.
     pub orbit_frames: usize,
+    /// Up axis of the default orbit, and of path files that name none.
+    pub up: Up,
     pub out: PathBuf,
     pub width: u32,
     pub height: u32,
@@ -138,8 +140,8 @@ pub fn render(o: &RenderOptions) -> Result<RenderReport> {
     let bounds = viewer.bounds();
     let origin = viewer.origin();
     let path = match &o.camera_path {
-        Some(p) => CameraPath::load(p, &bounds)?,
-        None => CameraPath::orbit(&bounds, o.orbit_frames.max(1), 0),
+        Some(p) => CameraPath::load(p, &bounds, o.up.resolve(&bounds))?,
+        None => CameraPath::orbit(&bounds, o.orbit_frames.max(1), 0, o.up.resolve(&bounds)),
     };
     let reference = if o.brute_force {
         let (meshes, tris) = load_all_originals(&viewer.store, &mut |m| renderer.upload(m))?;
@@ -292,11 +294,4 @@ fn write_stats(dir: &Path, frames: &[FrameRecord], o: &RenderOptions) -> Result<
     };
     let text = serde_json::to_string_pretty(&file).expect("the stats serialize");
     std::fs::write(&js, text + "\n").ctx(&js, "write")
-}
-
-/// A default camera for a store: frame-all from a diagonal.
-pub fn default_camera(bounds: &crate::mesh::Aabb) -> Camera {
-    let mut c = Camera::frame_all(bounds, glam::DVec3::Z, 50.0);
-    c.fit_clip(bounds);
-    c
 }

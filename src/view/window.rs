@@ -16,12 +16,14 @@
 //! * Tab cycles the modes; R resets the view, F frames everything from the
 //!   current direction; Z toggles wireframe; + / - or ] / [ change the field
 //!   of view; F1 or H toggles the overlay; V toggles vsync; U cycles the up
-//!   axis (+Z, +Y, +X); Esc quits.
+//!   axis (+Z, +Y, +X; the start is `--up`, by default guessed: Y up, or
+//!   the thin axis of a height field, see [`super::camera::guess_up`]);
+//!   Esc quits.
 //!
 //! Mouse look is drag-to-look (no pointer grab), so the window behaves the
 //! same under X11, Wayland and remote desktops.
 
-use super::camera::Camera;
+use super::camera::{Camera, Up};
 use super::gpu::{GpuMesh, Renderer, RendererOptions};
 use super::headless::draw_params;
 use super::overlay::{overlay_text, OverlayImage};
@@ -50,84 +52,14 @@ pub struct WindowOptions {
     pub vsync: bool,
     /// No statistics line on stderr.
     pub quiet: bool,
-    /// World up axis (unit).
-    pub up: DVec3,
+    /// The model's up axis (given or guessed from the bounds).
+    pub up: Up,
     pub fov_deg: f64,
     pub wireframe: bool,
     /// Show the statistics overlay at start.
     pub overlay: bool,
     /// Quit after this many frames (scripted runs).
     pub max_frames: Option<u64>,
-}
-
-/// Command-line settings of the window (the viewer's are
-/// [`super::viewer::ViewArgs`]).
-#[derive(clap::Args, Clone, Debug)]
-pub struct WindowArgs {
-    /// Window width in pixels.
-    #[arg(long, default_value_t = 1280)]
-    pub width: u32,
-    /// Window height in pixels.
-    #[arg(long, default_value_t = 800)]
-    pub height: u32,
-    /// Present with vsync (default: lowest latency, Mailbox or Immediate).
-    #[arg(long)]
-    pub vsync: bool,
-    /// Up axis of the model: x, y, z, -x, -y or -z.
-    #[arg(long, default_value = "z")]
-    pub up: String,
-    /// Vertical field of view in degrees.
-    #[arg(long, default_value_t = 50.0)]
-    pub fov: f64,
-    /// Start in wireframe.
-    #[arg(long)]
-    pub wireframe: bool,
-    /// Start with the statistics overlay hidden (F1 or H shows it).
-    #[arg(long)]
-    pub no_overlay: bool,
-    /// Quit after N frames (scripted runs, screenshots).
-    #[arg(long, value_name = "N")]
-    pub frames: Option<u64>,
-}
-
-impl WindowArgs {
-    pub fn options(&self, store: PathBuf, view: ViewOptions, quiet: bool) -> Result<WindowOptions> {
-        if self.width == 0 || self.height == 0 || self.width > 16384 || self.height > 16384 {
-            return Err(Error::Usage("--width/--height must be within 1..16384".into()));
-        }
-        if !(self.fov > 1.0 && self.fov < 170.0) {
-            return Err(Error::Usage("--fov must be between 1 and 170 degrees".into()));
-        }
-        Ok(WindowOptions {
-            store,
-            view,
-            width: self.width,
-            height: self.height,
-            vsync: self.vsync,
-            quiet,
-            up: parse_up(&self.up)?,
-            fov_deg: self.fov,
-            wireframe: self.wireframe,
-            overlay: !self.no_overlay,
-            max_frames: self.frames,
-        })
-    }
-}
-
-/// `x`, `y`, `z` with an optional sign.
-pub fn parse_up(s: &str) -> Result<DVec3> {
-    let t = s.trim().to_ascii_lowercase();
-    let (neg, axis) = match t.strip_prefix('-') {
-        Some(a) => (true, a),
-        None => (false, t.strip_prefix('+').unwrap_or(&t)),
-    };
-    let v = match axis {
-        "x" => DVec3::X,
-        "y" => DVec3::Y,
-        "z" => DVec3::Z,
-        _ => return Err(Error::Usage(format!("--up must be x, y, z, -x, -y or -z, not {s:?}"))),
-    };
-    Ok(if neg { -v } else { v })
 }
 
 /// Navigation mode.
@@ -397,7 +329,7 @@ impl App {
     fn new(opts: WindowOptions, viewer: Viewer<GpuMesh>) -> App {
         let now = Instant::now();
         App {
-            nav: Navigator::new(viewer.bounds(), opts.up, opts.fov_deg),
+            nav: Navigator::new(viewer.bounds(), opts.up.resolve(&viewer.bounds()), opts.fov_deg),
             wireframe: opts.wireframe,
             show_overlay: opts.overlay,
             opts,
@@ -505,8 +437,9 @@ impl App {
             None => (false, String::new()),
         };
         lines.push(format!(
-            "{} mode  fov {:.0}  {}{}  {}",
+            "{} mode  up {}  fov {:.0}  {}{}  {}",
             self.nav.mode.name(),
+            self.up_text(),
             self.nav.fov_deg,
             if self.wireframe { "wireframe" } else { "shaded" },
             if vsync { "  vsync" } else { "" },
@@ -514,6 +447,16 @@ impl App {
         ));
         lines.push("1/2/3 Tab: mode  R: reset  F: frame  Z: wire  +/-: fov  H: hide  Esc: quit".into());
         lines
+    }
+
+    /// The up axis in use: the option's (`+y (auto)`) until U changes it.
+    fn up_text(&self) -> String {
+        let b = self.viewer.bounds();
+        if self.nav.up == self.opts.up.resolve(&b) {
+            self.opts.up.describe(&b)
+        } else {
+            super::camera::axis_name(self.nav.up)
+        }
     }
 
     fn log_line(&self) -> String {
@@ -557,13 +500,14 @@ impl ApplicationHandler for App {
                 if !self.opts.quiet {
                     let i = r.adapter_info();
                     eprintln!(
-                        "view: {} ({:?}, {:?}), {:?}, present {:?}, wireframe by {:?}",
+                        "view: {} ({:?}, {:?}), {:?}, present {:?}, wireframe by {:?}; up {} (U cycles)",
                         i.name,
                         i.backend,
                         i.device_type,
                         r.format(),
                         r.present_mode(),
-                        r.wireframe_mode()
+                        r.wireframe_mode(),
+                        self.up_text()
                     );
                 }
                 self.renderer = Some(r);
@@ -626,14 +570,6 @@ impl ApplicationHandler for App {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn up_axes_parse() {
-        assert_eq!(parse_up("z").unwrap(), DVec3::Z);
-        assert_eq!(parse_up("-Y").unwrap(), -DVec3::Y);
-        assert_eq!(parse_up("+x").unwrap(), DVec3::X);
-        assert!(parse_up("w").is_err());
-    }
 
     fn nav() -> Navigator {
         Navigator::new(Aabb { min: [0.0, 0.0, 0.0], max: [10.0, 10.0, 2.0] }, DVec3::Z, 50.0)
