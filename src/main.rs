@@ -50,7 +50,7 @@ enum Cmd {
         #[arg(short, long)]
         output: PathBuf,
         #[command(flatten)]
-        params: BuildParams,
+        params: BuildArgs,
         /// Node simplifier: cluster (generalized-quadric vertex clustering,
         /// fast) or collapse (quadric edge collapse with attributes, accurate).
         #[arg(long, default_value = "cluster")]
@@ -101,7 +101,7 @@ enum Cmd {
         #[arg(long)]
         json: bool,
         #[command(flatten)]
-        params: BuildParams,
+        params: BuildArgs,
     },
     /// Two-sided Metro surface distance between meshes A and B (PLY paths or STORE@L).
     ///
@@ -310,7 +310,7 @@ fn check_size(width: u32, height: u32) -> Result<()> {
 }
 
 #[derive(clap::Args, Clone)]
-struct BuildParams {
+struct BuildArgs {
     /// Working-memory budget (e.g. 512M, 2G).
     #[arg(long, default_value = mem::DEFAULT_BUDGET_ARG)]
     mem: String,
@@ -331,7 +331,7 @@ struct BuildParams {
     levels: Option<u8>,
 }
 
-impl BuildParams {
+impl BuildArgs {
     fn options(&self, quiet: bool, force: bool) -> Result<octolod::pipeline::BuildOptions> {
         if self.leaf_tris < MIN_LEAF_TRIS {
             return Err(octolod::Error::Usage(format!(
@@ -339,16 +339,16 @@ impl BuildParams {
                 self.leaf_tris
             )));
         }
-        Ok(octolod::pipeline::BuildOptions {
+        let params = octolod::store::BuildParams {
             mem: mem::parse_budget(&self.mem, "--mem")?,
             leaf_tris: self.leaf_tris,
             max_depth: self.max_depth,
             level_ratio: self.level_ratio,
             root_tris: self.root_tris,
             levels: self.levels,
-            quiet,
-            force,
-        })
+            ..Default::default()
+        };
+        Ok(octolod::pipeline::BuildOptions { params, quiet, force })
     }
 }
 
@@ -377,8 +377,8 @@ fn print_build(r: &octolod::pipeline::BuildReport) {
             l.nodes,
             l.triangles,
             l.error_max,
-            100.0 * l.locked_fraction(),
-            if l.level == 0 { String::new() } else { format!("{:.1}%", 100.0 * l.prev_still_fraction()) },
+            100.0 * l.locked_fraction,
+            if l.level == 0 { String::new() } else { format!("{:.1}%", 100.0 * l.prev_locked_still_fraction) },
             l.seconds
         );
     }
@@ -501,7 +501,9 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
         Cmd::Build { input, output, params, simplifier } => {
-            let r = octolod::pipeline::build_store_with(&input, &output, &params.options(cli.quiet, cli.force)?, simplifier)?;
+            let mut o = params.options(cli.quiet, cli.force)?;
+            o.params.simplifier = simplifier;
+            let r = octolod::pipeline::build_store(&input, &output, &o)?;
             print_build(&r);
             Ok(())
         }
@@ -537,7 +539,7 @@ fn run(cli: Cli) -> Result<()> {
                 (_, _, Some(t)) => Target::Error(t.limit(s.header.bbox.diagonal())),
                 _ => unreachable!("clap requires one target"),
             };
-            let o = ReduceOptions { target, simplifier, mem: bo.mem, verify_samples, force: cli.force };
+            let o = ReduceOptions { target, simplifier, mem: bo.params.mem, verify_samples, force: cli.force };
             let rep = octolod::reduce::simplify_store(&s, &output, &o)?;
             if json {
                 println!("{}", serde_json::to_string_pretty(&rep).expect("the report serializes"));

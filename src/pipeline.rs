@@ -11,23 +11,19 @@ use crate::error::{IoContext, Result};
 use crate::io::{AtomicDir, OutputKind};
 use crate::lod::{LevelReport, LodOptions};
 use crate::octree::OctreeReport;
-use crate::store::Simplifier;
 use crate::ply::write::{PlyWriteOptions, PlyWriter};
 use crate::soup::{build_soup, SoupOptions, SoupReport};
-use crate::store::{write_index, Cut, IndexedMesh, Manifest, ManifestLevel, ManifestParams, ManifestSeconds, Store};
+use crate::store::{write_index, BuildParams, Cut, IndexedMesh, Manifest, ManifestSeconds, Store};
 use crate::mesh::{AttrSet, VertexLayout};
 use std::collections::HashMap;
 use std::path::Path;
 use std::time::Instant;
 
+/// `octolod build`: what to build (recorded in the manifest) and how to
+/// behave while doing it.
 #[derive(Clone, Debug)]
 pub struct BuildOptions {
-    pub mem: u64,
-    pub leaf_tris: u64,
-    pub max_depth: u8,
-    pub level_ratio: f64,
-    pub root_tris: u64,
-    pub levels: Option<u8>,
+    pub params: BuildParams,
     pub quiet: bool,
     /// Replace an existing store at the output path (`--force`).
     pub force: bool,
@@ -35,17 +31,7 @@ pub struct BuildOptions {
 
 impl Default for BuildOptions {
     fn default() -> Self {
-        let l = LodOptions::default();
-        BuildOptions {
-            mem: l.mem,
-            leaf_tris: l.leaf_tris,
-            max_depth: l.max_depth,
-            level_ratio: l.level_ratio,
-            root_tris: l.root_tris,
-            levels: None,
-            quiet: true,
-            force: false,
-        }
+        BuildOptions { params: BuildParams::default(), quiet: true, force: false }
     }
 }
 
@@ -60,29 +46,15 @@ pub struct BuildReport {
     pub disk_bytes: u64,
 }
 
-/// PLY → store, every stage under `opts.mem`, nodes reduced by clustering.
+/// PLY → store, every stage under `opts.params.mem`, nodes reduced by
+/// `opts.params.simplifier`.
 pub fn build_store(input: &Path, output: &Path, opts: &BuildOptions) -> Result<BuildReport> {
-    build_store_with(input, output, opts, Simplifier::Cluster)
-}
-
-/// [`build_store`] with the node simplifier chosen (`build --simplifier`).
-pub fn build_store_with(input: &Path, output: &Path, opts: &BuildOptions, simplifier: Simplifier) -> Result<BuildReport> {
     let t0 = Instant::now();
     let out = AtomicDir::create(output, OutputKind::Store, opts.force)?;
     let soup_path = out.path().join("input.soup");
-    let soup = build_soup(input, &soup_path, &SoupOptions { mem: opts.mem, quiet: opts.quiet, ..Default::default() })?;
+    let soup = build_soup(input, &soup_path, &SoupOptions { mem: opts.params.mem, quiet: opts.quiet, ..Default::default() })?;
     let t1 = Instant::now();
-    let lo = LodOptions {
-        leaf_tris: opts.leaf_tris,
-        max_depth: opts.max_depth,
-        level_ratio: opts.level_ratio,
-        root_tris: opts.root_tris,
-        levels: opts.levels,
-        mem: opts.mem,
-        simplifier,
-        quiet: opts.quiet,
-        ..Default::default()
-    };
+    let lo = LodOptions { params: opts.params.clone(), quiet: opts.quiet, ..Default::default() };
     let built = crate::lod::build(&soup_path, out.path(), &lo)?;
     std::fs::remove_file(&soup_path).ctx(&soup_path, "remove")?;
     write_index(out.path(), &built.header, &built.nodes, &built.children, &built.parents)?;
@@ -100,18 +72,10 @@ pub fn build_store_with(input: &Path, output: &Path, opts: &BuildOptions, simpli
         derived_normals: built.header.derived_normals,
         nodes: report.nodes,
         triangles: report.soup.header.triangles,
-        params: ManifestParams {
-            mem: opts.mem,
-            leaf_tris: opts.leaf_tris,
-            max_depth: opts.max_depth,
-            level_ratio: opts.level_ratio,
-            root_tris: opts.root_tris,
-            levels: opts.levels,
-            simplifier,
-        },
+        params: opts.params.clone(),
         seconds: ManifestSeconds { soup: seconds[0], partition: seconds[1], levels: seconds[2], total: seconds[3] },
         disk_bytes,
-        levels: report.levels.iter().map(ManifestLevel::from).collect(),
+        levels: report.levels.clone(),
     };
     manifest.write(out.path())?;
     out.commit()?;

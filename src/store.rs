@@ -709,10 +709,10 @@ pub struct Manifest {
     pub nodes: u64,
     /// Input triangles (level 0).
     pub triangles: u64,
-    pub params: ManifestParams,
+    pub params: BuildParams,
     pub seconds: ManifestSeconds,
     pub disk_bytes: u64,
-    pub levels: Vec<ManifestLevel>,
+    pub levels: Vec<LevelReport>,
 }
 
 /// How each node (or the whole mesh) is reduced: recorded in the
@@ -747,18 +747,39 @@ impl std::str::FromStr for Simplifier {
     }
 }
 
-/// Build parameters.
+/// How a store is built: `build`'s options (the CLI fills them, the level
+/// builder reads them), recorded as the manifest's `params`.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct ManifestParams {
+pub struct BuildParams {
+    /// `--mem`, bytes.
     pub mem: u64,
+    /// Split a level-0 octree cell while it holds more triangles than this.
     pub leaf_tris: u64,
+    /// Never split deeper than this.
     pub max_depth: u8,
+    /// Each level holds about 1/ratio of the triangles below it.
     pub level_ratio: f64,
+    /// The root holds at most this many triangles.
     pub root_tris: u64,
+    /// Build levels up to this one only (its nodes are then the roots).
     pub levels: Option<u8>,
     /// The node simplifier (`cluster` for stores built before it was a choice).
     #[serde(default = "cluster")]
     pub simplifier: Simplifier,
+}
+
+impl Default for BuildParams {
+    fn default() -> Self {
+        BuildParams {
+            mem: crate::mem::DEFAULT_BUDGET,
+            leaf_tris: 16384,
+            max_depth: 16,
+            level_ratio: 2.0,
+            root_tris: 4096,
+            levels: None,
+            simplifier: Simplifier::Cluster,
+        }
+    }
 }
 
 fn cluster() -> Simplifier {
@@ -774,25 +795,48 @@ pub struct ManifestSeconds {
     pub total: f64,
 }
 
-/// One level's figures.
-#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct ManifestLevel {
+/// One built level's figures: the build report's line and the manifest's
+/// (the counts behind the two shares are not written to the manifest).
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct LevelReport {
     pub level: u8,
     pub nodes: u64,
     pub triangles: u64,
-    /// Distinct vertex positions.
+    /// Distinct vertex positions of the level.
     pub positions: u64,
     pub bytes: u64,
     /// Node errors (object space).
     pub error_min: f64,
     pub error_max: f64,
-    /// Share of the level's positions locked when it was simplified.
+    /// Share of the level's positions locked when it was simplified
+    /// (shared with another node of the level, or seams).
     pub locked_fraction: f64,
     /// Share of the previous level's locked positions still locked here.
     pub prev_locked_still_fraction: f64,
-    /// The level's error threshold.
+    /// The level's error threshold (0 for the top level).
     pub tau: f64,
     pub seconds: f64,
+    /// Positions locked (the count behind `locked_fraction`).
+    #[serde(skip)]
+    pub locked: u64,
+    /// Positions locked one level below, and how many of them are still
+    /// locked here.
+    #[serde(skip)]
+    pub prev_locked: u64,
+    #[serde(skip)]
+    pub prev_locked_still: u64,
+    /// Representatives clamped to their cell.
+    #[serde(skip)]
+    pub clamped: u64,
+}
+
+impl LevelReport {
+    /// Sets the locked counts and the shares made of them.
+    pub fn set_locked(&mut self, locked: u64, prev_locked: u64, prev_locked_still: u64) {
+        (self.locked, self.prev_locked, self.prev_locked_still) = (locked, prev_locked, prev_locked_still);
+        self.locked_fraction = locked as f64 / self.positions.max(1) as f64;
+        self.prev_locked_still_fraction = if prev_locked == 0 { 0.0 } else { prev_locked_still as f64 / prev_locked as f64 };
+    }
 }
 
 impl Manifest {

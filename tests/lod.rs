@@ -296,14 +296,14 @@ fn smooth_colors(simp: octolod::reduce::Simplifier) {
 #[test]
 fn small_nodes_are_as_accurate_as_one_big_node() {
     use octolod::metro::{compare, load_store_level, Mesh, Options};
-    use octolod::pipeline::{build_store, BuildOptions};
+    use octolod::pipeline::build_store;
     let d = tempfile::tempdir().unwrap();
     let (ply, input) = common::gen_ply(d.path(), Shape::Sphere, 200_000, 0);
     let a = Mesh::from_vertices(&input.vertices, input.triangles.clone());
     let mut rms = Vec::new();
     for leaf in [1024u64, 1 << 20] {
         let out = d.path().join(format!("s{leaf}.octolod"));
-        build_store(&ply, &out, &BuildOptions { mem: 64 << 20, leaf_tris: leaf, ..Default::default() }).unwrap();
+        build_store(&ply, &out, &common::build_options(common::BuildParams { mem: 64 << 20, leaf_tris: leaf, ..Default::default() })).unwrap();
         let s = Store::open(&out).unwrap();
         let mut per = Vec::new();
         for l in 2..=4u8 {

@@ -437,7 +437,7 @@ fn store_level_against_the_ply_it_was_built_from() {
     octolod::pipeline::build_store(
         &ply,
         &store,
-        &octolod::pipeline::BuildOptions { mem: 4 << 20, leaf_tris: 500, ..Default::default() },
+        &octolod::pipeline::BuildOptions { params: octolod::store::BuildParams { mem: 4 << 20, leaf_tris: 500, ..Default::default() }, ..Default::default() },
     )
     .unwrap();
     let (p, s) = (ply.to_str().unwrap(), store.to_str().unwrap());
@@ -484,7 +484,7 @@ fn small_store(dir: &Path) -> (std::path::PathBuf, std::path::PathBuf) {
     octolod::pipeline::build_store(
         &ply,
         &store,
-        &octolod::pipeline::BuildOptions { mem: 4 << 20, leaf_tris: 500, ..Default::default() },
+        &octolod::pipeline::BuildOptions { params: octolod::store::BuildParams { mem: 4 << 20, leaf_tris: 500, ..Default::default() }, ..Default::default() },
     )
     .unwrap();
     (ply, store)

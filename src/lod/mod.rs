@@ -107,7 +107,8 @@ use crate::mesh::{Aabb, AttrSet, VertexLayout};
 use octree::{build_octree, OctreeOptions, OctreeReport};
 use crate::progress::Progress;
 use crate::store::Simplifier;
-use crate::store::{encode_payload, IndexedMesh, ManifestLevel, NodeRec, PackWriter, StoreHeader, NO_NODE};
+pub use crate::store::{BuildParams, LevelReport};
+use crate::store::{encode_payload, IndexedMesh, NodeRec, PackWriter, StoreHeader, NO_NODE};
 use chunks::{split_by_target, ChunkFile, Gathered};
 use cluster::Splits;
 use partition::{Histogram, LevelCube, Tiling, KEY_DEPTH};
@@ -120,36 +121,16 @@ use std::time::Instant;
 /// Parameters of the hierarchy.
 #[derive(Clone, Debug)]
 pub struct LodOptions {
-    pub leaf_tris: u64,
-    pub max_depth: u8,
-    /// Each level holds about 1/ratio of the triangles below it.
-    pub level_ratio: f64,
-    /// The root holds at most this many triangles.
-    pub root_tris: u64,
-    /// Build levels up to this one only (its nodes are then the roots).
-    pub levels: Option<u8>,
-    pub mem: u64,
+    /// `build`'s options (sizes, ratio, budget, simplifier).
+    pub params: BuildParams,
     /// Eigenvalue cut-off of the representatives' solve.
     pub rel_tol: f64,
-    /// How each node is reduced: clustering to the level's threshold, or
-    /// edge collapse to the node's share.
-    pub simplifier: Simplifier,
     pub quiet: bool,
 }
 
 impl Default for LodOptions {
     fn default() -> Self {
-        LodOptions {
-            leaf_tris: 16384,
-            max_depth: 16,
-            level_ratio: 2.0,
-            root_tris: 4096,
-            levels: None,
-            mem: crate::mem::DEFAULT_BUDGET,
-            rel_tol: 1e-3,
-            simplifier: Simplifier::Cluster,
-            quiet: true,
-        }
+        LodOptions { params: BuildParams::default(), rel_tol: 1e-3, quiet: true }
     }
 }
 
@@ -165,63 +146,6 @@ pub struct LeafStats {
 impl Default for LeafStats {
     fn default() -> Self {
         LeafStats { tris: 0, bounds: Aabb::EMPTY, reach: 0.0 }
-    }
-}
-
-/// Figures of one built level.
-#[derive(Clone, Debug, Default)]
-pub struct LevelReport {
-    pub level: u8,
-    pub nodes: u64,
-    pub triangles: u64,
-    /// Distinct vertex positions of the level.
-    pub positions: u64,
-    pub bytes: u64,
-    pub error_min: f64,
-    pub error_max: f64,
-    /// Positions locked when this level was simplified (shared or seams).
-    pub locked: u64,
-    /// Positions that were locked one level below, and how many of them
-    /// are still locked here.
-    pub prev_locked: u64,
-    pub prev_locked_still: u64,
-    /// The level's error threshold (0 for the top level).
-    pub tau: f64,
-    pub clamped: u64,
-    pub seconds: f64,
-}
-
-impl LevelReport {
-    /// Share of the level's positions that are locked.
-    pub fn locked_fraction(&self) -> f64 {
-        self.locked as f64 / self.positions.max(1) as f64
-    }
-    /// Share of the previous level's locked positions still locked.
-    pub fn prev_still_fraction(&self) -> f64 {
-        if self.prev_locked == 0 {
-            0.0
-        } else {
-            self.prev_locked_still as f64 / self.prev_locked as f64
-        }
-    }
-}
-
-/// A level's line in the store's manifest.
-impl From<&LevelReport> for ManifestLevel {
-    fn from(r: &LevelReport) -> ManifestLevel {
-        ManifestLevel {
-            level: r.level,
-            nodes: r.nodes,
-            triangles: r.triangles,
-            positions: r.positions,
-            bytes: r.bytes,
-            error_min: r.error_min,
-            error_max: r.error_max,
-            locked_fraction: r.locked_fraction(),
-            prev_locked_still_fraction: r.prev_still_fraction(),
-            tau: r.tau,
-            seconds: r.seconds,
-        }
     }
 }
 
@@ -247,10 +171,10 @@ const SAMPLED_NODES: usize = 32;
 
 /// Builds every level from `soup` into store directory `dir`.
 pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
-    if !(opts.level_ratio > 1.0 && opts.level_ratio.is_finite()) {
+    if !(opts.params.level_ratio > 1.0 && opts.params.level_ratio.is_finite()) {
         return Err(Error::Usage("--level-ratio must be above 1".into()));
     }
-    if opts.root_tris == 0 {
+    if opts.params.root_tris == 0 {
         return Err(Error::Usage("--root-tris must be at least 1".into()));
     }
     let scratch = crate::io::scratch_dir(dir)?;
@@ -263,13 +187,13 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
     let dim = attrs.quadric_dim();
     // Edge collapse measures each level against the level below, so carried
     // quadrics would go unused: its chunks carry none.
-    let a_len = match opts.simplifier {
+    let a_len = match opts.params.simplifier {
         Simplifier::Cluster => crate::quadric::carry_len(dim),
         Simplifier::Collapse => 0,
     };
-    let hist_cap = (opts.mem / 256).max(1 << 16) as usize;
+    let hist_cap = (opts.params.mem / 256).max(1 << 16) as usize;
     let cube = |l: u32| LevelCube::for_level(&bbox, l);
-    let oo = OctreeOptions { leaf_tris: opts.leaf_tris, max_depth: opts.max_depth, mem: opts.mem, quiet: opts.quiet };
+    let oo = OctreeOptions { leaf_tris: opts.params.leaf_tris, max_depth: opts.params.max_depth, mem: opts.params.mem, quiet: opts.quiet };
     let l0 = build_octree(soup, scratch.path(), scratch.path().join("chunks-0.bin"), &cube(0), &oo)?;
     let octree = l0.report.clone();
     let mut tiling = l0.tiling;
@@ -292,7 +216,7 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
         let ids: Vec<usize> = (0..tiling.leaves.len()).filter(|&i| leaves[i].tris > 0 || !chunks.refs_of(i).is_empty()).collect();
         let base = nodes.len();
         let total: u64 = ids.iter().map(|&i| leaves[i].tris).sum();
-        let is_final = (ids.len() == 1 && total <= opts.root_tris) || opts.levels == Some(level) || level == MAX_LEVELS;
+        let is_final = (ids.len() == 1 && total <= opts.params.root_tris) || opts.params.levels == Some(level) || level == MAX_LEVELS;
         let cell_of = |i: usize| lc.cell(tiling.leaves[i].path, tiling.leaves[i].depth);
         let band = Band::new(&ids.iter().map(|&i| (cell_of(i), leaves[i].reach)).collect::<Vec<_>>());
         let mut rep = LevelReport { level, nodes: ids.len() as u64, triangles: total, error_min: f64::INFINITY, ..Default::default() };
@@ -300,7 +224,7 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
         // Pass 1: band positions (shared candidates, partial normals) and
         // the next level's histogram.
         let progress = Progress::items(2 * ids.len() as u64, &format!("level {level}"), opts.quiet);
-        let mut sorter = SharedSort::new((opts.mem / 4) as usize, scratch.path());
+        let mut sorter = SharedSort::new((opts.params.mem / 4) as usize, scratch.path());
         let mut hist = Histogram::new(HIST_DEPTH, hist_cap);
         let stride = (ids.len() / SAMPLED_NODES).max(1);
         let mut samples: Vec<Curve> = Vec::new();
@@ -349,10 +273,10 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
                 progress.inc(1);
             }
         }
-        let (mut resolved, sstats) = sorter.resolve((opts.mem / 4) as usize, scratch.path(), scratch.path().join("shared.bin"))?;
+        let (mut resolved, sstats) = sorter.resolve((opts.params.mem / 4) as usize, scratch.path(), scratch.path().join("shared.bin"))?;
 
         // Error curves of a sample of nodes (edge collapse), with their exact locks.
-        if !is_final && opts.simplifier == Simplifier::Collapse {
+        if !is_final && opts.params.simplifier == Simplifier::Collapse {
             let picked: Vec<usize> = (0..ids.len()).filter(|k| k % stride == 0).collect();
             let mut reader = resolved.reopen()?;
             let sets = picked.iter().map(|&k| reader.take((base + k) as u32)).collect::<Result<Vec<_>>>()?;
@@ -370,7 +294,7 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
             }
         }
         // Split curves of a sample of nodes, with their exact locks.
-        if !is_final && opts.simplifier == Simplifier::Cluster {
+        if !is_final && opts.params.simplifier == Simplifier::Cluster {
             let picked: Vec<usize> = (0..ids.len()).filter(|k| k % stride == 0).collect();
             let mut reader = resolved.reopen()?;
             let sets = picked.iter().map(|&k| reader.take((base + k) as u32)).collect::<Result<Vec<_>>>()?;
@@ -392,17 +316,17 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
         }
 
         // The level's threshold and the next level's leaves.
-        let (tau, predicted) = match opts.simplifier {
+        let (tau, predicted) = match opts.params.simplifier {
             _ if is_final => (0.0, 1.0),
-            Simplifier::Cluster => choose_tau(&samples, 1.0 / opts.level_ratio),
-            Simplifier::Collapse => collapse::choose_limit(&error_samples, 1.0 / opts.level_ratio),
+            Simplifier::Cluster => choose_tau(&samples, 1.0 / opts.params.level_ratio),
+            Simplifier::Collapse => collapse::choose_limit(&error_samples, 1.0 / opts.params.level_ratio),
         };
         let next_tiling = if is_final {
             Tiling::default()
         } else {
-            let leaf = opts.leaf_tris.saturating_mul(leaf_scale);
+            let leaf = opts.params.leaf_tris.saturating_mul(leaf_scale);
             // One node when everything fits one leaf (the cut's root).
-            Tiling::from_histogram(&hist, predicted, leaf, opts.max_depth)
+            Tiling::from_histogram(&hist, predicted, leaf, opts.params.max_depth)
         };
         let mut next_leaves = vec![LeafStats::default(); next_tiling.leaves.len()];
         let mut next_chunks =
@@ -467,7 +391,7 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
                         };
                         // The simplified mesh, its carried quadrics and which
                         // of its vertices were locked.
-                        let (out, qa, out_locked) = match opts.simplifier {
+                        let (out, qa, out_locked) = match opts.params.simplifier {
                             Simplifier::Cluster => {
                                 let a = (level > 0).then_some(&g.a[..]);
                                 let sp = Splits::new(&g.mesh, a, &locked, attrs, usize::MAX, tau);
@@ -564,9 +488,7 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
         pack.finish()?;
         resolved.remove();
         rep.positions = positions_total - (shared_occurrences - sstats.shared);
-        rep.locked = sstats.shared + seam_only;
-        rep.prev_locked = prev_freed + sstats.shared_was_locked;
-        rep.prev_locked_still = sstats.shared_was_locked;
+        rep.set_locked(sstats.shared + seam_only, prev_freed + sstats.shared_was_locked, sstats.shared_was_locked);
         if rep.nodes == 0 {
             rep.error_min = 0.0;
         }

@@ -463,13 +463,13 @@ fn level0_scratch_store(p: &Path, opts: &Options, mem: &MemOptions) -> Result<(c
     }
     // Leaves small enough that several nodes' query indexes (~250 B per
     // triangle) fit the page cache.
-    let bo = crate::pipeline::BuildOptions {
+    let params = crate::store::BuildParams {
         mem: mem.budget.max(crate::mem::MIN_BUDGET),
         leaf_tris: (mem.budget / 2048).clamp(256, 16384),
         levels: Some(0),
-        quiet: opts.quiet,
         ..Default::default()
     };
+    let bo = crate::pipeline::BuildOptions { params, quiet: opts.quiet, force: false };
     crate::pipeline::build_store(p, &dir, &bo)?;
     Ok((tmp, Source::Store(dir, 0)))
 }

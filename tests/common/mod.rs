@@ -4,7 +4,8 @@
 
 use octolod::gen::{GenOptions, Generator, Shape};
 use octolod::mesh::{AttrSet, Vertex};
-use octolod::pipeline::{build_store, build_store_with, BuildOptions};
+use octolod::pipeline::{build_store, BuildOptions};
+pub use octolod::store::BuildParams;
 use octolod::reduce::Simplifier;
 use octolod::ply::write::{write_ply, PlyWriteOptions};
 use octolod::store::{Cut, IndexedMesh, Store};
@@ -40,9 +41,14 @@ pub fn build_from(dir: &Path, ply: &Path, leaf: u64) -> Store {
 pub fn build_from_with(dir: &Path, ply: &Path, leaf: u64, simplifier: Simplifier) -> Store {
     let suffix = if simplifier == Simplifier::Cluster { String::new() } else { format!("-{}", simplifier.name()) };
     let out = dir.join(format!("{}{suffix}.octolod", ply.file_stem().unwrap().to_string_lossy()));
-    let o = BuildOptions { mem: 4 << 20, leaf_tris: leaf, max_depth: 12, root_tris: 256, ..Default::default() };
-    build_store_with(ply, &out, &o, simplifier).unwrap_or_else(|e| panic!("{} ({}): {e}", ply.display(), simplifier.name()));
+    let params = BuildParams { mem: 4 << 20, leaf_tris: leaf, max_depth: 12, root_tris: 256, simplifier, ..Default::default() };
+    build_store(ply, &out, &BuildOptions { params, ..Default::default() }).unwrap_or_else(|e| panic!("{} ({}): {e}", ply.display(), simplifier.name()));
     Store::open(&out).unwrap()
+}
+
+/// Quiet, non-forcing build options with these parameters.
+pub fn build_options(params: BuildParams) -> BuildOptions {
+    BuildOptions { params, ..Default::default() }
 }
 
 /// Builds `dir/STEM.octolod` from a PLY with the options given (default
@@ -57,7 +63,7 @@ pub fn build_store_at(dir: &Path, ply: &Path, opts: &BuildOptions) -> PathBuf {
 /// `leaf` triangles per node: the viewer tests' store. Gives its path and the input.
 pub fn default_store(dir: &Path, shape: Shape, tris: u64, attrs: u32, seed: u64, leaf: u64) -> (PathBuf, IndexedMesh) {
     let (ply, m) = gen_ply_seeded(dir, shape, tris, attrs, seed);
-    (build_store_at(dir, &ply, &BuildOptions { leaf_tris: leaf, ..BuildOptions::default() }), m)
+    (build_store_at(dir, &ply, &build_options(BuildParams { leaf_tris: leaf, ..Default::default() })), m)
 }
 
 /// Generates and builds; gives the store and the input.

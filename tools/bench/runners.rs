@@ -107,13 +107,14 @@ pub fn run_one(a: &RunOne) -> Result<String> {
 }
 
 fn run_octolod(a: &RunOne) -> Result<BuildOut> {
-    let opts = BuildOptions {
+    let params = octolod::store::BuildParams {
         mem: octolod::mem::parse_size(&a.mem)?,
         leaf_tris: a.leaf_tris,
-        max_depth: 16,
         level_ratio: a.level_ratio as f64,
-        root_tris: 4096,
-        levels: None,
+        ..Default::default()
+    };
+    let opts = BuildOptions {
+        params,
         quiet: true,
         // The bench's own store from an earlier run (refused if it is anything else).
         force: true,
@@ -147,7 +148,7 @@ fn run_octolod(a: &RunOne) -> Result<BuildOut> {
         method: Method::Octolod,
         leaf_tris: a.leaf_tris,
         level_ratio: a.level_ratio,
-        mem: opts.mem,
+        mem: opts.params.mem,
         input_triangles: r.soup.header.triangles,
         attributes: r.soup.header.attrs.describe(),
         quadric_dim: r.soup.header.attrs.quadric_dim() as u64,
