@@ -538,7 +538,7 @@ fn paged_store_levels_equal_the_in_memory_path_under_a_tiny_budget() {
         }
         let p = paged.paging.as_ref().expect("paging figures");
         assert!(mem.paging.is_none());
-        let parts = p.parts_a.unwrap_or(0) + p.parts_b.unwrap_or(0);
+        let parts = p.parts.a.unwrap_or(0) + p.parts.b.unwrap_or(0);
         assert!(p.peak_resident > 0 && p.peak_resident <= p.cache_budget, "{what}: {p:?}");
         // Every part is read at least once as a sample source and once as a
         // query index; levels 0 and 1 together are several times the cache,

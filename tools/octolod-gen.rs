@@ -74,63 +74,18 @@ struct Args {
     output: PathBuf,
 }
 
-/// The command-line side of [`Shape`] (the library has no clap); the help
-/// texts repeat the library's variant docs.
-#[derive(Clone, Copy, Debug, ValueEnum)]
-enum ShapeArg {
-    /// Closed sphere of radius ~1 with smooth seeded bumps (amplitude ~0.05),
-    /// a cube-sphere with shared seam vertices.
-    Sphere,
-    /// Heightfield over [0,1]² with smooth multi-octave seeded height; open border.
-    Terrain,
-    /// Many closed tori (~48–160 triangles each), randomly placed, rotated
-    /// and scaled in [0,100]³.
-    Instances,
-    /// Flat grid in z = 0 over [0,1]²; open border (rank-1 quadrics).
-    Plane,
-    /// Open tube, radius 1, z in [-1,1] (rank-2 quadrics).
-    Cylinder,
-    /// Two parallel open grids over [0,1]², 1e-4 apart (z = 0 facing down,
-    /// z = 1e-4 facing up).
-    Sheets,
-    /// Grid of strips with aspect ratio 1e-6, plus zero-area triangles made
-    /// of three distinct collinear vertices.
-    Slivers,
-    /// A closed sphere in which every face appears twice (same indices).
-    Duplicates,
-    /// Sphere of radius 0.5 centred at (1e6, 1e6, 1e6) with 1e-3 detail
-    /// (meaningful only with double positions).
-    Offset,
-    /// Exactly one triangle.
-    Single,
-    /// Non-manifold: a "book" of triangles sharing one edge, and a fan disc
-    /// whose centre is one end of that edge.
-    Fan,
-    /// A sphere with one cap (a whole cube-face patch) removed; open border.
-    Open,
-    /// A range scan: a depth-image grid over [0,1]² of a bumpy dome with
-    /// a thin ridge, per-vertex scanner noise, holes (dropouts) and a long
-    /// ragged silhouette border; unreferenced vertices stay in the file.
-    Scan,
-}
+/// [`Shape`] on the command line (the library has no clap): names and
+/// help texts come from the library.
+#[derive(Clone, Copy, Debug)]
+struct ShapeArg(Shape);
 
-impl From<ShapeArg> for Shape {
-    fn from(a: ShapeArg) -> Shape {
-        match a {
-            ShapeArg::Sphere => Shape::Sphere,
-            ShapeArg::Terrain => Shape::Terrain,
-            ShapeArg::Instances => Shape::Instances,
-            ShapeArg::Plane => Shape::Plane,
-            ShapeArg::Cylinder => Shape::Cylinder,
-            ShapeArg::Sheets => Shape::Sheets,
-            ShapeArg::Slivers => Shape::Slivers,
-            ShapeArg::Duplicates => Shape::Duplicates,
-            ShapeArg::Offset => Shape::Offset,
-            ShapeArg::Single => Shape::Single,
-            ShapeArg::Fan => Shape::Fan,
-            ShapeArg::Open => Shape::Open,
-            ShapeArg::Scan => Shape::Scan,
-        }
+impl ValueEnum for ShapeArg {
+    fn value_variants<'a>() -> &'a [Self] {
+        static ALL: std::sync::LazyLock<Vec<ShapeArg>> = std::sync::LazyLock::new(|| Shape::ALL.iter().map(|&s| ShapeArg(s)).collect());
+        &ALL
+    }
+    fn to_possible_value(&self) -> Option<clap::builder::PossibleValue> {
+        Some(clap::builder::PossibleValue::new(self.0.name()).help(self.0.about()))
     }
 }
 
@@ -183,7 +138,7 @@ fn parse_count(s: &str) -> Result<u64, String> {
 }
 
 fn run(args: Args) -> anyhow::Result<()> {
-    let shape = Shape::from(args.shape);
+    let shape = args.shape.0;
     if args.tris == 0 {
         bail!("--tris must be at least 1");
     }

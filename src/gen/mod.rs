@@ -29,46 +29,44 @@ use portable::{fcos, fsin, hash_unit, round, Rng};
 use std::f64::consts::{PI, TAU};
 use shapes::{box_dims, grid_dims, BoxLattice, Torus, Waves};
 
-/// Which procedural mesh to generate.
+/// Which procedural mesh to generate; [`Shape::about`] describes each
+/// (octolod-gen's `--help` shows the same text).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Shape {
-    /// Closed sphere of radius ~1 with smooth seeded bumps (amplitude ~0.05),
-    /// a cube-sphere with shared seam vertices.
     Sphere,
-    /// Heightfield over [0,1]² with smooth multi-octave seeded height; open border.
     Terrain,
-    /// Many closed tori (~48–160 triangles each), randomly placed, rotated
-    /// and scaled in [0,100]³.
     Instances,
-    /// Flat grid in z = 0 over [0,1]²; open border (rank-1 quadrics).
     Plane,
-    /// Open tube, radius 1, z in [-1,1] (rank-2 quadrics).
     Cylinder,
-    /// Two parallel open grids over [0,1]², 1e-4 apart (z = 0 facing down,
-    /// z = 1e-4 facing up).
     Sheets,
-    /// Grid of strips with aspect ratio 1e-6, plus zero-area triangles made
-    /// of three distinct collinear vertices.
     Slivers,
-    /// A closed sphere in which every face appears twice (same indices).
     Duplicates,
-    /// Sphere of radius 0.5 centred at (1e6, 1e6, 1e6) with 1e-3 detail
-    /// (meaningful only with double positions).
     Offset,
-    /// Exactly one triangle.
     Single,
-    /// Non-manifold: a "book" of triangles sharing one edge, and a fan disc
-    /// whose centre is one end of that edge.
     Fan,
-    /// A sphere with one cap (a whole cube-face patch) removed; open border.
     Open,
-    /// A range scan: a depth-image grid over [0,1]² of a bumpy dome with
-    /// a thin ridge, per-vertex scanner noise, holes (dropouts) and a long
-    /// ragged silhouette border; unreferenced vertices stay in the file.
     Scan,
 }
 
 impl Shape {
+    /// What the shape is (one paragraph; octolod-gen's `--help` text).
+    pub fn about(self) -> &'static str {
+        match self {
+            Shape::Sphere => "Closed sphere of radius ~1 with smooth seeded bumps (amplitude ~0.05), a cube-sphere with shared seam vertices.",
+            Shape::Terrain => "Heightfield over [0,1]² with smooth multi-octave seeded height; open border.",
+            Shape::Instances => "Many closed tori (~48–160 triangles each), randomly placed, rotated and scaled in [0,100]³.",
+            Shape::Plane => "Flat grid in z = 0 over [0,1]²; open border (rank-1 quadrics).",
+            Shape::Cylinder => "Open tube, radius 1, z in [-1,1] (rank-2 quadrics).",
+            Shape::Sheets => "Two parallel open grids over [0,1]², 1e-4 apart (z = 0 facing down, z = 1e-4 facing up).",
+            Shape::Slivers => "Grid of strips with aspect ratio 1e-6, plus zero-area triangles made of three distinct collinear vertices.",
+            Shape::Duplicates => "A closed sphere in which every face appears twice (same indices).",
+            Shape::Offset => "Sphere of radius 0.5 centred at (1e6, 1e6, 1e6) with 1e-3 detail (meaningful only with double positions).",
+            Shape::Single => "Exactly one triangle.",
+            Shape::Fan => "Non-manifold: a \"book\" of triangles sharing one edge, and a fan disc whose centre is one end of that edge.",
+            Shape::Open => "A sphere with one cap (a whole cube-face patch) removed; open border.",
+            Shape::Scan => "A range scan: a depth-image grid over [0,1]² of a bumpy dome with a thin ridge, per-vertex scanner noise, holes (dropouts) and a long ragged silhouette border; unreferenced vertices stay in the file.",
+        }
+    }
     /// The command-line name (`sphere`, `terrain`, ...).
     pub fn name(self) -> &'static str {
         match self {

@@ -152,7 +152,7 @@ mod sample;
 
 pub use crate::geom::Mesh;
 pub use measure::{one_sided, Distances};
-pub use report::{Check, JsonBox, JsonCheck, JsonDistances, JsonMesh, JsonPaging, JsonParts, JsonReport, Limits, MeshSummary, PagingReport, Report, Threshold, Timings};
+pub use report::{Check, JsonBox, JsonCheck, JsonDistances, JsonMesh, JsonParts, JsonReport, Limits, MeshSummary, PagingReport, Report, Threshold, Timings};
 
 use crate::error::{Error, Location, Result};
 use crate::geom::{mix64, Bvh};
@@ -439,8 +439,7 @@ pub fn compare_sources(sa: &Source, sb: &Source, opts: &Options, mem: &MemOption
         cache_budget,
         ply_estimate: ply_est,
         batch_samples: batch as u64,
-        parts_a: la.as_ref().map(|l| l.parts() as u64),
-        parts_b: lb.as_ref().map(|l| l.parts() as u64),
+        parts: JsonParts { a: la.as_ref().map(|l| l.parts() as u64), b: lb.as_ref().map(|l| l.parts() as u64) },
         ..Default::default()
     };
     let paging = Paging { cache: &cache, threads, report };

@@ -67,10 +67,11 @@ pub struct Report {
     pub paging: Option<PagingReport>,
 }
 
-/// What paging did (present when an operand is a store level). Cache
-/// figures depend on thread scheduling; everything else in the report is a
+/// What paging did (present when an operand is a store level; the JSON
+/// report's `paging` object, these fields in this order). Cache figures
+/// depend on thread scheduling; everything else in the report is a
 /// function of the inputs, options and seed.
-#[derive(Clone, Debug, Default, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct PagingReport {
     /// `--mem`.
     pub budget: u64,
@@ -93,9 +94,8 @@ pub struct PagingReport {
     /// Bytes read by loads, and by the opening scans.
     pub bytes_read: u64,
     pub scan_bytes: u64,
-    /// Parts (cut nodes) of A and B when paged.
-    pub parts_a: Option<u64>,
-    pub parts_b: Option<u64>,
+    /// Parts (cut nodes) of each operand; `null` for one held in memory.
+    pub parts: JsonParts,
     /// Threads querying a paged target, A -> B and B -> A (0: in memory).
     pub query_threads: [u64; 2],
     /// Peak RSS of the process (VmHWM), where the OS tells.
@@ -249,22 +249,7 @@ impl Report {
                     exceeded: c.exceeded,
                 })
                 .collect(),
-            paging: self.paging.as_ref().map(|p| JsonPaging {
-                budget: p.budget,
-                cache_budget: p.cache_budget,
-                ply_estimate: p.ply_estimate,
-                batch_samples: p.batch_samples,
-                peak_resident: p.peak_resident,
-                loads: p.loads,
-                hits: p.hits,
-                evictions: p.evictions,
-                overcommits: p.overcommits,
-                bytes_read: p.bytes_read,
-                scan_bytes: p.scan_bytes,
-                parts: JsonParts { a: p.parts_a, b: p.parts_b },
-                query_threads: p.query_threads,
-                peak_rss: p.peak_rss,
-            }),
+            paging: self.paging.clone(),
         }
     }
 
@@ -339,8 +324,8 @@ impl Report {
                 crate::progress::mib(p.budget),
                 crate::progress::mib(p.cache_budget),
                 crate::progress::mib(p.peak_resident),
-                parts(p.parts_a),
-                parts(p.parts_b),
+                parts(p.parts.a),
+                parts(p.parts.b),
                 p.loads,
                 crate::progress::mib(p.bytes_read),
                 crate::progress::mib(p.scan_bytes),
@@ -414,7 +399,7 @@ pub struct JsonReport {
     /// Present only when an operand was paged (a store level, or a PLY
     /// over an explicit `--mem`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub paging: Option<JsonPaging>,
+    pub paging: Option<PagingReport>,
 }
 
 /// One operand in [`JsonReport`].
@@ -496,41 +481,8 @@ pub struct JsonCheck {
     pub exceeded: bool,
 }
 
-/// What paging did, in [`JsonReport`] (see [`PagingReport`]).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct JsonPaging {
-    /// `--mem`, bytes.
-    pub budget: u64,
-    /// Bytes the page cache got.
-    pub cache_budget: u64,
-    /// Estimated bytes of the PLY operands held whole.
-    pub ply_estimate: u64,
-    /// Samples per batch.
-    pub batch_samples: u64,
-    /// Largest resident cache bytes seen.
-    pub peak_resident: u64,
-    /// Node meshes read and indexed.
-    pub loads: u64,
-    /// Cache lookups answered without a read.
-    pub hits: u64,
-    pub evictions: u64,
-    /// Times the cache could not get under its budget (0 unless a bug).
-    pub overcommits: u64,
-    /// Bytes read by loads.
-    pub bytes_read: u64,
-    /// Bytes read by the opening scans.
-    pub scan_bytes: u64,
-    /// Parts of each operand; `null` for one held in memory.
-    pub parts: JsonParts,
-    /// Threads querying a paged target, A -> B and B -> A (0: in memory).
-    pub query_threads: [u64; 2],
-    /// Peak RSS of the process in bytes (VmHWM), `null` where the OS does
-    /// not tell.
-    pub peak_rss: Option<u64>,
-}
-
 /// Parts (cut nodes) of each paged operand, `null` for one in memory.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct JsonParts {
     pub a: Option<u64>,
     pub b: Option<u64>,
@@ -620,7 +572,7 @@ mod tests {
             b_to_a: d.clone(),
             combined: d,
             seconds: Timings::default(),
-            paging: Some(PagingReport { budget: 1 << 20, parts_a: Some(4), ..Default::default() }),
+            paging: Some(PagingReport { budget: 1 << 20, parts: JsonParts { a: Some(4), b: None }, ..Default::default() }),
         };
         let limits = Limits::parse(Some("0.1%"), None, None).unwrap();
         let text = r.to_json(&limits);
