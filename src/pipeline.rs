@@ -11,12 +11,13 @@ use crate::error::{IoContext, Result};
 use crate::io::{AtomicDir, OutputKind};
 use crate::lod::{LevelReport, LodOptions};
 use crate::octree::OctreeReport;
-use crate::ply::write::{PlyWriteOptions, PlyWriter};
+use crate::ply::write::{PlyEncoder, PlyWriteOptions, PlyWriter};
 use crate::soup::{build_soup, SoupOptions, SoupReport};
 use crate::store::{write_index, BuildParams, Cut, IndexedMesh, Manifest, ManifestSeconds, Store};
-use crate::mesh::{AttrSet, VertexLayout};
-use std::collections::HashMap;
-use std::path::Path;
+use crate::mesh::{AttrSet, Vertex, VertexLayout};
+use rustc_hash::FxHashMap;
+use std::io::{Read, Write};
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// `octolod build`: what to build (recorded in the manifest) and how to
@@ -123,12 +124,7 @@ impl CutSpec {
 /// octolod wrote at `out` is replaced only when `force` is set.
 pub fn extract(store: &Store, spec: CutSpec, out: &Path, weld: bool, force: bool) -> Result<(u64, u64)> {
     let cut = spec.cut(store)?;
-    let opts = PlyWriteOptions {
-        attrs: store.header.attrs,
-        index_type: crate::ply::Scalar::U32,
-        comments: vec![format!("octolod {} of {}", spec.describe(), store.dir.display())],
-        ..Default::default()
-    };
+    let opts = mesh_ply_options(store.header.attrs, &format!("octolod {} of {}", spec.describe(), store.dir.display()));
     if weld {
         let parts = store.cut_meshes(&cut).collect::<Result<Vec<_>>>()?;
         let m = weld_union(&store.layout, &parts);
@@ -166,15 +162,16 @@ pub fn extract(store: &Store, spec: CutSpec, out: &Path, weld: bool, force: bool
     Ok((nv, nf))
 }
 
+/// How every indexed PLY octolod writes from a store is encoded: binary
+/// little endian, the input's attributes, `uint` indices, one comment.
+pub fn mesh_ply_options(attrs: AttrSet, comment: &str) -> PlyWriteOptions {
+    PlyWriteOptions { attrs, index_type: crate::ply::Scalar::U32, comments: vec![comment.to_string()], ..Default::default() }
+}
+
 /// Writes one indexed mesh as a binary little-endian PLY with `attrs`,
 /// atomically (an existing PLY octolod wrote is replaced only with `force`).
 pub fn write_mesh_ply(out: &Path, attrs: AttrSet, comment: &str, m: &IndexedMesh, force: bool) -> Result<()> {
-    let opts = PlyWriteOptions {
-        attrs,
-        index_type: crate::ply::Scalar::U32,
-        comments: vec![comment.to_string()],
-        ..Default::default()
-    };
+    let opts = mesh_ply_options(attrs, comment);
     let mut file = crate::io::AtomicFile::create(out, OutputKind::Ply, force)?;
     let mut w = PlyWriter::new(file.writer(), &opts, m.vertices.len() as u64, m.triangles.len() as u64).ctx(out, "write")?;
     for v in &m.vertices {
@@ -187,29 +184,232 @@ pub fn write_mesh_ply(out: &Path, attrs: AttrSet, comment: &str, m: &IndexedMesh
     file.commit()
 }
 
-/// Concatenates meshes, welding vertices that are bit-identical in `layout`
-/// (unreferenced vertices dropped).
-pub fn weld_union(layout: &VertexLayout, parts: &[IndexedMesh]) -> IndexedMesh {
-    let mut out = IndexedMesh::default();
-    let mut map: HashMap<Vec<u8>, u32> = HashMap::new();
-    let mut buf = vec![0u8; layout.size];
-    for p in parts {
-        let mut ids = vec![u32::MAX; p.vertices.len()];
-        for t in &p.triangles {
-            let nt = t.map(|i| {
+/// A PLY written part by part whose counts are known only at the end (the
+/// same bytes as [`write_mesh_ply`] of the same mesh): vertex and face
+/// records are encoded as they come into two scratch files next to the
+/// output, then [`SpooledPly::finish`] writes the header with the final
+/// counts and copies both behind it. Holds only its I/O buffers.
+pub struct SpooledPly {
+    file: crate::io::AtomicFile,
+    attrs: AttrSet,
+    enc: PlyEncoder,
+    buf: Vec<u8>,
+    vertices: Spool,
+    faces: Spool,
+    _scratch: crate::io::ScratchDir,
+}
+
+/// One scratch file of records and how many it holds.
+struct Spool {
+    path: PathBuf,
+    w: std::io::BufWriter<std::fs::File>,
+    count: u64,
+}
+
+impl Spool {
+    fn create(path: PathBuf) -> Result<Spool> {
+        let f = std::fs::File::create(&path).ctx(&path, "create")?;
+        Ok(Spool { w: std::io::BufWriter::with_capacity(crate::io::SEQ_BUF, f), path, count: 0 })
+    }
+
+    fn put(&mut self, rec: &[u8]) -> Result<()> {
+        self.count += 1;
+        self.w.write_all(rec).ctx(&self.path, "write")
+    }
+
+    /// Flushes, then hands the records to `put` in chunks of whole records
+    /// (`rec` bytes each) with their count.
+    fn copy_out(self, rec: usize, mut put: impl FnMut(&[u8], u64) -> std::io::Result<()>) -> Result<()> {
+        let Spool { path, w, count } = self;
+        drop(w.into_inner().map_err(|e| e.into_error()).ctx(&path, "write")?);
+        let mut f = std::fs::File::open(&path).ctx(&path, "open")?;
+        let per = (crate::io::SEQ_BUF / rec).max(1) as u64;
+        let mut buf = vec![0u8; per as usize * rec];
+        let mut left = count;
+        while left > 0 {
+            let k = left.min(per);
+            let b = &mut buf[..k as usize * rec];
+            f.read_exact(b).ctx(&path, "read")?;
+            put(b, k).ctx(&path, "copy")?;
+            left -= k;
+        }
+        Ok(())
+    }
+}
+
+impl SpooledPly {
+    /// Checks `out` (see [`crate::io::AtomicFile::create`]) and starts the
+    /// temp output and the scratch files.
+    pub fn create(out: &Path, attrs: AttrSet, force: bool) -> Result<SpooledPly> {
+        let file = crate::io::AtomicFile::create(out, OutputKind::Ply, force)?;
+        let scratch = crate::io::scratch_dir(out)?;
+        Ok(SpooledPly {
+            file,
+            attrs,
+            enc: PlyEncoder::new(&mesh_ply_options(attrs, "")),
+            buf: Vec::with_capacity(64),
+            vertices: Spool::create(scratch.path().join("vertices"))?,
+            faces: Spool::create(scratch.path().join("faces"))?,
+            _scratch: scratch,
+        })
+    }
+
+    /// Vertices and triangles written so far.
+    pub fn counts(&self) -> (u64, u64) {
+        (self.vertices.count, self.faces.count)
+    }
+
+    pub fn vertex(&mut self, v: &Vertex) -> Result<()> {
+        self.buf.clear();
+        self.enc.vertex(v, &mut self.buf);
+        self.vertices.put(&self.buf)
+    }
+
+    pub fn face(&mut self, t: &[u32; 3]) -> Result<()> {
+        self.buf.clear();
+        self.enc.face(t, &mut self.buf).ctx(&self.faces.path, "encode")?;
+        self.faces.put(&self.buf)
+    }
+
+    /// Writes the header (with `comment`) and the records into the output
+    /// and moves it into place.
+    pub fn finish(self, comment: &str) -> Result<()> {
+        let SpooledPly { mut file, attrs, enc, vertices, faces, _scratch, .. } = self;
+        let out = file.dest().to_path_buf();
+        let opts = mesh_ply_options(attrs, comment);
+        let mut w = PlyWriter::new(file.writer(), &opts, vertices.count, faces.count).ctx(&out, "write")?;
+        vertices.copy_out(enc.vertex_record_size().expect("binary"), |b, n| w.raw_vertices(b, n))?;
+        faces.copy_out(enc.face_record_size(3).expect("binary"), |b, n| w.raw_faces(b, n))?;
+        w.finish().ctx(&out, "write")?;
+        file.commit()
+    }
+}
+
+/// Welds meshes added one part at a time: vertices bit-identical in the
+/// layout (position and attributes) become one, within a part always and
+/// across parts where the caller says so; the rest is emitted as it comes,
+/// so only the vertices welded across parts are remembered. Vertices are
+/// numbered in order of first use; unreferenced ones are dropped.
+pub struct Welder<'a> {
+    layout: &'a VertexLayout,
+    across: FxHashMap<Vec<u8>, u32>,
+    next: u32,
+}
+
+impl<'a> Welder<'a> {
+    pub fn new(layout: &'a VertexLayout) -> Welder<'a> {
+        Welder { layout, across: FxHashMap::default(), next: 0 }
+    }
+
+    /// Adds `part`, welding across parts the vertices `across` picks: gives
+    /// the vertices new to the output (in order) and the part's triangles
+    /// in output numbering.
+    pub fn add(&mut self, part: &IndexedMesh, across: impl Fn(&Vertex) -> bool) -> (Vec<Vertex>, Vec<[u32; 3]>) {
+        let size = self.layout.size;
+        let mut enc = vec![0u8; part.vertices.len() * size];
+        for (v, b) in part.vertices.iter().zip(enc.chunks_exact_mut(size)) {
+            self.layout.encode(v, b);
+        }
+        let mut within: FxHashMap<&[u8], u32> = FxHashMap::default();
+        let mut ids = vec![u32::MAX; part.vertices.len()];
+        let mut new = Vec::new();
+        let mut tris = Vec::with_capacity(part.triangles.len());
+        for t in &part.triangles {
+            tris.push(t.map(|i| {
                 let i = i as usize;
                 if ids[i] == u32::MAX {
-                    layout.encode(&p.vertices[i], &mut buf);
-                    let next = out.vertices.len() as u32;
-                    ids[i] = *map.entry(buf.clone()).or_insert_with(|| {
-                        out.vertices.push(layout.decode(&buf));
-                        next
-                    });
+                    let key = &enc[i * size..(i + 1) * size];
+                    let next = &mut self.next;
+                    let mut emit = || {
+                        new.push(self.layout.decode(key));
+                        *next += 1;
+                        *next - 1
+                    };
+                    ids[i] = if across(&part.vertices[i]) {
+                        match self.across.get(key) {
+                            Some(&id) => id,
+                            None => {
+                                let id = emit();
+                                self.across.insert(key.to_vec(), id);
+                                id
+                            }
+                        }
+                    } else {
+                        *within.entry(key).or_insert_with(emit)
+                    };
                 }
                 ids[i]
-            });
-            out.triangles.push(nt);
+            }));
         }
+        (new, tris)
+    }
+}
+
+/// Concatenates meshes, welding vertices that are bit-identical in `layout`
+/// (unreferenced vertices dropped).
+pub fn weld_union<M: std::borrow::Borrow<IndexedMesh>>(layout: &VertexLayout, parts: impl IntoIterator<Item = M>) -> IndexedMesh {
+    let mut w = Welder::new(layout);
+    let mut out = IndexedMesh::default();
+    for p in parts {
+        let (v, t) = w.add(p.borrow(), |_| true);
+        out.vertices.extend(v);
+        out.triangles.extend(t);
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn v(x: f64, y: f64, c: u8) -> Vertex {
+        Vertex { pos: [x, y, 0.25], normal: [0.0, 0.0, 1.0], color: [c, 2, 3, 4], uv: [x as f32, 0.5] }
+    }
+
+    /// Two parts sharing an edge (one copy of it with another colour),
+    /// each holding a duplicate vertex of its own.
+    fn parts() -> Vec<IndexedMesh> {
+        let a = IndexedMesh { vertices: vec![v(0.0, 0.0, 1), v(1.0, 0.0, 1), v(0.0, 1.0, 1), v(0.0, 0.0, 1)], triangles: vec![[0, 1, 2], [3, 2, 1]] };
+        let b = IndexedMesh { vertices: vec![v(1.0, 0.0, 1), v(0.0, 1.0, 9), v(1.0, 1.0, 1), v(1.0, 1.0, 1), v(7.0, 7.0, 1)], triangles: vec![[0, 2, 1], [3, 1, 0]] };
+        vec![a, b]
+    }
+
+    #[test]
+    fn spooled_ply_writes_the_bytes_write_mesh_ply_writes() {
+        let d = tempfile::tempdir().unwrap();
+        for attrs in [AttrSet(0), AttrSet(AttrSet::POS_F64 | AttrSet::NORMAL | AttrSet::COLOR | AttrSet::ALPHA | AttrSet::UV)] {
+            let layout = VertexLayout::new(attrs);
+            let whole = weld_union(&layout, parts());
+            let (a, b) = (d.path().join("a.ply"), d.path().join("b.ply"));
+            write_mesh_ply(&a, attrs, "octolod test", &whole, true).unwrap();
+            // Welded across parts everywhere: the same mesh, spooled.
+            let mut p = SpooledPly::create(&b, attrs, true).unwrap();
+            let mut w = Welder::new(&layout);
+            for part in parts() {
+                let (vs, ts) = w.add(&part, |_| true);
+                vs.iter().try_for_each(|x| p.vertex(x)).unwrap();
+                ts.iter().try_for_each(|t| p.face(t)).unwrap();
+            }
+            assert_eq!(p.counts(), (whole.vertices.len() as u64, whole.triangles.len() as u64));
+            p.finish("octolod test").unwrap();
+            assert_eq!(std::fs::read(&a).unwrap(), std::fs::read(&b).unwrap(), "{attrs:?}");
+            // Scratch files gone, only the two outputs left.
+            assert_eq!(std::fs::read_dir(d.path()).unwrap().count(), 2);
+        }
+    }
+
+    #[test]
+    fn the_welder_welds_across_parts_only_where_asked() {
+        let layout = VertexLayout::new(AttrSet(AttrSet::COLOR));
+        let count = |across: fn(&Vertex) -> bool| {
+            let mut w = Welder::new(&layout);
+            parts().iter().map(|p| w.add(p, across).0.len()).sum::<usize>()
+        };
+        // Within a part always (the duplicates), across only where asked; the
+        // recoloured copy and the unreferenced vertex never count.
+        assert_eq!(count(|_| true), 5);
+        assert_eq!(count(|_| false), 6);
+        assert_eq!(count(|v| v.pos[1] == 0.0), 5);
+        assert_eq!(weld_union(&layout, parts()).vertices.len(), 5);
+    }
 }

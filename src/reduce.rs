@@ -14,19 +14,47 @@
 //! triangles whose whole mesh fits the budget ([`Simplifier::bytes_per_triangle`]
 //! estimates what the welded mesh and the simplifier need per triangle); it
 //! is welded and reduced in memory to exactly N. When no such level fits,
-//! the start is the coarsest level with at least N triangles and each of
-//! its nodes gets a share of N proportional to its triangles; nodes are
-//! reduced in parallel with the vertices they share with another node of
-//! the cut locked (found exactly: positions on some node's open edges, kept
-//! when two nodes hold them; the mesh's own open border is not locked), then welded
-//! — bit-identical locked vertices make the seams close — and a last pass
-//! over the welded result, now small, settles the remainder to exactly N
-//! with nothing locked. That result (N triangles) must fit the budget.
+//! the start is the coarsest level with at least N triangles, reduced node
+//! by node and streamed to the output, so the output need not fit the
+//! budget either:
+//!
+//! 1. The positions two nodes of the cut share are found exactly
+//!    (positions on some node's open edges, kept when two nodes hold them;
+//!    the mesh's own open border is not locked). This *shared set* is what
+//!    the route holds throughout, counted at 256 bytes a position
+//!    (`SHARED_BYTES`: its entry, and the output weld map's; measured
+//!    about half that): a few per cent of the start
+//!    level's vertices — on a 2 M-triangle sphere in 16 K-triangle nodes,
+//!    53 K positions (5.3 %), 13 MiB, against 240 MiB for its 1 M-triangle
+//!    output in memory.
+//! 2. Each node gets a share of N proportional to its triangles and is
+//!    reduced with the shared positions locked, in parallel batches sized so
+//!    that the shared set and a batch of nodes (their triangles ×
+//!    `bytes_per_triangle`) fit `--mem` (a usage error when even one node
+//!    does not); each reduced part is spilled to a scratch file.
+//! 3. The remainder is settled over the spilled parts: nodes that missed
+//!    their share by over 1 % (their locked vertices kept them above it, or
+//!    the simplifier's last step overshot) keep what they have, the others
+//!    share what is left and are reduced again — from their spilled part,
+//!    or from the store when they must grow — for up to three rounds
+//!    (`SETTLE_ROUNDS`), until the total is within 0.25 % of N.
+//! 4. The parts are read back one at a time and written out: vertices at
+//!    shared positions are welded across parts by their encoded bytes
+//!    (position and attributes; bit-identical locked vertices make the
+//!    seams close), the others within their part only; the records are
+//!    spooled to scratch files and joined behind a header with the final
+//!    counts ([`SpooledPly`]: the bytes [`write_mesh_ply`] writes).
+//!
+//! When the shares cannot come within 1 % of N (the locked borders hold
+//! more) and the whole result fits the budget, one last pass over it in
+//! memory settles the rest with nothing locked; otherwise the report says
+//! how many triangles the borders kept.
 //!
 //! **Route for an error E.** `cluster` returns the store's cut at error E
 //! (the coarsest valid cut whose saturated node errors are ≤ E);
 //! `collapse` starts from the cut at E/4 and collapses with an absolute
-//! error limit of 3E/4. Either way the result is *measured* with
+//! error limit of 3E/4 (a cut too large for the budget node by node, as in
+//! steps 1–2 above, the parts then welded in memory). Either way the result is *measured* with
 //! [`crate::metro`] against level 0 (Hausdorff, both directions, vertex,
 //! edge and face samples) and, while it exceeds E, the limit is lowered and
 //! the mesh rebuilt, down to the input itself.
@@ -44,16 +72,19 @@
 //! without breaking the topology (`collapse` then retries once, allowed to
 //! remove small disconnected parts), the report says so.
 
-use crate::error::{Error, Result};
+use crate::error::{Error, IoContext, Result};
+use crate::io::ScratchDir;
 use crate::lod::cluster::{cluster_node, Splits};
 use crate::lod::shared::pos_bits;
-use crate::mesh::AttrSet;
+use crate::mesh::{AttrSet, VertexLayout};
 use crate::metro::{self, MemOptions, Source};
-use crate::pipeline::{weld_union, write_mesh_ply};
-use crate::store::{Cut, IndexedMesh, Store};
+use crate::pipeline::{weld_union, write_mesh_ply, SpooledPly, Welder};
+use crate::store::{decode_payload, encode_payload, Cut, IndexedMesh, Store, NO_NODE};
 use rayon::prelude::*;
 use rustc_hash::{FxHashMap, FxHashSet};
-use std::path::Path;
+use std::fs::File;
+use std::os::unix::fs::FileExt;
+use std::path::{Path, PathBuf};
 
 
 pub use crate::store::Simplifier;
@@ -129,40 +160,63 @@ pub struct ReduceReport {
     pub tries: u32,
 }
 
+/// A reduction's result: in memory, or already spooled into the output
+/// (the per-node route for a size; see the module doc).
+enum Reduced {
+    Mesh(IndexedMesh),
+    Spooled(Box<SpooledPly>),
+}
+
+impl Reduced {
+    fn counts(&self) -> (u64, u64) {
+        match self {
+            Reduced::Mesh(m) => (m.vertices.len() as u64, m.triangles.len() as u64),
+            Reduced::Spooled(p) => p.counts(),
+        }
+    }
+}
+
 /// `octolod simplify` after the build: writes the reduced mesh to `out`.
 pub fn simplify_store(store: &Store, out: &Path, o: &ReduceOptions) -> Result<ReduceReport> {
     let input = store.level_triangles(0);
-    let (mesh, mut rep) = match o.target {
-        Target::Tris(n) => reduce_to_count(store, n, o)?,
+    let (result, mut rep) = match o.target {
+        Target::Tris(n) => reduce_to_count(store, n, out, o)?,
         Target::Ratio(r) => {
             if !(r > 0.0 && r.is_finite()) {
                 return Err(Error::Usage(format!("--target-ratio must be > 0, not {r}")));
             }
-            reduce_to_count(store, (r * input as f64).round().max(1.0) as u64, o)?
+            reduce_to_count(store, (r * input as f64).round().max(1.0) as u64, out, o)?
         }
         Target::Error(e) => {
             if !(e >= 0.0 && e.is_finite()) {
                 return Err(Error::Usage(format!("--target-error must be ≥ 0 and finite, not {e}")));
             }
-            reduce_to_error(store, e, o)?
+            let (m, rep) = reduce_to_error(store, e, o)?;
+            (Reduced::Mesh(m), rep)
         }
     };
     rep.input_triangles = input;
-    rep.vertices = mesh.vertices.len() as u64;
-    rep.triangles = mesh.triangles.len() as u64;
+    (rep.vertices, rep.triangles) = result.counts();
     if let Some(n) = rep.target_triangles {
-        let off = rep.triangles.abs_diff(n) as f64;
-        rep.reached = off <= 0.01 * n as f64 || (n >= input && rep.triangles == input);
+        rep.reached = within_1pct(rep.triangles, n) || (n >= input && rep.triangles == input);
         if !rep.reached && rep.note.is_none() {
             rep.note = Some(format!("{} of {n} triangles: the {:?} simplifier could not go further without breaking the surface", rep.triangles, o.simplifier));
         }
     }
     let comment = format!("octolod simplify ({:?}, {}) of {}", o.simplifier, rep.start, store.dir.display());
-    write_mesh_ply(out, store.header.attrs, &comment, &mesh, o.force)?;
+    match result {
+        Reduced::Mesh(m) => write_mesh_ply(out, store.header.attrs, &comment, &m, o.force),
+        Reduced::Spooled(p) => p.finish(&comment),
+    }?;
     Ok(rep)
 }
 
-fn reduce_to_count(store: &Store, n: u64, o: &ReduceOptions) -> Result<(IndexedMesh, ReduceReport)> {
+/// `got` is within 1 % of `n`: a size target is met.
+fn within_1pct(got: u64, n: u64) -> bool {
+    got.abs_diff(n) as f64 <= 0.01 * n as f64
+}
+
+fn reduce_to_count(store: &Store, n: u64, out: &Path, o: &ReduceOptions) -> Result<(Reduced, ReduceReport)> {
     let input = store.level_triangles(0);
     let mut rep = ReduceReport { target_triangles: Some(n), ..Default::default() };
     if n >= input {
@@ -171,7 +225,7 @@ fn reduce_to_count(store: &Store, n: u64, o: &ReduceOptions) -> Result<(IndexedM
         rep.start = "level 0".into();
         rep.start_triangles = input;
         rep.note = Some(format!("asked {n} triangles of an input of {input}: the input is returned"));
-        return Ok((load_cut(store, &cut, o)?, rep));
+        return Ok((Reduced::Mesh(load_cut(store, &cut, o)?), rep));
     }
     // Levels with at least n triangles (level 0 always is one).
     let levels: Vec<(u8, u64)> =
@@ -190,8 +244,19 @@ fn reduce_to_count(store: &Store, n: u64, o: &ReduceOptions) -> Result<(IndexedM
     rep.start = format!("level {level}");
     rep.start_triangles = tris;
     let cut = store.level_cut(level);
-    let mesh = reduce_cut(store, &cut, Goal::Tris(n as usize), o)?;
-    Ok((mesh, rep))
+    if rep.route == "in-memory" {
+        return Ok((Reduced::Mesh(reduce_cut(store, &cut, Goal::Tris(n as usize), o)?), rep));
+    }
+    let r = per_node_to_count(store, &cut, n, o, Some(out))?;
+    let got = r.counts().1;
+    if matches!(r, Reduced::Spooled(_)) && !within_1pct(got, n) && got > n {
+        rep.note = Some(format!(
+            "{got} of {n} triangles: the borders between the nodes reduced one by one are kept exactly (so the seams stay closed) and hold more; \
+             a --mem that holds {got} triangles (about {} MiB) lets a last pass over the whole result go further",
+            got.saturating_mul(o.simplifier.bytes_per_triangle()) >> 20
+        ));
+    }
+    Ok((r, rep))
 }
 
 fn reduce_to_error(store: &Store, e: f64, o: &ReduceOptions) -> Result<(IndexedMesh, ReduceReport)> {
@@ -264,9 +329,10 @@ fn check_fits(tris: u64, o: &ReduceOptions, what: &str) -> Result<()> {
     Ok(())
 }
 
-/// Reduces a cut to `goal`: whole in memory when it fits, else node by node
-/// with shared vertices locked and a last pass over the welded result (see
-/// the module doc).
+/// Reduces a cut to `goal`, the result in memory: whole in memory when it
+/// fits, else node by node with shared vertices locked, welded (and, for a
+/// size, settled; see the module doc). `simplify --target-tris` streams
+/// its per-node result to the output instead.
 pub fn reduce_cut(store: &Store, cut: &Cut, goal: Goal, o: &ReduceOptions) -> Result<IndexedMesh> {
     let attrs = store.header.attrs;
     let tris = cut.triangles(store);
@@ -274,51 +340,281 @@ pub fn reduce_cut(store: &Store, cut: &Cut, goal: Goal, o: &ReduceOptions) -> Re
         let m = load_cut(store, cut, o)?;
         return Ok(reduce_mesh(&m, &vec![false; m.vertices.len()], attrs, goal, o.simplifier));
     }
-    if let Goal::Tris(n) = goal {
-        check_fits(n as u64, o, "the output")?;
+    match goal {
+        Goal::Tris(n) => match per_node_to_count(store, cut, n as u64, o, None)? {
+            Reduced::Mesh(m) => Ok(m),
+            Reduced::Spooled(_) => unreachable!("no output given"),
+        },
+        Goal::Error(_) => {
+            let mut pn = PerNode::new(store, cut, o)?;
+            let all: Vec<usize> = (0..cut.drawn.len()).collect();
+            pn.reduce(&all, |_, _| goal)?;
+            pn.welded()
+        }
     }
-    // Pass 1: a position two parts share is on an open edge of at least
-    // one of them (unless both cover it wholly: a doubled surface); so take
-    // the positions on open edges, then count the parts holding each.
-    let mut border: FxHashSet<[u64; 3]> = FxHashSet::default();
-    for m in store.cut_meshes(cut) {
-        border.extend(open_edge_positions(&m?));
+}
+
+/// The per-node route for `n` triangles (see the module doc): parts
+/// reduced node by node and spilled, the remainder settled over the spilled
+/// parts; then, when the shares could not come within 1 % of `n` and the
+/// whole result fits `--mem`, one last pass over it in memory with nothing
+/// locked; else the parts welded into `out` as they are read back (in
+/// memory without `out`).
+fn per_node_to_count(store: &Store, cut: &Cut, n: u64, o: &ReduceOptions, out: Option<&Path>) -> Result<Reduced> {
+    let mut pn = PerNode::new(store, cut, o)?;
+    pn.reduce_to(n)?;
+    let total = pn.total();
+    if total > n && !within_1pct(total, n) && check_fits(total, o, "the result").is_ok() {
+        let m = pn.welded()?;
+        drop(pn);
+        let m = reduce_mesh(&m, &vec![false; m.vertices.len()], store.header.attrs, Goal::Tris(n as usize), o.simplifier);
+        return Ok(Reduced::Mesh(m));
     }
+    match out {
+        Some(out) => Ok(Reduced::Spooled(Box::new(pn.spool(out, o.force)?))),
+        None => Ok(Reduced::Mesh(pn.welded()?)),
+    }
+}
+
+/// Bytes held per position of the shared set: its entry (and, while it is
+/// built, the count of every node-border position), and the output weld
+/// map's entry for the vertex there (its encoded bytes as the key); with
+/// the hash tables' slack.
+const SHARED_BYTES: u64 = 256;
+
+/// Rounds of [`PerNode::reduce_to`] after the first pass.
+const SETTLE_ROUNDS: usize = 3;
+
+/// A cut reduced node by node: the positions shared between its nodes
+/// (locked in every reduction), and each drawn node's reduced part spilled
+/// to a scratch file, with what was asked of it and what it gave.
+struct PerNode<'a> {
+    store: &'a Store,
+    cut: &'a Cut,
+    o: &'a ReduceOptions,
+    shared: FxHashSet<[u64; 3]>,
+    /// Nodes reduced at once: what `--mem` holds beside the shared set.
+    batch: usize,
+    spill: Spill,
+    /// Per drawn node (in `cut.drawn` order): triangles drawn, asked, and
+    /// held by its spilled part.
+    drawn: Vec<u64>,
+    asked: Vec<u64>,
+    got: Vec<u64>,
+}
+
+impl<'a> PerNode<'a> {
+    /// Finds the shared positions and sizes the batches; a usage error when
+    /// the shared set and one node do not fit `--mem` together.
+    fn new(store: &'a Store, cut: &'a Cut, o: &'a ReduceOptions) -> Result<PerNode<'a>> {
+        let shared = shared_positions(store, cut, o.mem)?;
+        let shared_bytes = shared.len() as u64 * SHARED_BYTES;
+        let node_tris = cut.drawn.iter().map(|&i| store.nodes[i].tris as u64).max().unwrap_or(0).max(1);
+        let node_bytes = node_tris * o.simplifier.bytes_per_triangle();
+        let fit = o.mem.saturating_sub(shared_bytes) / node_bytes;
+        if fit == 0 {
+            return Err(Error::Usage(format!(
+                "reducing node by node holds the {} positions shared between nodes (about {} MiB) and one node of up to {node_tris} triangles \
+                 at a time (about {} MiB), more than --mem {} MiB; raise --mem",
+                shared.len(),
+                shared_bytes >> 20,
+                node_bytes >> 20,
+                o.mem >> 20
+            )));
+        }
+        let batch = fit.min(4 * rayon::current_num_threads().max(1) as u64) as usize;
+        let parts = cut.drawn.len();
+        Ok(PerNode { store, cut, o, shared, batch, spill: Spill::create(store, parts)?, drawn: vec![0; parts], asked: vec![0; parts], got: vec![0; parts] })
+    }
+
+    /// Triangles of the spilled parts.
+    fn total(&self) -> u64 {
+        self.got.iter().sum()
+    }
+
+    /// Reduces drawn nodes `jobs` (indices into `cut.drawn`), in parallel
+    /// batches, each to `goal(job, its triangles)` with the shared
+    /// positions locked, and spills the parts. A node is read from its
+    /// spilled part when that holds more than asked, else from the store.
+    fn reduce(&mut self, jobs: &[usize], goal: impl Fn(usize, usize) -> Goal + Sync) -> Result<()> {
+        let attrs = self.store.header.attrs;
+        for chunk in jobs.chunks(self.batch) {
+            let done: Vec<(usize, u64, u64, Vec<u8>)> = chunk
+                .par_iter()
+                .map(|&k| -> Result<_> {
+                    let from_spill = self.spill.has(k) && matches!(goal(k, self.drawn[k] as usize), Goal::Tris(a) if (a as u64) < self.got[k]);
+                    let m = if from_spill { self.spill.read(k)? } else { self.cut.drawn_mesh(&self.store.read_node(self.cut.drawn[k])?) };
+                    let drawn = if from_spill { self.drawn[k] } else { m.triangles.len() as u64 };
+                    let g = goal(k, drawn as usize);
+                    let locked: Vec<bool> = m.vertices.iter().map(|v| self.shared.contains(&pos_bits(v.pos))).collect();
+                    let r = reduce_mesh(&m, &locked, attrs, g, self.o.simplifier);
+                    let asked = if let Goal::Tris(a) = g { a as u64 } else { 0 };
+                    Ok((k, drawn, asked, self.spill.encode(&r)))
+                })
+                .collect::<Result<_>>()?;
+            for (k, drawn, asked, bytes) in done {
+                self.got[k] = self.spill.put(k, &bytes)?;
+                (self.drawn[k], self.asked[k]) = (drawn, asked);
+            }
+        }
+        Ok(())
+    }
+
+    /// Reduces every node to its share of `n` (proportional to its
+    /// triangles), then settles the remainder: nodes whose locked vertices
+    /// kept them above their share keep what they have, the others share
+    /// what is left and are reduced again (from their spilled part, or from
+    /// the store when they must grow), until the total is within 0.25 % of
+    /// `n` or [`SETTLE_ROUNDS`] have passed.
+    fn reduce_to(&mut self, n: u64) -> Result<()> {
+        let total = self.cut.triangles(self.store).max(1);
+        let all: Vec<usize> = (0..self.cut.drawn.len()).collect();
+        self.reduce(&all, |_, t| Goal::Tris(((n as f64) * t as f64 / total as f64).round() as usize))?;
+        // Stuck: the node missed its share by over 1 % (its locked vertices
+        // kept it above, or the simplifier's last step overshot).
+        let stuck_at = |got: u64, asked: u64| got.abs_diff(asked) > asked / 100;
+        let mut stuck: Vec<bool> = (0..all.len()).map(|k| stuck_at(self.got[k], self.asked[k])).collect();
+        for _ in 0..SETTLE_ROUNDS {
+            if self.total().abs_diff(n) * 400 <= n {
+                break;
+            }
+            let free: Vec<usize> = all.iter().copied().filter(|&k| !stuck[k]).collect();
+            let kept: u64 = all.iter().filter(|&&k| stuck[k]).map(|&k| self.got[k]).sum();
+            let room = n.saturating_sub(kept).max(free.len() as u64);
+            let shares = apportion(&free.iter().map(|&k| self.drawn[k]).collect::<Vec<_>>(), room);
+            let mut ask = vec![0u64; all.len()];
+            for (&k, &a) in free.iter().zip(&shares) {
+                ask[k] = a.max(1);
+            }
+            let jobs: Vec<usize> = free.into_iter().filter(|&k| ask[k].abs_diff(self.got[k]) > self.got[k] / 1000).collect();
+            if jobs.is_empty() {
+                break;
+            }
+            self.reduce(&jobs, |k, _| Goal::Tris(ask[k] as usize))?;
+            for &k in &jobs {
+                stuck[k] = stuck_at(self.got[k], self.asked[k]);
+            }
+        }
+        Ok(())
+    }
+
+    /// The spilled parts welded in memory ([`weld_union`]).
+    fn welded(&self) -> Result<IndexedMesh> {
+        let parts = (0..self.cut.drawn.len()).map(|k| self.spill.read(k)).collect::<Result<Vec<_>>>()?;
+        Ok(weld_union(&self.store.layout, &parts))
+    }
+
+    /// The spilled parts written into a [`SpooledPly`] at `out`, one at a
+    /// time: vertices at shared positions are welded across parts (by
+    /// their encoded bytes, attributes included), the others within their
+    /// part only.
+    fn spool(&self, out: &Path, force: bool) -> Result<SpooledPly> {
+        let mut ply = SpooledPly::create(out, self.store.header.attrs, force)?;
+        let mut weld = Welder::new(&self.store.layout);
+        for k in 0..self.cut.drawn.len() {
+            let (v, t) = weld.add(&self.spill.read(k)?, |v| self.shared.contains(&pos_bits(v.pos)));
+            for x in &v {
+                ply.vertex(x)?;
+            }
+            for x in &t {
+                ply.face(x)?;
+            }
+        }
+        Ok(ply)
+    }
+}
+
+/// `total` split in proportion to `weights`, rounded so that the shares
+/// add up to it (largest remainders first); all zero when the weights are.
+fn apportion(weights: &[u64], total: u64) -> Vec<u64> {
+    let sum: u64 = weights.iter().sum();
+    if sum == 0 {
+        return vec![0; weights.len()];
+    }
+    let exact: Vec<f64> = weights.iter().map(|&w| w as f64 * total as f64 / sum as f64).collect();
+    let mut shares: Vec<u64> = exact.iter().map(|x| x.floor() as u64).collect();
+    let mut order: Vec<usize> = (0..weights.len()).collect();
+    order.sort_by(|&a, &b| (exact[b] - exact[b].floor()).total_cmp(&(exact[a] - exact[a].floor())));
+    let left = total.saturating_sub(shares.iter().sum());
+    for &k in order.iter().take(left as usize) {
+        shares[k] += 1;
+    }
+    shares
+}
+
+/// The positions two or more drawn nodes of `cut` hold, found exactly: a
+/// position two parts share is on an open edge of at least one of them
+/// (unless both cover it wholly: a doubled surface), so take the positions
+/// on open edges, then count the parts holding each. A usage error when
+/// they do not fit `mem`.
+fn shared_positions(store: &Store, cut: &Cut, mem: u64) -> Result<FxHashSet<[u64; 3]>> {
     let mut count: FxHashMap<[u64; 3], u32> = FxHashMap::default();
     for m in store.cut_meshes(cut) {
-        let held: FxHashSet<[u64; 3]> = m?.vertices.iter().map(|v| pos_bits(v.pos)).filter(|k| border.contains(k)).collect();
+        for k in open_edge_positions(&m?) {
+            count.entry(k).or_insert(0);
+        }
+        if count.len() as u64 * SHARED_BYTES > mem {
+            return Err(Error::Usage(format!(
+                "the positions on the nodes' borders (over {} so far, about {SHARED_BYTES} bytes each) need more than --mem {} MiB; raise --mem",
+                count.len(),
+                mem >> 20
+            )));
+        }
+    }
+    for m in store.cut_meshes(cut) {
+        let held: FxHashSet<[u64; 3]> = m?.vertices.iter().map(|v| pos_bits(v.pos)).filter(|k| count.contains_key(k)).collect();
         for k in held {
-            *count.entry(k).or_insert(0) += 1;
+            *count.get_mut(&k).expect("a border position") += 1;
         }
     }
-    drop(border);
-    count.retain(|_, c| *c >= 2);
-    let shared: FxHashSet<[u64; 3]> = count.into_keys().collect();
-    // Pass 2: each part reduced to its share, in parallel batches.
-    let batch = 4 * rayon::current_num_threads().max(1);
-    let mut parts = Vec::new();
-    for ids in cut.drawn.chunks(batch) {
-        let done: Vec<IndexedMesh> = ids
-            .par_iter()
-            .map(|&i| -> Result<IndexedMesh> {
-                let m = cut.drawn_mesh(&store.read_node(i)?);
-                let locked: Vec<bool> = m.vertices.iter().map(|v| shared.contains(&pos_bits(v.pos))).collect();
-                let g = match goal {
-                    Goal::Tris(n) => Goal::Tris(((n as f64) * m.triangles.len() as f64 / tris.max(1) as f64).round() as usize),
-                    g => g,
-                };
-                Ok(reduce_mesh(&m, &locked, attrs, g, o.simplifier))
-            })
-            .collect::<Result<_>>()?;
-        parts.extend(done);
+    Ok(count.into_iter().filter(|&(_, c)| c >= 2).map(|(k, _)| k).collect())
+}
+
+/// Reduced parts spilled to one scratch file next to the store, appended as
+/// they come (a part reduced again is appended anew), each encoded as a
+/// one-patch store payload in the payload layout (lossless: derived normals
+/// kept).
+struct Spill {
+    _dir: ScratchDir,
+    path: PathBuf,
+    file: File,
+    layout: VertexLayout,
+    end: u64,
+    /// Per part: offset and length of its latest copy.
+    at: Vec<Option<(u64, usize)>>,
+}
+
+impl Spill {
+    fn create(store: &Store, parts: usize) -> Result<Spill> {
+        let dir = crate::io::scratch_dir(&store.dir)?;
+        let path = dir.path().join("parts");
+        let file = File::options().read(true).write(true).create_new(true).open(&path).ctx(&path, "create")?;
+        Ok(Spill { _dir: dir, path, file, layout: store.payload_layout, end: 0, at: vec![None; parts] })
     }
-    let welded = weld_union(&store.layout, &parts);
-    drop(parts);
-    match goal {
-        Goal::Tris(n) if welded.triangles.len() > n => {
-            Ok(reduce_mesh(&welded, &vec![false; welded.vertices.len()], attrs, goal, o.simplifier))
-        }
-        _ => Ok(welded),
+
+    fn has(&self, k: usize) -> bool {
+        self.at[k].is_some()
+    }
+
+    fn encode(&self, m: &IndexedMesh) -> Vec<u8> {
+        let mut b = Vec::new();
+        encode_payload(&self.layout, m, &[(NO_NODE, m.triangles.len() as u32)], &mut b);
+        b
+    }
+
+    /// Appends part `k`'s bytes (from [`Spill::encode`]); gives its triangles.
+    fn put(&mut self, k: usize, bytes: &[u8]) -> Result<u64> {
+        self.file.write_all_at(bytes, self.end).ctx(&self.path, "write")?;
+        self.at[k] = Some((self.end, bytes.len()));
+        self.end += bytes.len() as u64;
+        Ok(u32::from_le_bytes(bytes[4..8].try_into().expect("a payload header")) as u64)
+    }
+
+    fn read(&self, k: usize) -> Result<IndexedMesh> {
+        let (off, len) = self.at[k].expect("part spilled");
+        let mut b = vec![0u8; len];
+        self.file.read_exact_at(&mut b, off).ctx(&self.path, "read")?;
+        Ok(decode_payload(&self.layout, &b, &self.path, off)?.mesh)
     }
 }
 
@@ -404,4 +700,26 @@ fn collapse(mesh: &IndexedMesh, locked: &[bool], attrs: AttrSet, goal: Goal) -> 
 /// `tris` over `mesh.vertices`, unreferenced vertices dropped.
 fn compact(mesh: &IndexedMesh, tris: &[[u32; 3]]) -> IndexedMesh {
     crate::lod::collapse::compact(&mesh.vertices, tris).0
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn apportion_adds_up_in_proportion() {
+        assert_eq!(apportion(&[1, 1, 1], 10), [4, 3, 3]);
+        assert_eq!(apportion(&[3, 1], 4), [3, 1]);
+        assert_eq!(apportion(&[0, 0], 5), [0, 0]);
+        assert_eq!(apportion(&[], 5), Vec::<u64>::new());
+        let w: Vec<u64> = (1..=97).map(|k| k * k % 89 + 1).collect();
+        for total in [0, 1, 96, 1_000, 123_457] {
+            let s = apportion(&w, total);
+            assert_eq!(s.iter().sum::<u64>(), total);
+            let sum: u64 = w.iter().sum();
+            for (x, &wi) in s.iter().zip(&w) {
+                assert!((*x as f64 - wi as f64 * total as f64 / sum as f64).abs() < 1.0);
+            }
+        }
+    }
 }

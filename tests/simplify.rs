@@ -9,6 +9,7 @@ use octolod::gen::Shape;
 use octolod::mesh::{AttrSet, Vertex};
 use octolod::reduce::{simplify_store, ReduceOptions, ReduceReport, Simplifier, Target};
 use octolod::store::{IndexedMesh, Store};
+use std::collections::HashSet;
 use std::path::Path;
 use std::process::Command;
 
@@ -102,11 +103,52 @@ fn exact_counts_node_by_node_under_a_small_budget_stay_closed() {
         .unwrap();
         assert!(e.combined.max < 2e-3 * diag, "{name}: Hausdorff {:e}", e.combined.max / diag);
     }
-    // An output larger than the budget is refused with a clear message.
-    let mem = 66_000 * Simplifier::Collapse.bytes_per_triangle();
-    let err = simplify_store(&s, &dir.path().join("big.ply"), &opts(Target::Tris(150_000), Simplifier::Collapse, mem)).unwrap_err();
+}
+
+/// The header's `comment octolod simplify ...` line of a PLY octolod wrote.
+fn simplify_comment(p: &Path) -> String {
+    let b = std::fs::read(p).unwrap();
+    let head = String::from_utf8_lossy(&b[..b.windows(11).position(|w| w == b"end_header\n").unwrap()]).into_owned();
+    head.lines().find_map(|l| l.strip_prefix("comment octolod simplify")).map(|c| format!("octolod simplify{c}")).unwrap()
+}
+
+#[test]
+fn outputs_larger_than_the_budget_are_streamed_node_by_node_welded_and_closed() {
+    let dir = tempfile::tempdir().unwrap();
+    let (ply, input) = gen_ply(dir.path(), Shape::Sphere, 200_000, 0);
+    assert!(edge_counts(&input.triangles).values().all(|&c| c == 2), "the input sphere is closed");
+    let s = build_from(dir.path(), &ply, 4096);
+    let (n, mem) = (100_000u64, 16u64 << 20);
+    for simp in BOTH {
+        // The output alone needs more than --mem in memory: this used to be refused.
+        assert!(n * simp.bytes_per_triangle() > mem);
+        let name = format!("streamed-{simp:?}");
+        let (r, a, m) = run(&s, dir.path(), &name, &opts(Target::Tris(n), simp, mem));
+        assert_eq!(r.route, "per-node", "{name}");
+        assert!(r.reached && within_1pct(m.triangles.len(), n), "{name}: {} triangles, {r:?}", m.triangles.len());
+        assert_eq!(r.vertices, m.vertices.len() as u64, "{name}");
+        // Welded across the nodes as written (no welding here): no two
+        // vertices alike, and every edge in two faces by index.
+        let distinct: HashSet<[u64; 3]> = m.vertices.iter().map(|v| v.pos.map(f64::to_bits)).collect();
+        assert_eq!(distinct.len(), m.vertices.len(), "{name}: vertices not welded");
+        let edges = edge_counts(&m.triangles);
+        if simp == Simplifier::Collapse {
+            assert!(edges.values().all(|&c| c == 2), "{name}: {} edges not in exactly two faces", edges.values().filter(|&&c| c != 2).count());
+        } else {
+            // Clustering may fold thin spots away, never open a seam.
+            let open = edges.values().filter(|&&c| c == 1).count();
+            assert!(open <= m.triangles.len() / 1000, "{name}: {open} open edges");
+        }
+        // Byte for byte what the in-memory route's writer makes of that mesh.
+        let out = dir.path().join(format!("{name}.ply"));
+        let again = dir.path().join(format!("{name}-again.ply"));
+        octolod::pipeline::write_mesh_ply(&again, a, &simplify_comment(&out), &m, false).unwrap();
+        assert!(std::fs::read(&out).unwrap() == std::fs::read(&again).unwrap(), "{name}: not the bytes write_mesh_ply writes");
+    }
+    // Too little for the shared border and one node: a clear error, nothing written.
+    let err = simplify_store(&s, &dir.path().join("tiny.ply"), &opts(Target::Tris(n), Simplifier::Collapse, 256 << 10)).unwrap_err();
     assert!(err.to_string().contains("--mem"), "{err}");
-    assert!(!dir.path().join("big.ply").exists());
+    assert!(!dir.path().join("tiny.ply").exists());
 }
 
 #[test]
@@ -234,4 +276,81 @@ fn cli_targets_and_exit_codes() {
     let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(j["reached"], true, "{j}");
     assert!(j["triangles"].as_u64().unwrap() < input, "{j}");
+}
+
+/// Runs octolod with `args` and gives its exit code, stdout, stderr and
+/// peak resident set size in bytes. `wait4`'s `ru_maxrss` also counts the
+/// high-water mark of the memory a child execs from — a child of this test
+/// process starts in this process's memory (vfork), which the tests running
+/// alongside take to hundreds of MiB — so the command is started from a
+/// fresh run of this test binary doing nothing else ([`measure_child`]).
+fn run_measured(args: &[&str]) -> (Option<i32>, Vec<u8>, String, u64) {
+    let d = tempfile::tempdir().unwrap();
+    let o = Command::new(std::env::current_exe().unwrap())
+        .args(["--exact", "measure_child", "--nocapture", "--test-threads", "1"])
+        .env(MEASURE, args.join("\u{1f}"))
+        .env(MEASURE_OUT, d.path())
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&o.stdout);
+    // The harness prints the test's name on the same line first.
+    let line = text.split("measured: ").nth(1).and_then(|r| r.lines().next()).unwrap_or_else(|| panic!("{text}"));
+    let (code, peak) = line.split_once(' ').unwrap();
+    let read = |n: &str| std::fs::read(d.path().join(n)).unwrap();
+    (code.parse().ok(), read("stdout"), String::from_utf8_lossy(&read("stderr")).into_owned(), peak.parse().unwrap())
+}
+
+const MEASURE: &str = "OCTOLOD_TEST_MEASURE";
+const MEASURE_OUT: &str = "OCTOLOD_TEST_MEASURE_OUT";
+
+/// For [`run_measured`] only (does nothing otherwise): runs octolod with
+/// the arguments in `$OCTOLOD_TEST_MEASURE`, its output into files, and
+/// prints `measured: CODE PEAK_BYTES`.
+#[test]
+fn measure_child() {
+    use std::process::Stdio;
+    let (Ok(args), Ok(dir)) = (std::env::var(MEASURE), std::env::var(MEASURE_OUT)) else { return };
+    let dir = Path::new(&dir);
+    let file = |n: &str| Stdio::from(std::fs::File::create(dir.join(n)).unwrap());
+    // Reaped below by wait4 (which gives its rusage), not by `wait()`.
+    #[allow(clippy::zombie_processes)]
+    let child = Command::new(env!("CARGO_BIN_EXE_octolod")).args(args.split('\u{1f}')).stdout(file("stdout")).stderr(file("stderr")).spawn().unwrap();
+    let mut status = 0;
+    // SAFETY: plain structs the kernel fills; the child is ours and not yet reaped.
+    let mut ru: libc::rusage = unsafe { std::mem::zeroed() };
+    let pid = unsafe { libc::wait4(child.id() as libc::pid_t, &mut status, 0, &mut ru) };
+    assert_eq!(pid, child.id() as libc::pid_t);
+    let code = if libc::WIFEXITED(status) { libc::WEXITSTATUS(status) } else { -1 };
+    println!("measured: {code} {}", ru.ru_maxrss as u64 * 1024);
+}
+
+#[test]
+fn the_command_writes_an_output_larger_than_mem_within_mem() {
+    let dir = tempfile::tempdir().unwrap();
+    let (ply, _) = gen_ply(dir.path(), Shape::Sphere, 200_000, 0);
+    let out = dir.path().join("o.ply");
+    let (n, mem) = (100_000u64, 16u64 << 20);
+    assert!(n * Simplifier::Collapse.bytes_per_triangle() > mem);
+    let (code, stdout, stderr, peak) = run_measured(&[
+        "--quiet",
+        "simplify",
+        ply.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--target-tris",
+        &n.to_string(),
+        "--mem",
+        "16M",
+        "--leaf-tris",
+        "4096",
+        "--json",
+    ]);
+    assert_eq!(code, Some(0), "{stderr}");
+    let r: ReduceReport = serde_json::from_slice(&stdout).unwrap();
+    assert_eq!(r.route, "per-node", "{r:?}");
+    assert!(r.reached && within_1pct(r.triangles as usize, n), "{r:?}");
+    assert_eq!(read(&out).1.triangles.len() as u64, r.triangles);
+    // The budget plus the process's fixed overhead (see `octolod::mem`).
+    assert!(peak <= mem + (64 << 20), "peak RSS {} MiB under --mem 16M", peak >> 20);
+    eprintln!("simplify 200 K -> 100 K triangles under --mem 16M: peak RSS {:.1} MiB", peak as f64 / (1 << 20) as f64);
 }
