@@ -405,6 +405,15 @@ impl<'a> Splits<'a> {
         // Per representative: half-gradient and residual of its quadric at
         // its position (the members' residuals added below).
         let mut rep_ge: Vec<f64> = Vec::new();
+        // The least-squares uv of a cluster can overshoot the uvs it stands
+        // for (a texture border); keep it inside the node's uv range, as
+        // edge collapse does (colours are clamped by `unembed`, normals
+        // renormalised).
+        let uv_range = self.space.attrs.uv().then(|| {
+            self.mesh.vertices.iter().fold(([f32::MAX; 2], [f32::MIN; 2]), |(lo, hi), v| {
+                ([lo[0].min(v.uv[0]), lo[1].min(v.uv[1])], [hi[0].max(v.uv[0]), hi[1].max(v.uv[1])])
+            })
+        });
         if !self.free.is_empty() {
             let a = self.assign(s);
             let mut rep_of_cell = vec![u32::MAX; self.cells.len()];
@@ -417,7 +426,11 @@ impl<'a> Splits<'a> {
                     let sol = q.solve(rel_tol, Some((cell.lo, cell.hi)));
                     st.clamped += sol.clamped as u64;
                     rep_of_cell[c] = reps.len() as u32;
-                    reps.push(self.space.unembed(&sol.x[..dim], &self.mesh.vertices[v as usize]));
+                    let mut r = self.space.unembed(&sol.x[..dim], &self.mesh.vertices[v as usize]);
+                    if let Some((lo, hi)) = uv_range {
+                        r.uv = [r.uv[0].clamp(lo[0], hi[0]), r.uv[1].clamp(lo[1], hi[1])];
+                    }
+                    reps.push(r);
                     rep_ge.extend_from_slice(&q.half_gradient(&sol.x)[..dim]);
                     rep_ge.push(sol.error.max(0.0));
                 }
