@@ -85,7 +85,7 @@ struct Cell {
 }
 
 #[derive(PartialEq)]
-struct Prio(f64, u32);
+pub(crate) struct Prio(pub f64, pub u32);
 impl Eq for Prio {}
 impl PartialOrd for Prio {
     fn partial_cmp(&self, o: &Self) -> Option<std::cmp::Ordering> {

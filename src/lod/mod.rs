@@ -47,7 +47,11 @@
 //!    (two-sided, vertex-sampled: input vertices to the simplified surface,
 //!    representatives to the input surface); its bounds hold its triangles
 //!    and its children's bounds. Projected error therefore never grows from
-//!    a node to its parent, along any path.
+//!    a node to its parent, along any path. A node whose error is set by a
+//!    few input vertices far from its own output (a flap folded over a
+//!    neighbour's surface, dropped as a fold) has them measured again
+//!    against the whole next level ([`remeasure_far`]): the neighbour's
+//!    surface under the flap is what a cut draws there.
 //! 6. **Patches.** Node N of level L+1 stores its triangles grouped by the
 //!    level-L node (child) each came from; a cut draws, per selected node,
 //!    the patches whose child is not selected ([`crate::store`]).
@@ -110,7 +114,8 @@ use crate::store::Simplifier;
 pub use crate::store::{BuildParams, LevelReport};
 use crate::store::{encode_payload, IndexedMesh, NodeRec, PackWriter, StoreHeader, NO_NODE};
 use chunks::{split_by_target, ChunkFile, Gathered};
-use cluster::Splits;
+use cluster::{Prio, Splits};
+use std::collections::BinaryHeap;
 use partition::{Histogram, LevelCube, Tiling, KEY_DEPTH};
 use rayon::prelude::*;
 use shared::{pos_bits, Band, SharedSort, WAS_LOCKED};
@@ -339,6 +344,7 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
         let mut seam_only = 0u64;
         let mut prev_freed = 0u64;
         let mut next_total = 0u64;
+        let mut far_nodes: Vec<(usize, f64, Vec<([f64; 3], f64)>)> = Vec::new();
         for (bi, group) in ids.chunks(batch).enumerate() {
             let sets = group
                 .iter()
@@ -398,7 +404,13 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
                                 let mut no = sp.build(sp.steps(), opts.rel_tol);
                                 p2.clamped = no.stats.clamped;
                                 as_stored(&mut no.mesh);
-                                p2.error = node_error(&g.mesh, &no);
+                                let ne = node_error(&g.mesh, &no);
+                                p2.error = ne.error;
+                                p2.base = ne.base;
+                                // A few far points setting the error: worth measuring again.
+                                if ne.error > 2.0 * ne.base {
+                                    p2.far = ne.far;
+                                }
                                 let out_locked: Vec<bool> = no.kept_from.iter().map(|&k| k != u32::MAX).collect();
                                 (no.mesh, no.a, out_locked)
                             }
@@ -408,6 +420,7 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
                                 let (mut out, from) = collapse::compact(&c.vertices, &collapse::unfold(&c.vertices, &c.triangles));
                                 as_stored(&mut out);
                                 p2.error = collapse::collapse_error(&g.mesh, &locked, &out, &from);
+                                p2.base = p2.error;
                                 let out_locked: Vec<bool> = from.iter().map(|&f| locked[f as usize]).collect();
                                 (out, Vec::new(), out_locked)
                             }
@@ -468,6 +481,9 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
                 });
                 node_children.push(r.children);
                 simp_err.push(r.error);
+                if !r.far.is_empty() {
+                    far_nodes.push((nodes.len() - 1, r.base, r.far));
+                }
                 shared_occurrences += r.shared;
                 seam_only += r.seam_only;
                 prev_freed += r.prev_freed;
@@ -505,6 +521,7 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
             }
         });
         old.remove();
+        remeasure_far(&chunks, &next_leaves, &mut simp_err[base..], far_nodes.into_iter().map(|(i, b, f)| (i - base, b, f)).collect())?;
         if next_total as f64 > 0.9 * total as f64 {
             leaf_scale = leaf_scale.saturating_mul(2);
         }
@@ -559,6 +576,10 @@ struct Pass2 {
     simp_tris: u32,
     children: Vec<u32>,
     error: f64,
+    /// The error without `far` ([`NodeError`]).
+    base: f64,
+    /// Input vertices setting the error, to measure against the whole next level.
+    far: Vec<([f64; 3], f64)>,
     clamped: u64,
     shared: u64,
     seam_only: u64,
@@ -739,11 +760,15 @@ fn tri_centroid(m: &IndexedMesh, t: &[u32; 3]) -> [f64; 3] {
 /// and their neighbours): upper bounds of the exact distances, tight on
 /// the surfaces tried (a test compares them with exact BVH distances),
 /// with no index over either mesh. Kept vertices are at distance 0.
-pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> f64 {
+///
+/// Also gives the input vertices that set the error (those farther than a
+/// quarter of it from the output), so the level can measure them again
+/// against the whole next level ([`NodeError`], [`remeasure_far`]).
+pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> NodeError {
     use crate::geom::{closest_point_triangle, Bvh, Mesh};
     let output = &out.mesh;
     if input.triangles.is_empty() {
-        return 0.0;
+        return NodeError::default();
     }
     let dist2 = |p: [f64; 3], c: [[f64; 3]; 3]| {
         let q = closest_point_triangle(p, c[0], c[1], c[2]);
@@ -767,6 +792,14 @@ pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> f64 {
     let mut d2 = 0.0f64;
     let mut bbox = Aabb::EMPTY;
     let mut whole: Option<Bvh> = None;
+    // The MAX_FAR largest bounds (squared) of input vertices, smallest on
+    // top: a vertex's search stops once its bound falls to the smallest of
+    // them (it can no longer enter), so every bound kept is a full one, and
+    // `rest` (the largest of all others) is what the error would be without
+    // them.
+    let mut top: BinaryHeap<std::cmp::Reverse<(Prio, u32)>> = BinaryHeap::new();
+    let mut rest = 0.0f64;
+    let floor = |top: &BinaryHeap<std::cmp::Reverse<(Prio, u32)>>| if top.len() < MAX_FAR { 0.0 } else { top.peek().map_or(0.0, |r| r.0 .0 .0) };
     // Input vertices to the output triangles around their image (an upper
     // bound of the distance to the whole output surface).
     for v in 0..nv {
@@ -796,28 +829,36 @@ pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> f64 {
                 seen[n_seen] = o as u32;
                 n_seen += 1;
             }
+            let low = floor(&top);
             for &ti in &out_around[out_first[o] as usize..out_first[o + 1] as usize] {
                 best = best.min(dist2(p, output.triangles[ti as usize].map(|x| output.vertices[x as usize].pos)));
-                if best <= d2 {
-                    break 'near; // cannot raise the maximum
+                if best <= low {
+                    break 'near; // cannot be among the largest
                 }
             }
         }
         if best.is_finite() {
             d2 = d2.max(best);
+            keep_top(&mut top, &mut rest, best, v as u32);
         } else if !output.triangles.is_empty() {
             // The image lost every triangle (its cluster folded away): the
             // exact distance to the whole output, through a BVH built once.
             let bvh = whole.get_or_insert_with(|| Bvh::new(&Mesh::from_vertices(&output.vertices, output.triangles.clone())));
             if let Some(c) = bvh.closest(p) {
                 d2 = d2.max(c.dist2);
+                keep_top(&mut top, &mut rest, c.dist2, v as u32);
             }
         }
     }
     if output.triangles.is_empty() {
         // Everything collapsed: the input's extent is the error.
-        return bbox.diagonal();
+        let e = bbox.diagonal();
+        return NodeError { error: e, base: e, far: Vec::new() };
     }
+    let in_d2 = d2;
+    // The representatives' side, with its own maximum (so it is known
+    // apart from the input side's).
+    let mut r2 = 0.0f64;
     // Representatives to the input triangles around their members.
     for o in 0..output.vertices.len() {
         let ms = &out.members[out.members_first[o] as usize..out.members_first[o + 1] as usize];
@@ -834,7 +875,7 @@ pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> f64 {
                 for w in verts {
                     for &ti in &in_around[in_first[w as usize] as usize..in_first[w as usize + 1] as usize] {
                         best = best.min(dist2(p, input.triangles[ti as usize].map(|x| input.vertices[x as usize].pos)));
-                        if best <= d2 {
+                        if best <= r2 {
                             break 'members; // cannot raise the maximum
                         }
                     }
@@ -842,10 +883,90 @@ pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> f64 {
             }
         }
         if best.is_finite() {
-            d2 = d2.max(best);
+            r2 = r2.max(best);
         }
     }
-    d2.sqrt()
+    // The far input vertices: those with the largest bounds; every other
+    // one is within `rest`.
+    let far: Vec<([f64; 3], f64)> = top.into_iter().map(|r| (input.vertices[r.0 .1 as usize].pos, r.0 .0 .0.sqrt())).collect();
+    NodeError { error: in_d2.max(r2).sqrt(), base: rest.max(r2).sqrt(), far }
+}
+
+/// Keeps the [`MAX_FAR`] largest bounds in `top`; `rest` takes the largest
+/// of the others.
+fn keep_top(top: &mut BinaryHeap<std::cmp::Reverse<(Prio, u32)>>, rest: &mut f64, b: f64, v: u32) {
+    top.push(std::cmp::Reverse((Prio(b, 0), v)));
+    if top.len() > MAX_FAR {
+        if let Some(r) = top.pop() {
+            *rest = rest.max(r.0 .0 .0);
+        }
+    }
+}
+
+/// Far points a node keeps for [`remeasure_far`]: its input vertices with
+/// the largest distances to its output.
+const MAX_FAR: usize = 64;
+
+/// A level's simplification errors (`errors`, one per node of the level)
+/// whose far points ([`NodeError`]) are measured again against the whole
+/// next level (`next`, its leaves' bounds `next_leaves`), for the nodes
+/// whose error stands out (over twice the level's median).
+///
+/// Why: clustering a level can leave a *flap*, triangles folded back over
+/// a neighbouring node's surface (on the surface, 1e-5 from the input,
+/// but over the neighbour's area). The node holding them drops them one
+/// level up (they form folds), so their vertices are far from *its*
+/// output, 4e-3 on a 2 M-triangle sphere's level-1 node where the level as
+/// a whole was 3e-5 from the input; saturation then carried 4e-3 to every
+/// ancestor and the viewer refined far more than needed. Measured against
+/// the next level, which holds the neighbour's surface under the flap, the
+/// error is what the cut shows: a cut draws, around the flap, the
+/// neighbour's surface at its own level (or finer), within its own error.
+fn remeasure_far(next: &ChunkFile, next_leaves: &[LeafStats], errors: &mut [f64], far_nodes: Vec<(usize, f64, Vec<([f64; 3], f64)>)>) -> Result<()> {
+    use crate::geom::{Bvh, Mesh};
+    if far_nodes.is_empty() {
+        return Ok(());
+    }
+    let mut sorted: Vec<f64> = errors.to_vec();
+    sorted.sort_unstable_by(f64::total_cmp);
+    let median = sorted[sorted.len() / 2];
+    let picked: Vec<_> = far_nodes.into_iter().filter(|(i, _, _)| errors[*i] > 2.0 * median).collect();
+    let remeasured: Vec<Result<(usize, f64)>> = picked
+        .par_iter()
+        .map(|(i, base, far)| {
+            // The next level's leaves within reach of a far point.
+            let near = |b: &Aabb, p: [f64; 3], r: f64| (0..3).all(|k| p[k] >= b.min[k] - r && p[k] <= b.max[k] + r);
+            let leaves: Vec<usize> = (0..next_leaves.len()).filter(|&l| next_leaves[l].tris > 0 && far.iter().any(|&(p, d)| near(&next_leaves[l].bounds, p, d))).collect();
+            let mut mesh = Mesh { positions: Vec::new(), triangles: Vec::new() };
+            for l in leaves {
+                let g = next.gather(l)?;
+                let off = mesh.positions.len() as u32;
+                mesh.positions.extend(g.mesh.vertices.iter().map(|v| v.pos));
+                mesh.triangles.extend(g.mesh.triangles.iter().map(|t| t.map(|x| x + off)));
+            }
+            let bvh = Bvh::new(&mesh);
+            let worst = far.iter().map(|&(p, d)| bvh.closest(p).map_or(d, |c| c.dist2.sqrt().min(d))).fold(*base, f64::max);
+            Ok((*i, worst))
+        })
+        .collect();
+    for r in remeasured {
+        let (i, e) = r?;
+        errors[i] = errors[i].min(e);
+    }
+    Ok(())
+}
+
+/// [`node_error`]'s result.
+#[derive(Clone, Debug, Default)]
+pub struct NodeError {
+    /// The node's simplification error (both directions).
+    pub error: f64,
+    /// What remains of it without the far input vertices: the
+    /// representatives' side, and every other input vertex.
+    pub base: f64,
+    /// Input vertices more than error/4 from the node's own output, with
+    /// that distance (an upper bound).
+    pub far: Vec<([f64; 3], f64)>,
 }
 
 /// Triangles around each vertex: `around[first[v]..first[v + 1]]`.
