@@ -48,10 +48,11 @@
 //!    representatives to the input surface); its bounds hold its triangles
 //!    and its children's bounds. Projected error therefore never grows from
 //!    a node to its parent, along any path. A node whose error is set by a
-//!    few input vertices far from its own output (a flap folded over a
-//!    neighbour's surface, dropped as a fold) has them measured again
-//!    against the whole next level ([`remeasure_far`]): the neighbour's
-//!    surface under the flap is what a cut draws there.
+//!    few points (input vertices far from its own output: a flap folded
+//!    over a neighbour's surface, dropped as a fold; representatives far
+//!    from its own input) has them measured again against the whole next
+//!    level, or the whole level ([`remeasure_far`]): the neighbour's
+//!    surface there is what a cut draws.
 //! 6. **Patches.** Node N of level L+1 stores its triangles grouped by the
 //!    level-L node (child) each came from; a cut draws, per selected node,
 //!    the patches whose child is not selected ([`crate::store`]).
@@ -344,7 +345,7 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
         let mut seam_only = 0u64;
         let mut prev_freed = 0u64;
         let mut next_total = 0u64;
-        let mut far_nodes: Vec<(usize, f64, Vec<([f64; 3], f64)>)> = Vec::new();
+        let mut far_nodes: Vec<FarNode> = Vec::new();
         for (bi, group) in ids.chunks(batch).enumerate() {
             let sets = group
                 .iter()
@@ -410,6 +411,7 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
                                 // A few far points setting the error: worth measuring again.
                                 if ne.error > 2.0 * ne.base {
                                     p2.far = ne.far;
+                                    p2.far_reps = ne.far_reps;
                                 }
                                 let out_locked: Vec<bool> = no.kept_from.iter().map(|&k| k != u32::MAX).collect();
                                 (no.mesh, no.a, out_locked)
@@ -481,8 +483,8 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
                 });
                 node_children.push(r.children);
                 simp_err.push(r.error);
-                if !r.far.is_empty() {
-                    far_nodes.push((nodes.len() - 1, r.base, r.far));
+                if !r.far.is_empty() || !r.far_reps.is_empty() {
+                    far_nodes.push(FarNode { node: nodes.len() - 1 - base, base: r.base, far: r.far, far_reps: r.far_reps });
                 }
                 shared_occurrences += r.shared;
                 seam_only += r.seam_only;
@@ -520,8 +522,8 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
                 break;
             }
         });
+        remeasure_far([(&chunks, &next_leaves[..]), (&old, &leaves[..])], &mut simp_err[base..], far_nodes)?;
         old.remove();
-        remeasure_far(&chunks, &next_leaves, &mut simp_err[base..], far_nodes.into_iter().map(|(i, b, f)| (i - base, b, f)).collect())?;
         if next_total as f64 > 0.9 * total as f64 {
             leaf_scale = leaf_scale.saturating_mul(2);
         }
@@ -580,6 +582,8 @@ struct Pass2 {
     base: f64,
     /// Input vertices setting the error, to measure against the whole next level.
     far: Vec<([f64; 3], f64)>,
+    /// Representatives setting it, to measure against the whole level.
+    far_reps: Vec<([f64; 3], f64)>,
     clamped: u64,
     shared: u64,
     seam_only: u64,
@@ -853,12 +857,14 @@ pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> NodeError {
     if output.triangles.is_empty() {
         // Everything collapsed: the input's extent is the error.
         let e = bbox.diagonal();
-        return NodeError { error: e, base: e, far: Vec::new() };
+        return NodeError { error: e, base: e, ..Default::default() };
     }
     let in_d2 = d2;
-    // The representatives' side, with its own maximum (so it is known
-    // apart from the input side's).
+    // The representatives' side, with its own maximum and its own largest
+    // bounds (a representative can sit over a neighbour's surface too).
     let mut r2 = 0.0f64;
+    let mut top_r: BinaryHeap<std::cmp::Reverse<(Prio, u32)>> = BinaryHeap::new();
+    let mut rest_r = 0.0f64;
     // Representatives to the input triangles around their members.
     for o in 0..output.vertices.len() {
         let ms = &out.members[out.members_first[o] as usize..out.members_first[o + 1] as usize];
@@ -868,6 +874,7 @@ pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> NodeError {
         let p = output.vertices[o].pos;
         // The input triangles around the members and their neighbours.
         let mut best = f64::INFINITY;
+        let low = floor(&top_r);
         'members: for ring in 0..2 {
             for &m in ms {
                 let around_m = &in_around[in_first[m as usize] as usize..in_first[m as usize + 1] as usize];
@@ -875,8 +882,8 @@ pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> NodeError {
                 for w in verts {
                     for &ti in &in_around[in_first[w as usize] as usize..in_first[w as usize + 1] as usize] {
                         best = best.min(dist2(p, input.triangles[ti as usize].map(|x| input.vertices[x as usize].pos)));
-                        if best <= r2 {
-                            break 'members; // cannot raise the maximum
+                        if best <= low {
+                            break 'members; // cannot be among the largest
                         }
                     }
                 }
@@ -884,12 +891,14 @@ pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> NodeError {
         }
         if best.is_finite() {
             r2 = r2.max(best);
+            keep_top(&mut top_r, &mut rest_r, best, o as u32);
         }
     }
-    // The far input vertices: those with the largest bounds; every other
-    // one is within `rest`.
+    // The far points: those with the largest bounds; every other one is
+    // within `rest` (input side) or `rest_r` (representatives).
     let far: Vec<([f64; 3], f64)> = top.into_iter().map(|r| (input.vertices[r.0 .1 as usize].pos, r.0 .0 .0.sqrt())).collect();
-    NodeError { error: in_d2.max(r2).sqrt(), base: rest.max(r2).sqrt(), far }
+    let far_reps: Vec<([f64; 3], f64)> = top_r.into_iter().map(|r| (output.vertices[r.0 .1 as usize].pos, r.0 .0 .0.sqrt())).collect();
+    NodeError { error: in_d2.max(r2).sqrt(), base: rest.max(rest_r).sqrt(), far, far_reps }
 }
 
 /// Keeps the [`MAX_FAR`] largest bounds in `top`; `rest` takes the largest
@@ -908,9 +917,10 @@ fn keep_top(top: &mut BinaryHeap<std::cmp::Reverse<(Prio, u32)>>, rest: &mut f64
 const MAX_FAR: usize = 64;
 
 /// A level's simplification errors (`errors`, one per node of the level)
-/// whose far points ([`NodeError`]) are measured again against the whole
-/// next level (`next`, its leaves' bounds `next_leaves`), for the nodes
-/// whose error stands out (over twice the level's median).
+/// whose far points ([`NodeError`]) are measured again, for the nodes whose
+/// error stands out (over twice the level's median): input vertices
+/// against the whole next level (`levels[0]`: its chunks and leaf bounds),
+/// representatives against the whole level itself (`levels[1]`).
 ///
 /// Why: clustering a level can leave a *flap*, triangles folded back over
 /// a neighbouring node's surface (on the surface, 1e-5 from the input,
@@ -922,7 +932,7 @@ const MAX_FAR: usize = 64;
 /// the next level, which holds the neighbour's surface under the flap, the
 /// error is what the cut shows: a cut draws, around the flap, the
 /// neighbour's surface at its own level (or finer), within its own error.
-fn remeasure_far(next: &ChunkFile, next_leaves: &[LeafStats], errors: &mut [f64], far_nodes: Vec<(usize, f64, Vec<([f64; 3], f64)>)>) -> Result<()> {
+fn remeasure_far(levels: [(&ChunkFile, &[LeafStats]); 2], errors: &mut [f64], far_nodes: Vec<FarNode>) -> Result<()> {
     use crate::geom::{Bvh, Mesh};
     if far_nodes.is_empty() {
         return Ok(());
@@ -930,30 +940,41 @@ fn remeasure_far(next: &ChunkFile, next_leaves: &[LeafStats], errors: &mut [f64]
     let mut sorted: Vec<f64> = errors.to_vec();
     sorted.sort_unstable_by(f64::total_cmp);
     let median = sorted[sorted.len() / 2];
-    let picked: Vec<_> = far_nodes.into_iter().filter(|(i, _, _)| errors[*i] > 2.0 * median).collect();
+    let picked: Vec<FarNode> = far_nodes.into_iter().filter(|f| errors[f.node] > 2.0 * median).collect();
+    // The largest distance from `pts` to one level's surface near them.
+    let measure = |(file, leaves): (&ChunkFile, &[LeafStats]), pts: &[([f64; 3], f64)]| -> Result<f64> {
+        if pts.is_empty() {
+            return Ok(0.0);
+        }
+        let near = |b: &Aabb, p: [f64; 3], r: f64| (0..3).all(|k| p[k] >= b.min[k] - r && p[k] <= b.max[k] + r);
+        let mut mesh = Mesh { positions: Vec::new(), triangles: Vec::new() };
+        for l in (0..leaves.len()).filter(|&l| leaves[l].tris > 0 && pts.iter().any(|&(p, d)| near(&leaves[l].bounds, p, d))) {
+            let g = file.gather(l)?;
+            let off = mesh.positions.len() as u32;
+            mesh.positions.extend(g.mesh.vertices.iter().map(|v| v.pos));
+            mesh.triangles.extend(g.mesh.triangles.iter().map(|t| t.map(|x| x + off)));
+        }
+        let bvh = Bvh::new(&mesh);
+        Ok(pts.iter().map(|&(p, d)| bvh.closest(p).map_or(d, |c| c.dist2.sqrt().min(d))).fold(0.0, f64::max))
+    };
     let remeasured: Vec<Result<(usize, f64)>> = picked
         .par_iter()
-        .map(|(i, base, far)| {
-            // The next level's leaves within reach of a far point.
-            let near = |b: &Aabb, p: [f64; 3], r: f64| (0..3).all(|k| p[k] >= b.min[k] - r && p[k] <= b.max[k] + r);
-            let leaves: Vec<usize> = (0..next_leaves.len()).filter(|&l| next_leaves[l].tris > 0 && far.iter().any(|&(p, d)| near(&next_leaves[l].bounds, p, d))).collect();
-            let mut mesh = Mesh { positions: Vec::new(), triangles: Vec::new() };
-            for l in leaves {
-                let g = next.gather(l)?;
-                let off = mesh.positions.len() as u32;
-                mesh.positions.extend(g.mesh.vertices.iter().map(|v| v.pos));
-                mesh.triangles.extend(g.mesh.triangles.iter().map(|t| t.map(|x| x + off)));
-            }
-            let bvh = Bvh::new(&mesh);
-            let worst = far.iter().map(|&(p, d)| bvh.closest(p).map_or(d, |c| c.dist2.sqrt().min(d))).fold(*base, f64::max);
-            Ok((*i, worst))
-        })
+        .map(|f| Ok((f.node, f.base.max(measure(levels[0], &f.far)?).max(measure(levels[1], &f.far_reps)?))))
         .collect();
     for r in remeasured {
         let (i, e) = r?;
         errors[i] = errors[i].min(e);
     }
     Ok(())
+}
+
+/// A node whose error a few far points set ([`NodeError`]), kept for
+/// [`remeasure_far`]: its index in the level, and its error without them.
+struct FarNode {
+    node: usize,
+    base: f64,
+    far: Vec<([f64; 3], f64)>,
+    far_reps: Vec<([f64; 3], f64)>,
 }
 
 /// [`node_error`]'s result.
@@ -964,9 +985,11 @@ pub struct NodeError {
     /// What remains of it without the far input vertices: the
     /// representatives' side, and every other input vertex.
     pub base: f64,
-    /// Input vertices more than error/4 from the node's own output, with
-    /// that distance (an upper bound).
+    /// The input vertices farthest from the node's own output, with that
+    /// distance (an upper bound).
     pub far: Vec<([f64; 3], f64)>,
+    /// The representatives farthest from the node's own input, likewise.
+    pub far_reps: Vec<([f64; 3], f64)>,
 }
 
 /// Triangles around each vertex: `around[first[v]..first[v + 1]]`.
