@@ -860,44 +860,59 @@ pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> NodeError {
         return NodeError { error: e, base: e, ..Default::default() };
     }
     let in_d2 = d2;
-    // The representatives' side, with its own maximum and its own largest
-    // bounds (a representative can sit over a neighbour's surface too).
-    let mut r2 = 0.0f64;
-    let mut top_r: BinaryHeap<std::cmp::Reverse<(Prio, u32)>> = BinaryHeap::new();
-    let mut rest_r = 0.0f64;
-    // Representatives to the input triangles around their members.
-    for o in 0..output.vertices.len() {
-        let ms = &out.members[out.members_first[o] as usize..out.members_first[o + 1] as usize];
-        if ms.is_empty() {
-            continue;
-        }
-        let p = output.vertices[o].pos;
-        // The input triangles around the members and their neighbours.
-        let mut best = f64::INFINITY;
-        let low = floor(&top_r);
-        'members: for ring in 0..2 {
-            for &m in ms {
-                let around_m = &in_around[in_first[m as usize] as usize..in_first[m as usize + 1] as usize];
-                let verts: Vec<u32> = if ring == 0 { vec![m] } else { around_m.iter().flat_map(|&t| input.triangles[t as usize]).collect() };
-                for w in verts {
-                    for &ti in &in_around[in_first[w as usize] as usize..in_first[w as usize + 1] as usize] {
-                        best = best.min(dist2(p, input.triangles[ti as usize].map(|x| input.vertices[x as usize].pos)));
-                        if best <= low {
-                            break 'members; // cannot be among the largest
+    // The representatives' side. A first pass finds its maximum, each
+    // search stopping once it cannot raise it (cheap); only when that
+    // maximum stands out against the input side's (over 4× the distance
+    // of its 65th largest) is a second pass run for the representatives'
+    // own largest bounds (a representative can sit over a neighbour's
+    // surface too), each search stopping at the smallest of those.
+    let reps_pass = |top_r: &mut Option<BinaryHeap<std::cmp::Reverse<(Prio, u32)>>>, rest_r: &mut f64| -> f64 {
+        let mut r2 = 0.0f64;
+        for o in 0..output.vertices.len() {
+            let ms = &out.members[out.members_first[o] as usize..out.members_first[o + 1] as usize];
+            if ms.is_empty() {
+                continue;
+            }
+            let p = output.vertices[o].pos;
+            // The input triangles around the members and their neighbours.
+            let mut best = f64::INFINITY;
+            let low = top_r.as_ref().map_or(r2, floor);
+            'members: for ring in 0..2 {
+                for &m in ms {
+                    let around_m = &in_around[in_first[m as usize] as usize..in_first[m as usize + 1] as usize];
+                    let verts: Vec<u32> = if ring == 0 { vec![m] } else { around_m.iter().flat_map(|&t| input.triangles[t as usize]).collect() };
+                    for w in verts {
+                        for &ti in &in_around[in_first[w as usize] as usize..in_first[w as usize + 1] as usize] {
+                            best = best.min(dist2(p, input.triangles[ti as usize].map(|x| input.vertices[x as usize].pos)));
+                            if best <= low {
+                                break 'members; // cannot raise the maximum, or be among the largest
+                            }
                         }
                     }
                 }
             }
+            if best.is_finite() {
+                r2 = r2.max(best);
+                if let Some(t) = top_r.as_mut() {
+                    keep_top(t, rest_r, best, o as u32);
+                }
+            }
         }
-        if best.is_finite() {
-            r2 = r2.max(best);
-            keep_top(&mut top_r, &mut rest_r, best, o as u32);
-        }
+        r2
+    };
+    let mut top_r = None;
+    let mut rest_r = 0.0f64;
+    let r2 = reps_pass(&mut top_r, &mut rest_r);
+    if r2 > 16.0 * rest {
+        top_r = Some(BinaryHeap::new());
+        reps_pass(&mut top_r, &mut rest_r);
+    } else {
+        rest_r = r2;
     }
     // The far points: those with the largest bounds; every other one is
     // within `rest` (input side) or `rest_r` (representatives).
     let far: Vec<([f64; 3], f64)> = top.into_iter().map(|r| (input.vertices[r.0 .1 as usize].pos, r.0 .0 .0.sqrt())).collect();
-    let far_reps: Vec<([f64; 3], f64)> = top_r.into_iter().map(|r| (output.vertices[r.0 .1 as usize].pos, r.0 .0 .0.sqrt())).collect();
+    let far_reps: Vec<([f64; 3], f64)> = top_r.into_iter().flatten().map(|r| (output.vertices[r.0 .1 as usize].pos, r.0 .0 .0.sqrt())).collect();
     NodeError { error: in_d2.max(r2).sqrt(), base: rest.max(rest_r).sqrt(), far, far_reps }
 }
 
