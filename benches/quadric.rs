@@ -9,21 +9,6 @@ use octolod::quadric::{AttrWeights, Quadric, QuadricSpace, DEFAULT_REL_TOL, MAX_
 use std::hint::black_box;
 use std::time::Instant;
 
-/// splitmix64 in [0, 1) (the unit tests' generator, same points).
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> f64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
-    }
-    fn range(&mut self, a: f64, b: f64) -> f64 {
-        a + (b - a) * self.next()
-    }
-}
-
 fn main() {
     println!("size_of::<Quadric>() = {} bytes", std::mem::size_of::<Quadric>());
     for (attrs, iters) in [
@@ -31,11 +16,12 @@ fn main() {
         (AttrSet(AttrSet::UV | AttrSet::NORMAL | AttrSet::COLOR), 400_000),
     ] {
         let s = QuadricSpace::new(attrs, AttrWeights::for_extent(1.0), [0.0; 3]);
-        let mut rng = Rng(1);
+        // The unit tests' generator and start: the same points.
+        let mut rng = octolod::geom::Rng::from_state(1);
         let pts: Vec<[f64; MAX_DIM]> = (0..1024)
             .map(|_| {
                 let pos = [rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0)];
-                s.embed(&Vertex { pos, normal: [0.0, 0.0, 1.0], color: [10, 20, 30, 255], uv: [rng.next() as f32, 0.5] })
+                s.embed(&Vertex { pos, normal: [0.0, 0.0, 1.0], color: [10, 20, 30, 255], uv: [rng.f64() as f32, 0.5] })
             })
             .collect();
         let mut acc = Quadric::zero(s.dim);

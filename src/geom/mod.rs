@@ -133,23 +133,34 @@ pub(crate) fn mix64(x: u64) -> u64 {
     z ^ (z >> 31)
 }
 
-/// splitmix64: a tiny seeded generator.
+/// splitmix64: a tiny seeded generator (the project's one: metro's
+/// samples, the unit tests and the benchmarks draw from it).
 #[derive(Clone, Debug)]
-pub(crate) struct Rng(u64);
+pub struct Rng(u64);
 
 impl Rng {
-    pub(crate) fn new(seed: u64) -> Rng {
+    pub fn new(seed: u64) -> Rng {
         Rng(mix64(seed))
     }
+    /// The textbook splitmix64 started at raw `state` (no seed mixing):
+    /// outputs the mix of `state + k·GOLDEN`, k = 1, 2, …
+    pub fn from_state(state: u64) -> Rng {
+        Rng(state.wrapping_sub(GOLDEN))
+    }
     #[inline]
-    pub(crate) fn next_u64(&mut self) -> u64 {
+    pub fn next_u64(&mut self) -> u64 {
         self.0 = self.0.wrapping_add(GOLDEN);
         mix64(self.0)
     }
     /// Uniform in [0, 1).
     #[inline]
-    pub(crate) fn f64(&mut self) -> f64 {
+    pub fn f64(&mut self) -> f64 {
         (self.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
+    }
+    /// Uniform in [lo, hi).
+    #[inline]
+    pub fn range(&mut self, lo: f64, hi: f64) -> f64 {
+        lo + (hi - lo) * self.f64()
     }
 }
 

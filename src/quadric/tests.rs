@@ -4,18 +4,17 @@
 use super::*;
 use crate::geom::{add, scale};
 
-/// splitmix64 in [0, 1).
-struct Rng(u64);
+/// The tests' random points: [`crate::geom::Rng`] from a raw state.
+struct Rng(crate::geom::Rng);
 impl Rng {
+    fn at(state: u64) -> Rng {
+        Rng(crate::geom::Rng::from_state(state))
+    }
     fn next(&mut self) -> f64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        ((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64
+        self.0.f64()
     }
     fn range(&mut self, a: f64, b: f64) -> f64 {
-        a + (b - a) * self.next()
+        self.0.range(a, b)
     }
     fn vec3(&mut self, a: f64, b: f64) -> [f64; 3] {
         [self.range(a, b), self.range(a, b), self.range(a, b)]
@@ -439,7 +438,7 @@ fn far_from_origin_is_exact_in_local_coordinates() {
     let cell = Aabb { min: [1.0e6, 1.0e6, 1.0e6], max: [1.0e6 + 1e-3, 1.0e6 + 1e-3, 1.0e6 + 1e-3] };
     let s = pos_space(cell.center());
     let bounds = s.local_bounds(&cell);
-    let mut rng = Rng(7);
+    let mut rng = Rng::at(7);
     for trial in 0..50 {
         let mut m = TestMesh::new();
         let amp = rng.range(0.0, 3e-4);
@@ -487,7 +486,7 @@ fn clamping_minimises_inside_the_box() {
     assert!((sol.error - q.error(&sol.x)).abs() <= 1e-15 * (1.0 + sol.error));
 
     // Fuzz: random near-degenerate clusters and boxes, every cut-off.
-    let mut rng = Rng(42);
+    let mut rng = Rng::at(42);
     let attrsets =
         [AttrSet::POSITION_ONLY, AttrSet(AttrSet::COLOR), AttrSet(AttrSet::UV | AttrSet::NORMAL | AttrSet::COLOR)];
     for trial in 0..3000 {
@@ -641,7 +640,7 @@ fn uv_and_full_attribute_ramps_are_reproduced() {
 
 #[test]
 fn quadrics_add_and_errors_are_nonnegative() {
-    let mut rng = Rng(3);
+    let mut rng = Rng::at(3);
     for attrs in [
         AttrSet::POSITION_ONLY,
         AttrSet(AttrSet::NORMAL | AttrSet::COLOR),
@@ -686,7 +685,7 @@ fn quadrics_add_and_errors_are_nonnegative() {
 
 #[test]
 fn position_fast_path_matches_the_general_construction() {
-    let mut rng = Rng(11);
+    let mut rng = Rng::at(11);
     for _ in 0..500 {
         let t = [rng.vec3(-2.0, 2.0), rng.vec3(-2.0, 2.0), rng.vec3(-2.0, 2.0)];
         let mut fast = Quadric::zero(3);
@@ -707,7 +706,7 @@ fn position_fast_path_matches_the_general_construction() {
 
 #[test]
 fn reorigin_matches_building_in_the_new_frame() {
-    let mut rng = Rng(5);
+    let mut rng = Rng::at(5);
     let attrs = AttrSet(AttrSet::UV | AttrSet::COLOR);
     let (o1, o2) = ([1.0, 2.0, 3.0], [1.5, 1.0, 3.25]);
     let (s1, s2) = (
@@ -733,7 +732,7 @@ fn reorigin_matches_building_in_the_new_frame() {
 
 #[test]
 fn eigen_decomposition_reconstructs() {
-    let mut rng = Rng(9);
+    let mut rng = Rng::at(9);
     for trial in 0..300 {
         let n = 1 + trial % MAX_DIM;
         // A = Σ w v vᵀ over a random (possibly rank-deficient) set of vectors.
