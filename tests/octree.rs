@@ -48,11 +48,24 @@ fn check(shape: Shape, tris: u64, attrs: u32, limit: u64, max_depth: u8) {
     let (sh, all) = SoupReader::read_all(&soup).unwrap();
     let cube = LevelCube::for_level(&sh.bbox, 0);
     let mut results = Vec::new();
-    for mem in [64 << 10, 64 << 20] {
-        let l0 = build_octree(&soup, dir.path(), dir.path().join(format!("chunks-{mem}")), &cube, &OctreeOptions { leaf_tris: limit, max_depth, mem, quiet: true })
+    for mem in [16 << 10, 64 << 20] {
+        let l0 = build_octree(&soup, dir.path().join(format!("chunks-{mem}")), &cube, &OctreeOptions { leaf_tris: limit, max_depth, mem, quiet: true })
             .unwrap();
-        if mem == 64 << 10 && all.len() > 1000 {
-            assert!(l0.report.sort.runs > 1, "tiny budget should spill: {:?}", l0.report.sort);
+        if mem == 16 << 10 && all.len() > 1000 {
+            // Buffers of a quarter of the budget cannot hold a leaf, and
+            // 128 cells (--mem / 128 bytes) not the deepest level.
+            assert!(l0.report.chunks > l0.report.leaves, "tiny budget should spill partial leaves: {:?}", l0.report);
+            let cells = |d: u8| {
+                let mut c: Vec<u64> = all.iter().map(|t| cube.key([0, 1, 2].map(|a| t.iter().map(|v| v.pos[a] / 3.0).sum::<f64>())) >> (3 * (KEY_DEPTH - d) as u32)).collect();
+                c.sort();
+                c.dedup();
+                c.len()
+            };
+            if cells(l0.report.deepest) > 128 {
+                assert!(l0.report.counting_passes > 1, "tiny budget should count in several passes: {:?}", l0.report);
+            }
+        } else {
+            assert_eq!(l0.report.counting_passes, 1);
         }
         results.push(l0);
     }

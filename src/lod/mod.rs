@@ -12,8 +12,8 @@
 //!    adaptive octree (`--leaf-tris`, `--max-depth`) over level L's cube,
 //!    which is shifted by a third of its size from level L−1's, so that no
 //!    face of level L lies on (or near) a face of level L−1
-//!    ([`partition`]'s doc proves the third). Level 0 comes from the
-//!    external Morton sort of the soup ([`octree`]); level L+1's
+//!    ([`partition`]'s doc proves the third). Level 0 is cut from the
+//!    soup's centroid counts, then routed in one pass ([`octree`]); level L+1's
 //!    leaves are decided *before* level L is simplified, from the
 //!    histogram of level L's centroids scaled by the predicted reduction,
 //!    so each simplified node can route its triangles straight to them as
@@ -200,7 +200,7 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
     let hist_cap = (opts.params.mem / 256).max(1 << 16) as usize;
     let cube = |l: u32| LevelCube::for_level(&bbox, l);
     let oo = OctreeOptions { leaf_tris: opts.params.leaf_tris, max_depth: opts.params.max_depth, mem: opts.params.mem, quiet: opts.quiet };
-    let l0 = build_octree(soup, scratch.path(), scratch.path().join("chunks-0.bin"), &cube(0), &oo)?;
+    let l0 = build_octree(soup, scratch.path().join("chunks-0.bin"), &cube(0), &oo)?;
     let octree = l0.report.clone();
     let mut tiling = l0.tiling;
     let mut leaves = l0.leaves;

@@ -1,37 +1,51 @@
 //! Octree stage: triangle soup → the level-0 partition (the adaptive octree
-//! of the input), each leaf's triangles as one chunk for the LOD builder.
+//! of the input), each leaf's triangles as indexed chunks for the LOD builder.
 //!
 //! Takes: a `.soup`, `--leaf-tris`, `--max-depth`, the memory budget, and
 //! the level-0 cube ([`crate::lod::partition::LevelCube`]).
 //! Gives: the leaves (a [`Tiling`] of the level-0 cube with, per leaf, its
 //! triangle count, bounds and reach), their triangles in a
-//! [`ChunkFile`] (one chunk per leaf, indexed, exactly equal corners
-//! welded). Every triangle lives in exactly one leaf, chosen by its centroid;
-//! nothing is replicated.
+//! [`ChunkFile`] (indexed, exactly equal corners welded). Every triangle
+//! lives in exactly one leaf, chosen by its centroid; nothing is replicated.
 //!
-//! Out of core in two sequential passes:
-//! 1. external sort of the triangles by the Morton code of their centroid
-//!    in the level-0 cube — the octree's depth-first order, in which every
-//!    node is a contiguous run;
-//! 2. one scan that cuts leaves with a lookahead of only `leaf_tris + 1`
-//!    triangles: the node that starts at the next triangle is a leaf iff the
-//!    triangle `leaf_tris` places ahead is outside it (the node holds at most
-//!    `leaf_tris`) or it is at `max_depth`; otherwise it splits, and the same
-//!    test runs one level deeper. This is exactly the top-down rule "split
-//!    while more than `leaf_tris` and shallower than `max_depth`".
+//! Out of core, in sequential passes over the soup and no sort:
+//! 1. **Counting.** The centroids' Morton keys in the level-0 cube are
+//!    counted in a [`Histogram`] at `max_depth`, which coarsens itself to
+//!    fit its memory share (`--mem` / 128 bytes' worth of cells); the
+//!    top-down rule "split while a cell holds more than `leaf_tris` and is
+//!    shallower than `max_depth`" is applied to the counts
+//!    ([`Histogram::cut`]). Cells left at the histogram's depth still
+//!    holding too many are counted again, alone, in another pass at a finer
+//!    depth, until none is left. One pass suffices unless the input is
+//!    dense beyond the histogram's depth (the 120 M-triangle sphere under
+//!    `--mem 512M`: one). The leaves are exactly the top-down rule's on the
+//!    exact counts, whatever the budget.
+//! 2. **Routing.** One pass sends each triangle to its leaf's buffer (the
+//!    tiling's binary search); a buffer becomes a chunk when its leaf is
+//!    complete (its count is known), and when the buffers together outgrow
+//!    a quarter of the budget the largest are written as chunks until they
+//!    hold an eighth. A leaf is read back by [`ChunkFile::gather`], which
+//!    welds its chunks; triangles keep the soup's order within a leaf, and
+//!    vertices their first appearance, so a leaf reads the same whatever
+//!    the budget.
 //!
-//! Memory: the sort's budget, plus one window of `leaf_tris + 1` triangles
-//! and one record per leaf.
+//! Why not a sort: the external Morton sort this stage used before wrote
+//! and read the soup twice more (runs, merge) and compared every key:
+//! 46 s of the 120 M-triangle build at `--mem 512M`. Counting needs one
+//! read of the soup and a hash map the size of the cells.
+//!
+//! Memory: the histogram's share, the buffers' quarter (and as much again
+//! while a batch of them is encoded), one batch of the soup.
 
-use crate::error::{Error, Result};
-use crate::extsort::{ExtSorter, SortStats};
+use crate::error::{Error, Location, Result};
 use super::chunks::ChunkFile;
-use super::partition::{LevelCube, Tiling, KEY_DEPTH};
+use super::partition::{Histogram, LevelCube, Tiling, KEY_DEPTH};
 use super::LeafStats;
 use crate::mesh::VertexLayout;
 use crate::progress::Progress;
 use crate::soup::format::{SoupHeader, SoupReader};
 use crate::store::{IndexedMesh, NO_NODE};
+use rayon::prelude::*;
 use std::path::Path;
 
 #[derive(Clone, Debug)]
@@ -54,7 +68,10 @@ pub struct OctreeReport {
     pub deepest: u8,
     /// Leaves at `max_depth` holding more than `leaf_tris` triangles.
     pub overfull_leaves: u64,
-    pub sort: SortStats,
+    /// Counting passes over the soup (the routing pass not included).
+    pub counting_passes: u32,
+    /// Chunks written (one per leaf unless the buffers outgrew the budget).
+    pub chunks: u64,
     pub chunk_bytes: u64,
     pub seconds: f64,
 }
@@ -68,14 +85,32 @@ pub struct Level0 {
     pub report: OctreeReport,
 }
 
+/// Depths below the open cells counted per pass (1024 cells per axis).
+const COUNT_DEPTHS: u8 = 10;
+
+/// Most triangles per batch read from the soup.
+const BATCH: usize = 1 << 16;
+
+/// Calls `f` with each batch of the soup's records and their centroids' keys.
+fn scan(soup: &Path, cube: &LevelCube, batch: usize, progress: &Progress, mut f: impl FnMut(&[u8], &[u64]) -> Result<()>) -> Result<()> {
+    let mut reader = SoupReader::open(soup)?;
+    let layout = reader.header.layout();
+    let rec = reader.header.record_size();
+    let mut buf = Vec::new();
+    let mut keys = Vec::new();
+    loop {
+        let n = reader.read_batch(&mut buf, batch)?;
+        if n == 0 {
+            return Ok(());
+        }
+        buf.par_chunks_exact(rec).map(|t| cube.key(centroid(&layout, t))).collect_into_vec(&mut keys);
+        f(&buf, &keys)?;
+        progress.inc(n as u64);
+    }
+}
+
 /// Cuts `soup` into the level-0 leaves; chunks are written to `chunk_path`.
-pub fn build_octree(
-    soup: &Path,
-    scratch: &Path,
-    chunk_path: std::path::PathBuf,
-    cube: &LevelCube,
-    opts: &OctreeOptions,
-) -> Result<Level0> {
+pub fn build_octree(soup: &Path, chunk_path: std::path::PathBuf, cube: &LevelCube, opts: &OctreeOptions) -> Result<Level0> {
     let t0 = std::time::Instant::now();
     if opts.leaf_tris == 0 {
         return Err(Error::Usage("--leaf-tris must be at least 1".into()));
@@ -83,78 +118,178 @@ pub fn build_octree(
     if opts.max_depth > KEY_DEPTH {
         return Err(Error::Usage(format!("--max-depth must be at most {KEY_DEPTH}")));
     }
-    let mut reader = SoupReader::open(soup)?;
-    let sh = reader.header;
+    let sh = SoupReader::open(soup)?.header;
     let layout = sh.layout();
     let rec = sh.record_size();
+    // Batches within an eighth of the budget.
+    let batch = ((opts.mem / 8) as usize / rec).clamp(16, BATCH);
 
-    // Pass 1: sort triangles by the Morton code of their centroid.
-    let progress = Progress::items(sh.triangles, "sorting", opts.quiet);
-    let mut sorter = ExtSorter::new("morton", 8 + rec, opts.mem as usize, scratch);
-    let mut buf = Vec::new();
-    loop {
-        let n = reader.read_batch(&mut buf, 1 << 16)?;
-        if n == 0 {
-            break;
-        }
-        for t in buf.chunks_exact(rec) {
-            let key = cube.key(centroid(&layout, t));
-            sorter.push_with(|b| {
-                b[..8].copy_from_slice(&key.to_le_bytes());
-                b[8..].copy_from_slice(t);
-            })?;
-        }
-        progress.inc(n as u64);
-    }
-    progress.finish();
-
-    // Pass 2: cut leaves, write their chunks.
-    let progress = Progress::items(sh.triangles, "partitioning", opts.quiet);
-    let mut cutter = Cutter {
-        max_depth: opts.max_depth,
-        limit: opts.leaf_tris as usize,
-        rec,
-        keys: Vec::new(),
-        khead: 0,
-        data: Vec::new(),
-        prev: None,
-        open: None,
-        leaves: Vec::new(),
-        chunks: ChunkFile::create(chunk_path, layout, 0)?,
-        layout,
-        payload: Vec::new(),
-        progress: &progress,
-        overfull: 0,
-    };
-    let sort = sorter.finish(|r| cutter.push(u64::from_le_bytes(r[..8].try_into().unwrap()), &r[8..]))?;
-    cutter.finish()?;
-    progress.finish();
-    let Cutter { leaves, mut chunks, overfull, .. } = cutter;
-    let tiling = Tiling::from_leaves(&leaves.iter().map(|l| (l.0, l.1)).collect::<Vec<_>>());
-    // Stats per tiling leaf (the gaps are empty leaves).
-    let mut stats = vec![LeafStats::default(); tiling.leaves.len()];
-    let mut given = leaves.iter().peekable();
-    let mut remap = Vec::with_capacity(leaves.len());
-    for (i, tl) in tiling.leaves.iter().enumerate() {
-        if let Some(l) = given.peek() {
-            if (l.0, l.1) == (tl.path, tl.depth) {
-                stats[i] = l.2.clone();
-                remap.push(i as u32);
-                given.next();
+    // Pass 1 (and more where needed): count, cut.
+    let mut found: Vec<(u64, u8, u64)> = Vec::new();
+    // Cells still to cut: sorted paths, all at depth `open_depth`.
+    let mut open: Vec<u64> = vec![0];
+    let mut open_depth = 0u8;
+    let mut passes = 0u32;
+    while !open.is_empty() {
+        passes += 1;
+        // Room for every open cell's eight children: each pass goes deeper.
+        let cap = ((opts.mem / 128) as usize).max(8 * open.len() + 64);
+        let depth = opts.max_depth.min(open_depth + COUNT_DEPTHS);
+        let mut hist = Histogram::new(depth, cap);
+        let progress = Progress::items(sh.triangles, "counting", opts.quiet);
+        let sh_open = 3 * (KEY_DEPTH - open_depth) as u32;
+        let all = open_depth == 0;
+        scan(soup, cube, batch, &progress, |_, keys| {
+            // Sorted runs of (cell, count): few hash-map updates per batch.
+            let sh = 3 * (KEY_DEPTH - hist.depth()) as u32;
+            let mut cells: Vec<u64> = keys.iter().filter(|&&k| all || open.binary_search(&(k >> sh_open)).is_ok()).map(|&k| k >> sh).collect();
+            cells.par_sort_unstable();
+            let mut runs: Vec<(u64, u64)> = Vec::new();
+            for c in cells {
+                match runs.last_mut() {
+                    Some(r) if r.0 == c => r.1 += 1,
+                    _ => runs.push((c, 1)),
+                }
+            }
+            hist.add_runs(hist.depth(), &runs);
+            Ok(())
+        })?;
+        progress.finish();
+        let hd = hist.depth();
+        let mut next = Vec::new();
+        for (path, depth, n) in hist.cut(&open, open_depth, opts.leaf_tris, opts.max_depth) {
+            if depth == hd && depth < opts.max_depth && n > opts.leaf_tris {
+                next.push(path);
+            } else {
+                found.push((path, depth, n));
             }
         }
+        open = next;
+        open_depth = hd;
     }
-    chunks.retarget(&remap);
+    let leaf_start = |&(path, depth, _): &(u64, u8, u64)| path << (3 * (KEY_DEPTH - depth) as u32);
+    found.sort_unstable_by_key(leaf_start);
+    let tiling = Tiling::from_leaves(&found.iter().map(|l| (l.0, l.1)).collect::<Vec<_>>());
+    // Triangles per tiling leaf.
+    let mut want = vec![0u64; tiling.leaves.len()];
+    for l in &found {
+        want[tiling.locate(leaf_start(l))] = l.2;
+    }
+
+    // Pass 2: route each triangle to its leaf's buffer, write chunks.
+    let progress = Progress::items(sh.triangles, "partitioning", opts.quiet);
+    let mut router = Router {
+        bufs: vec![Vec::new(); tiling.leaves.len()],
+        got: vec![0; tiling.leaves.len()],
+        stats: vec![LeafStats::default(); tiling.leaves.len()],
+        buffered: 0,
+        chunks: ChunkFile::create(chunk_path, layout, 0)?,
+        count: 0,
+        layout,
+    };
+    let budget = (opts.mem / 4) as usize;
+    scan(soup, cube, batch, &progress, |buf, keys| {
+        let targets: Vec<u32> = keys.par_iter().map(|&k| tiling.locate(k) as u32).collect();
+        let mut complete = Vec::new();
+        for (&t, tri) in targets.iter().zip(buf.chunks_exact(rec)) {
+            let t = t as usize;
+            router.bufs[t].extend_from_slice(tri);
+            router.got[t] += 1;
+            if router.got[t] == want[t] {
+                complete.push(t);
+            }
+        }
+        router.buffered += buf.len();
+        router.flush(complete)?;
+        if router.buffered > budget {
+            let mut by_size: Vec<(usize, usize)> = router.bufs.iter().enumerate().filter(|b| !b.1.is_empty()).map(|(t, b)| (b.len(), t)).collect();
+            by_size.sort_unstable_by(|a, b| b.cmp(a));
+            let mut left = router.buffered;
+            let picked = by_size
+                .into_iter()
+                .take_while(|&(n, _)| {
+                    let go = left > budget / 2;
+                    left -= n;
+                    go
+                })
+                .map(|x| x.1)
+                .collect();
+            router.flush(picked)?;
+        }
+        Ok(())
+    })?;
+    progress.finish();
+    if router.got != want {
+        return Err(Error::input(Location { file: soup.to_path_buf(), ..Default::default() }, "the soup changed while it was read"));
+    }
+    let Router { mut chunks, stats, count, .. } = router;
     chunks.finish(tiling.leaves.len())?;
     let report = OctreeReport {
-        leaves: leaves.len() as u64,
-        deepest: leaves.iter().map(|l| l.1).max().unwrap_or(0),
-        overfull_leaves: overfull,
-        sort,
+        leaves: found.len() as u64,
+        deepest: found.iter().map(|l| l.1).max().unwrap_or(0),
+        overfull_leaves: found.iter().filter(|l| l.2 > opts.leaf_tris).count() as u64,
+        counting_passes: passes,
+        chunks: count,
         chunk_bytes: chunks.bytes(),
         seconds: t0.elapsed().as_secs_f64(),
     };
     Ok(Level0 { header: sh, tiling, leaves: stats, chunks, report })
+}
+
+/// Per-leaf buffers of the routing pass.
+struct Router {
+    bufs: Vec<Vec<u8>>,
+    got: Vec<u64>,
+    stats: Vec<LeafStats>,
+    /// Bytes held in `bufs`.
+    buffered: usize,
+    chunks: ChunkFile,
+    count: u64,
+    layout: VertexLayout,
+}
+
+impl Router {
+    /// Writes the buffers of leaves `ts` as chunks (encoded in parallel).
+    fn flush(&mut self, ts: Vec<usize>) -> Result<()> {
+        let parts: Vec<(usize, Vec<u8>)> = ts.into_iter().map(|t| (t, std::mem::take(&mut self.bufs[t]))).collect();
+        let (layout, chunks) = (&self.layout, &self.chunks);
+        let encoded: Vec<(usize, usize, Vec<u8>, LeafStats)> = parts
+            .into_par_iter()
+            .map(|(t, data)| {
+                let mesh = index_triangles(layout, &data);
+                let mut bytes = Vec::new();
+                chunks.encode(t as u32, NO_NODE, &mesh, &[], &vec![false; mesh.vertices.len()], &mut bytes);
+                (t, data.len(), bytes, part_stats(layout, &data))
+            })
+            .collect();
+        for (t, n, bytes, st) in encoded {
+            self.chunks.append(t as u32, &bytes)?;
+            self.buffered -= n;
+            self.count += 1;
+            let s = &mut self.stats[t];
+            s.tris += st.tris;
+            s.bounds.merge(&st.bounds);
+            s.reach = s.reach.max(st.reach);
+        }
+        Ok(())
+    }
+}
+
+/// Count, bounds and reach of soup records.
+fn part_stats(layout: &VertexLayout, data: &[u8]) -> LeafStats {
+    let mut st = LeafStats::default();
+    for t in data.chunks_exact(3 * layout.size) {
+        let c = centroid(layout, t);
+        for k in 0..3 {
+            let p = layout.position(&t[k * layout.size..]);
+            st.bounds.add(p);
+            for a in 0..3 {
+                st.reach = st.reach.max((p[a] - c[a]).abs());
+            }
+        }
+        st.tris += 1;
+    }
+    st
 }
 
 fn centroid(layout: &VertexLayout, t: &[u8]) -> [f64; 3] {
@@ -166,131 +301,6 @@ fn centroid(layout: &VertexLayout, t: &[u8]) -> [f64; 3] {
         }
     }
     c
-}
-
-/// The open leaf (at max depth, possibly longer than the window).
-struct OpenLeaf {
-    path: u64,
-    depth: u8,
-    data: Vec<u8>,
-}
-
-struct Cutter<'a> {
-    max_depth: u8,
-    limit: usize,
-    rec: usize,
-    /// Lookahead window: keys[khead..] and the matching triangle bytes.
-    keys: Vec<u64>,
-    khead: usize,
-    data: Vec<u8>,
-    /// Key of the last triangle given to a leaf.
-    prev: Option<u64>,
-    open: Option<OpenLeaf>,
-    /// (path, depth, stats) of the non-empty leaves, in Morton order; chunk
-    /// targets are indices into this list until `finish` retargets them.
-    leaves: Vec<(u64, u8, LeafStats)>,
-    chunks: ChunkFile,
-    layout: VertexLayout,
-    payload: Vec<u8>,
-    progress: &'a Progress,
-    overfull: u64,
-}
-
-impl Cutter<'_> {
-    #[inline]
-    fn prefix(&self, key: u64, d: u8) -> u64 {
-        key >> (3 * (KEY_DEPTH - d) as u32)
-    }
-
-    fn window(&self) -> usize {
-        self.keys.len() - self.khead
-    }
-
-    fn push(&mut self, key: u64, tri: &[u8]) -> Result<()> {
-        let window_empty = self.window() == 0;
-        if let Some(open) = &mut self.open {
-            if key >> (3 * (KEY_DEPTH - open.depth) as u32) == open.path && window_empty {
-                open.data.extend_from_slice(tri);
-                self.prev = Some(key);
-                return Ok(());
-            }
-            self.close_open()?;
-        }
-        self.keys.push(key);
-        self.data.extend_from_slice(tri);
-        while self.window() > self.limit && self.open.is_none() {
-            self.decide()?;
-        }
-        Ok(())
-    }
-
-    fn finish(&mut self) -> Result<()> {
-        while self.window() > 0 {
-            if self.open.is_some() {
-                self.close_open()?;
-            }
-            self.decide()?;
-        }
-        self.close_open()
-    }
-
-    /// Chooses the leaf that starts at the window's first triangle.
-    fn decide(&mut self) -> Result<()> {
-        let k0 = self.keys[self.khead];
-        let mut d = match self.prev {
-            None => 0,
-            Some(p) => (0..=self.max_depth).find(|&d| self.prefix(p, d) != self.prefix(k0, d)).unwrap_or(self.max_depth),
-        };
-        while d < self.max_depth {
-            let beyond = self.khead + self.limit;
-            if beyond >= self.keys.len() || self.prefix(self.keys[beyond], d) != self.prefix(k0, d) {
-                break;
-            }
-            d += 1;
-        }
-        let p = self.prefix(k0, d);
-        let n = self.keys[self.khead..].iter().take_while(|&&k| self.prefix(k, d) == p).count();
-        let bytes = self.data[self.khead * self.rec..(self.khead + n) * self.rec].to_vec();
-        self.prev = Some(self.keys[self.khead + n - 1]);
-        self.khead += n;
-        if self.khead > 4096 && self.khead * 2 > self.keys.len() {
-            self.keys.drain(..self.khead);
-            self.data.drain(..self.khead * self.rec);
-            self.khead = 0;
-        }
-        self.open = Some(OpenLeaf { path: p, depth: d, data: bytes });
-        if d < self.max_depth || self.window() > 0 {
-            self.close_open()?;
-        }
-        Ok(())
-    }
-
-    fn close_open(&mut self) -> Result<()> {
-        let Some(leaf) = self.open.take() else { return Ok(()) };
-        let n = leaf.data.len() / self.rec;
-        if n > self.limit {
-            self.overfull += 1;
-        }
-        let mut st = LeafStats::default();
-        for t in leaf.data.chunks_exact(self.rec) {
-            let c = centroid(&self.layout, t);
-            for k in 0..3 {
-                let p = self.layout.position(&t[k * self.layout.size..]);
-                st.bounds.add(p);
-                for a in 0..3 {
-                    st.reach = st.reach.max((p[a] - c[a]).abs());
-                }
-            }
-        }
-        st.tris = n as u64;
-        let mesh = index_triangles(&self.layout, &leaf.data);
-        let target = self.leaves.len() as u32;
-        self.chunks.encode(target, NO_NODE, &mesh, &[], &vec![false; mesh.vertices.len()], &mut self.payload);
-        self.chunks.append(target, &self.payload)?;
-        self.leaves.push((leaf.path, leaf.depth, st));
-        self.progress.inc(n as u64);
-        Ok(())
-    }
 }
 
 /// Soup triangles → indexed mesh (exactly equal corners share a vertex).

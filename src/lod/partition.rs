@@ -163,6 +163,52 @@ impl Histogram {
     pub fn total(&self) -> u64 {
         self.map.values().sum()
     }
+
+    /// The depth the counts are kept at (at most the one asked for).
+    pub fn depth(&self) -> u8 {
+        self.depth
+    }
+
+    /// The top-down cut "split while a cell holds more than `limit` and is
+    /// shallower than `max_depth` and the histogram's depth" below each of
+    /// `roots` (sorted paths at `root_depth`, at most the histogram's
+    /// depth): its non-empty leaves as (path, depth, count), in Morton order.
+    pub fn cut(&self, roots: &[u64], root_depth: u8, limit: u64, max_depth: u8) -> Vec<(u64, u8, u64)> {
+        let mut cells: Vec<(u64, u64)> = self.map.iter().map(|(&k, &n)| (k, n)).collect();
+        cells.sort_unstable();
+        let hd = self.depth;
+        let max_depth = max_depth.min(hd);
+        fn go(out: &mut Vec<(u64, u8, u64)>, cells: &[(u64, u64)], hd: u8, path: u64, depth: u8, limit: u64, max_depth: u8) {
+            let n: u64 = cells.iter().map(|c| c.1).sum();
+            if n == 0 {
+                return;
+            }
+            if depth >= max_depth || n <= limit {
+                out.push((path, depth, n));
+                return;
+            }
+            let sh = 3 * (hd - depth - 1) as u32;
+            let mut rest = cells;
+            for o in 0..8u64 {
+                let child = path << 3 | o;
+                let k = rest.partition_point(|c| c.0 >> sh == child);
+                let (mine, tail) = rest.split_at(k);
+                go(out, mine, hd, child, depth + 1, limit, max_depth);
+                rest = tail;
+            }
+        }
+        let mut out = Vec::new();
+        let sh = 3 * (hd - root_depth.min(hd)) as u32;
+        let mut rest = &cells[..];
+        for &r in roots {
+            let from = rest.partition_point(|c| c.0 >> sh < r);
+            rest = &rest[from..];
+            let k = rest.partition_point(|c| c.0 >> sh == r);
+            go(&mut out, &rest[..k], hd, r, root_depth, limit, max_depth);
+            rest = &rest[k..];
+        }
+        out
+    }
 }
 
 /// One leaf of a tiling: the full-depth keys `start..end`.
