@@ -267,11 +267,15 @@ pub fn compact(vertices: &[Vertex], tris: &[[u32; 3]]) -> (IndexedMesh, Vec<u32>
 /// input surface, exact (closest points through a BVH of each side). Edge
 /// collapse keeps no member lists, so the neighbourhood bound of
 /// [`super::node_error`] does not apply. An empty output has the input's
-/// extent as its error.
-pub fn collapse_error(input: &IndexedMesh, locked: &[bool], output: &IndexedMesh, from: &[u32]) -> f64 {
+/// extent as its error. Also gives each side's farthest points, as
+/// [`super::node_error`] does, for [`super::remeasure_far`].
+pub fn collapse_error(input: &IndexedMesh, locked: &[bool], output: &IndexedMesh, from: &[u32]) -> super::NodeError {
     use crate::geom::{Bvh, Mesh};
+    use super::{keep_top, NodeError, Prio};
+    use std::cmp::Reverse;
+    use std::collections::BinaryHeap;
     if input.triangles.is_empty() {
-        return 0.0;
+        return NodeError::default();
     }
     let mut used = vec![false; input.vertices.len()];
     let mut bbox = Aabb::EMPTY;
@@ -282,30 +286,40 @@ pub fn collapse_error(input: &IndexedMesh, locked: &[bool], output: &IndexedMesh
         }
     }
     if output.triangles.is_empty() {
-        return bbox.diagonal();
+        let e = bbox.diagonal();
+        return NodeError { error: e, base: e, ..Default::default() };
     }
     let is_locked = |v: usize| locked.get(v).copied().unwrap_or(false);
     let mut on_output = vec![false; input.vertices.len()];
     for &f in from {
         on_output[f as usize] = is_locked(f as usize);
     }
-    let mut d2 = 0.0f64;
+    // Each side's largest distances (squared) kept for `remeasure_far`,
+    // as node_error keeps them; `rest` is the largest of the others.
+    let mut top: BinaryHeap<Reverse<(Prio, u32)>> = BinaryHeap::new();
+    let mut rest = 0.0f64;
     let out_bvh = Bvh::new(&Mesh::from_vertices(&output.vertices, output.triangles.clone()));
     for (v, x) in input.vertices.iter().enumerate() {
         if used[v] && !on_output[v] {
             if let Some(c) = out_bvh.closest(x.pos) {
-                d2 = d2.max(c.dist2);
+                keep_top(&mut top, &mut rest, c.dist2, v as u32);
             }
         }
     }
     drop(out_bvh);
+    let mut top_r: BinaryHeap<Reverse<(Prio, u32)>> = BinaryHeap::new();
+    let mut rest_r = 0.0f64;
     let in_bvh = Bvh::new(&Mesh::from_vertices(&input.vertices, input.triangles.clone()));
     for (o, x) in output.vertices.iter().enumerate() {
         if !is_locked(from[o] as usize) {
             if let Some(c) = in_bvh.closest(x.pos) {
-                d2 = d2.max(c.dist2);
+                keep_top(&mut top_r, &mut rest_r, c.dist2, o as u32);
             }
         }
     }
-    d2.sqrt()
+    let max = |t: &BinaryHeap<Reverse<(Prio, u32)>>| t.iter().map(|r| r.0 .0 .0).fold(0.0f64, f64::max);
+    let error = max(&top).max(max(&top_r)).max(rest).max(rest_r).sqrt();
+    let far = top.into_iter().map(|r| (input.vertices[r.0 .1 as usize].pos, r.0 .0 .0.sqrt())).collect();
+    let far_reps = top_r.into_iter().map(|r| (output.vertices[r.0 .1 as usize].pos, r.0 .0 .0.sqrt())).collect();
+    NodeError { error, base: rest.max(rest_r).sqrt(), far, far_reps }
 }

@@ -87,7 +87,10 @@
 //! - *Error.* Edge collapse keeps no member lists, so [`node_error`]'s
 //!   neighbourhood bound does not apply; the node's error is the exact
 //!   two-sided vertex-sampled distance through a BVH of each side
-//!   ([`collapse::collapse_error`]), then saturated as in step 5.
+//!   ([`collapse::collapse_error`]); where a few far points set it (a
+//!   flap dropped as a fold) they are measured again against the whole
+//!   next level or the level itself ([`remeasure_far`]), as clustering's
+//!   are; then saturated as in step 5.
 //! - *Patches, bounds, attributes, normals.* Each node's output is routed
 //!   to the next level as chunks tagged with the node, as with clustering,
 //!   so patches by source child come out the same way. Positions are
@@ -421,8 +424,13 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
                                 let c = collapse::collapse(&g.mesh, &locked, attrs, 0, Some(tau));
                                 let (mut out, from) = collapse::compact(&c.vertices, &collapse::unfold(&c.vertices, &c.triangles));
                                 as_stored(&mut out);
-                                p2.error = collapse::collapse_error(&g.mesh, &locked, &out, &from);
-                                p2.base = p2.error;
+                                let ne = collapse::collapse_error(&g.mesh, &locked, &out, &from);
+                                p2.error = ne.error;
+                                p2.base = ne.base;
+                                if ne.error > 2.0 * ne.base {
+                                    p2.far = ne.far;
+                                    p2.far_reps = ne.far_reps;
+                                }
                                 let out_locked: Vec<bool> = from.iter().map(|&f| locked[f as usize]).collect();
                                 (out, Vec::new(), out_locked)
                             }
