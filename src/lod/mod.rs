@@ -801,6 +801,8 @@ pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> NodeError {
     }
     let (in_first, in_around) = vertex_triangles(nv, &input.triangles);
     let (out_first, out_around) = vertex_triangles(output.vertices.len(), &output.triangles);
+    let out_centroid: Vec<[f64; 3]> = output.triangles.iter().map(|t| tri_centroid(output, t)).collect();
+    let dist2_pts = |a: [f64; 3], b: [f64; 3]| (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f64>();
     let mut d2 = 0.0f64;
     let mut bbox = Aabb::EMPTY;
     let mut whole: Option<Bvh> = None;
@@ -842,8 +844,12 @@ pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> NodeError {
                 n_seen += 1;
             }
             let low = floor(&top);
-            for &ti in &out_around[out_first[o] as usize..out_first[o + 1] as usize] {
-                best = best.min(dist2(p, output.triangles[ti as usize].map(|x| output.vertices[x as usize].pos)));
+            let fan = &out_around[out_first[o] as usize..out_first[o + 1] as usize];
+            // The triangle whose centroid is nearest first: usually the one
+            // under p, so the search mostly stops after one distance.
+            let near = fan.iter().enumerate().map(|(k, &ti)| (dist2_pts(p, out_centroid[ti as usize]), k)).min_by(|a, b| a.0.total_cmp(&b.0)).map_or(0, |m| m.1);
+            for k in std::iter::once(near).chain((0..fan.len()).filter(|&k| k != near)) {
+                best = best.min(dist2(p, output.triangles[fan[k] as usize].map(|x| output.vertices[x as usize].pos)));
                 if best <= low {
                     break 'near; // cannot be among the largest
                 }
@@ -888,8 +894,9 @@ pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> NodeError {
             'members: for ring in 0..2 {
                 for &m in ms {
                     let around_m = &in_around[in_first[m as usize] as usize..in_first[m as usize + 1] as usize];
-                    let verts: Vec<u32> = if ring == 0 { vec![m] } else { around_m.iter().flat_map(|&t| input.triangles[t as usize]).collect() };
-                    for w in verts {
+                    // Ring 0: the member itself; ring 1: its neighbours.
+                    let (own, around) = if ring == 0 { (Some(m), &[][..]) } else { (None, around_m) };
+                    for w in own.into_iter().chain(around.iter().flat_map(|&t| input.triangles[t as usize])) {
                         for &ti in &in_around[in_first[w as usize] as usize..in_first[w as usize + 1] as usize] {
                             best = best.min(dist2(p, input.triangles[ti as usize].map(|x| input.vertices[x as usize].pos)));
                             if best <= low {
@@ -927,6 +934,11 @@ pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> NodeError {
 /// Keeps the [`MAX_FAR`] largest bounds in `top`; `rest` takes the largest
 /// of the others.
 fn keep_top(top: &mut BinaryHeap<std::cmp::Reverse<(Prio, u32)>>, rest: &mut f64, b: f64, v: u32) {
+    if top.len() >= MAX_FAR && top.peek().is_some_and(|r| b.total_cmp(&r.0 .0 .0).is_lt()) {
+        // It would be popped right away (indices only grow, so ties go in).
+        *rest = rest.max(b);
+        return;
+    }
     top.push(std::cmp::Reverse((Prio(b, 0), v)));
     if top.len() > MAX_FAR {
         if let Some(r) = top.pop() {

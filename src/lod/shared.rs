@@ -110,6 +110,8 @@ impl BoxIndex {
 /// The grown cells of one level's nodes.
 pub struct Band {
     index: BoxIndex,
+    /// Per node: its cell and how far it was grown.
+    cells: Vec<(Aabb, f64)>,
 }
 
 impl Band {
@@ -121,10 +123,11 @@ impl Band {
                 let r = if r.is_finite() { r.max(0.0) } else { 0.0 };
                 // A little more than the reach: centroids are rounded.
                 let r = r * (1.0 + 1e-6) + 1e-12 * (c.max[0] - c.min[0]).abs();
-                Aabb { min: c.min.map(|x| x - r), max: c.max.map(|x| x + r) }
+                (Aabb { min: c.min.map(|x| x - r), max: c.max.map(|x| x + r) }, r)
             })
-            .collect();
-        Band { index: BoxIndex::new(grown) }
+            .collect::<Vec<_>>();
+        let index = BoxIndex::new(grown.iter().map(|g| g.0).collect());
+        Band { index, cells: cells.iter().zip(&grown).map(|(c, g)| (c.0, g.1)).collect() }
     }
 
     /// For node `i` with content bounds `content`: a test "may position p
@@ -133,18 +136,30 @@ impl Band {
         let mut near = Vec::new();
         self.index.query(content, &mut near);
         near.retain(|&j| j as usize != i);
-        BandTest { band: self, near }
+        // Cells tile the cube, so another node's grown cell reaches into
+        // this cell by at most its growth: points deeper inside are in
+        // none (a quick answer for most of a node's positions).
+        let (cell, _) = self.cells[i];
+        let grow = near.iter().map(|&j| self.cells[j as usize].1).fold(0.0, f64::max);
+        let m = grow + 1e-9 * (cell.max[0] - cell.min[0]).abs();
+        let inner = Aabb { min: cell.min.map(|x| x + m), max: cell.max.map(|x| x - m) };
+        BandTest { band: self, near, inner }
     }
 }
 
 pub struct BandTest<'a> {
     band: &'a Band,
     near: Vec<u32>,
+    /// The node's cell less every near cell's growth (may be empty).
+    inner: Aabb,
 }
 
 impl BandTest<'_> {
     #[inline]
     pub fn may_share(&self, p: [f64; 3]) -> bool {
+        if (0..3).all(|k| p[k] > self.inner.min[k] && p[k] < self.inner.max[k]) {
+            return false;
+        }
         self.near.iter().any(|&j| {
             let b = self.band.index.get(j as usize);
             (0..3).all(|k| p[k] >= b.min[k] && p[k] <= b.max[k])
