@@ -357,13 +357,15 @@ const MIN_LEAF_TRIS: u64 = 256;
 
 fn print_build(r: &octolod::pipeline::BuildReport) {
     println!(
-        "build: {} triangles, {} level-0 nodes, {} nodes, {} levels; soup {:.2} s, partition {:.2} s, levels {:.2} s, total {:.2} s; {} on disk; peak RSS {}",
+        "build: {} triangles, {} level-0 nodes, {} nodes, {} levels; soup {:.2} s, partition {:.2} s ({} counting pass{}), levels {:.2} s, total {:.2} s; {} on disk; peak RSS {}",
         r.soup.header.triangles,
         r.octree.leaves,
         r.nodes,
         r.levels.len(),
         r.seconds[0],
         r.seconds[1],
+        r.octree.counting_passes,
+        if r.octree.counting_passes == 1 { "" } else { "es" },
         r.seconds[2],
         r.seconds[3],
         octolod::progress::mib(r.disk_bytes),

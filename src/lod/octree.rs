@@ -22,7 +22,8 @@
 //!    exact counts, whatever the budget.
 //! 2. **Routing.** One pass sends each triangle to its leaf's buffer (the
 //!    tiling's binary search); a buffer becomes a chunk when its leaf is
-//!    complete (its count is known), and when the buffers together outgrow
+//!    complete (its count is known; complete leaves are encoded a few at a
+//!    time, in parallel), and when the buffers together outgrow
 //!    a quarter of the budget the largest are written as chunks until they
 //!    hold an eighth. A leaf is read back by [`ChunkFile::gather`], which
 //!    welds its chunks; triangles keep the soup's order within a leaf, and
@@ -188,19 +189,23 @@ pub fn build_octree(soup: &Path, chunk_path: std::path::PathBuf, cube: &LevelCub
         layout,
     };
     let budget = (opts.mem / 4) as usize;
+    // Complete leaves wait for a few more, to be encoded in parallel.
+    let mut pending: Vec<usize> = Vec::new();
+    let group = 4 * rayon::current_num_threads().max(1);
     scan(soup, cube, batch, &progress, |buf, keys| {
         let targets: Vec<u32> = keys.par_iter().map(|&k| tiling.locate(k) as u32).collect();
-        let mut complete = Vec::new();
         for (&t, tri) in targets.iter().zip(buf.chunks_exact(rec)) {
             let t = t as usize;
             router.bufs[t].extend_from_slice(tri);
             router.got[t] += 1;
             if router.got[t] == want[t] {
-                complete.push(t);
+                pending.push(t);
             }
         }
         router.buffered += buf.len();
-        router.flush(complete)?;
+        if pending.len() >= group {
+            router.flush(std::mem::take(&mut pending))?;
+        }
         if router.buffered > budget {
             let mut by_size: Vec<(usize, usize)> = router.bufs.iter().enumerate().filter(|b| !b.1.is_empty()).map(|(t, b)| (b.len(), t)).collect();
             by_size.sort_unstable_by(|a, b| b.cmp(a));
@@ -215,9 +220,12 @@ pub fn build_octree(soup: &Path, chunk_path: std::path::PathBuf, cube: &LevelCub
                 .map(|x| x.1)
                 .collect();
             router.flush(picked)?;
+            // Pending leaves written by the spill are done.
+            pending.retain(|&t| !router.bufs[t].is_empty());
         }
         Ok(())
     })?;
+    router.flush(pending)?;
     progress.finish();
     if router.got != want {
         return Err(Error::input(Location { file: soup.to_path_buf(), ..Default::default() }, "the soup changed while it was read"));
