@@ -2,10 +2,8 @@
 //! `u64` in their first 8 bytes, under a memory budget.
 //!
 //! Takes: records pushed one by one and a byte budget. Gives: the records in
-//! key order, streamed to a callback. Ties are broken by push order, except
-//! for 16-byte records (key + one u64 payload), which are sorted in place
-//! (no index memory) with ties in payload order within a run and in run
-//! order across runs. Either way the output is deterministic.
+//! key order, streamed to a callback. Ties are broken by push order, so the
+//! output is deterministic.
 //!
 //! Records accumulate in one buffer; when it is full, a (key, index) array is
 //! sorted in parallel with rayon and the records are gathered out in order
@@ -66,8 +64,7 @@ impl ExtSorter {
     /// spill files in `dir` named after `name`.
     pub fn new(name: &'static str, rec_size: usize, mem: usize, dir: &Path) -> ExtSorter {
         assert!(rec_size >= 8);
-        let index = if rec_size == 16 { 0 } else { INDEX_BYTES };
-        let cap = (mem / (rec_size + index)).max(2);
+        let cap = (mem / (rec_size + INDEX_BYTES)).max(2);
         ExtSorter {
             rec: rec_size,
             merge_mem: mem,
@@ -132,16 +129,6 @@ impl ExtSorter {
         idx
     }
 
-    /// Sorts 16-byte records in place by (key, payload); false if not applicable.
-    fn sort_in_place(&mut self) -> bool {
-        if self.rec != 16 {
-            return false;
-        }
-        let Ok(recs) = bytemuck::try_cast_slice_mut::<u8, [u64; 2]>(&mut self.buf) else { return false };
-        recs.par_sort_unstable_by_key(|r| (u64::from_le(r[0]), u64::from_le(r[1])));
-        true
-    }
-
     fn spill(&mut self) -> Result<()> {
         if self.buf.is_empty() {
             return Ok(());
@@ -150,13 +137,9 @@ impl ExtSorter {
         let f = File::create(&path).ctx(&path, "create run file")?;
         let mut w = BufWriter::with_capacity(crate::io::SEQ_BUF, f);
         let n = (self.buf.len() / self.rec) as u64;
-        if self.sort_in_place() {
-            w.write_all(&self.buf).ctx(&path, "write run file")?;
-        } else {
-            for &(_, i) in &self.sorted_order() {
-                let i = i as usize;
-                w.write_all(&self.buf[i * self.rec..(i + 1) * self.rec]).ctx(&path, "write run file")?;
-            }
+        for &(_, i) in &self.sorted_order() {
+            let i = i as usize;
+            w.write_all(&self.buf[i * self.rec..(i + 1) * self.rec]).ctx(&path, "write run file")?;
         }
         w.flush().ctx(&path, "write run file")?;
         self.stats.spilled_bytes += n * self.rec as u64;
@@ -170,15 +153,9 @@ impl ExtSorter {
     pub fn finish(mut self, mut out: impl FnMut(&[u8]) -> Result<()>) -> Result<SortStats> {
         if self.runs.is_empty() {
             // Everything fits: sort in memory, no disk.
-            if self.sort_in_place() {
-                for r in self.buf.chunks_exact(self.rec) {
-                    out(r)?;
-                }
-            } else {
-                for &(_, i) in &self.sorted_order() {
-                    let i = i as usize;
-                    out(&self.buf[i * self.rec..(i + 1) * self.rec])?;
-                }
+            for &(_, i) in &self.sorted_order() {
+                let i = i as usize;
+                out(&self.buf[i * self.rec..(i + 1) * self.rec])?;
             }
             return Ok(self.stats);
         }
@@ -373,40 +350,6 @@ mod tests {
             })
             .unwrap();
         assert_eq!((st.runs, st.merge_passes), (50, 2));
-    }
-
-    #[test]
-    fn sixteen_byte_records_sort_in_place_by_key_then_payload() {
-        let dir = tempfile::tempdir().unwrap();
-        for mem in [1 << 20, 16 * 300] {
-            let mut s = ExtSorter::new("p", 16, mem, dir.path()).with_merge_mem(1 << 20);
-            let mut expect = Vec::new();
-            let mut seed = 3;
-            for _ in 0..10_000 {
-                let (k, p) = (lcg(&mut seed) % 100, lcg(&mut seed));
-                expect.push((k, p));
-                s.push_with(|b| {
-                    b[..8].copy_from_slice(&k.to_le_bytes());
-                    b[8..].copy_from_slice(&p.to_le_bytes());
-                })
-                .unwrap();
-            }
-            expect.sort();
-            let mut got = Vec::new();
-            let st = s
-                .finish(|r| {
-                    got.push((key_of(r), u64::from_le_bytes(r[8..].try_into().unwrap())));
-                    Ok(())
-                })
-                .unwrap();
-            assert!(got.windows(2).all(|w| w[0].0 <= w[1].0), "keys out of order");
-            if st.runs == 0 {
-                assert!(got == expect, "in-memory ties must follow the payload");
-            }
-            got.sort();
-            assert!(got == expect, "records lost or changed");
-            assert_eq!(st.runs, if mem == 1 << 20 { 0 } else { 34 });
-        }
     }
 
     #[test]

@@ -2,7 +2,7 @@
 //! larger than RAM.
 //!
 //! Data flow, one module per stage:
-//! `ply` (stream PLY) → `soup` (external sort + dereference into a triangle
+//! `ply` (stream PLY) → `soup` (out-of-core dereference into a triangle
 //! soup) → `octree` (level-0 partition) → `lod` (levels of detail, with
 //! `quadric`) → `store` → `view`, plus `reduce` (one mesh of the size or
 //! error asked, from a store) and `metro`.

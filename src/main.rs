@@ -29,7 +29,7 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Cmd {
-    /// Turn an indexed PLY into a triangle soup by external sort + dereference.
+    /// Turn an indexed PLY into a triangle soup (out-of-core dereference of every corner).
     Soup {
         input: PathBuf,
         #[arg(short, long)]
@@ -37,7 +37,7 @@ enum Cmd {
         /// Working-memory budget (e.g. 128M, 2G).
         #[arg(long, default_value = mem::DEFAULT_BUDGET_ARG)]
         mem: String,
-        /// Use the external-sort path even when the vertices fit in memory.
+        /// Use the external (out-of-core) path even when the vertices fit in memory.
         #[arg(long)]
         external: bool,
         /// Print the report as JSON on stdout instead of a summary line.
@@ -427,7 +427,6 @@ fn run(cli: Cli) -> Result<()> {
                 mem: mem::parse_budget(&mem, "--mem")?,
                 quiet: cli.quiet,
                 force_external: external,
-                max_fan_in: None,
                 replace: cli.force,
             };
             let rep = soup::build_soup(&input, &output, &opts)?;

@@ -1,6 +1,6 @@
 //! PLY flavors decode exactly, and the soup equals a straightforward
-//! in-memory dereference for every budget, from tiny (many runs, multi-pass
-//! merges) to large (in-memory path).
+//! in-memory dereference for every budget, from tiny (many vertex slabs and
+//! slot buckets) to large (in-memory path).
 
 use octolod::mesh::{AttrSet, Vertex, VertexLayout};
 use octolod::ply::read::read_all;
@@ -89,7 +89,9 @@ fn soup_bytes(path: &Path) -> (AttrSet, Vec<u8>) {
     (attrs, all)
 }
 
-fn check_soup(ply: &Path, opts: &SoupOptions) -> octolod::soup::SoupReport {
+/// Builds the soup of `ply` under `opts`, checks its records against
+/// [`reference_soup`], and gives the report and the whole file.
+fn check_soup_file(ply: &Path, opts: &SoupOptions) -> (octolod::soup::SoupReport, Vec<u8>) {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("out.soup");
     let rep = build_soup(ply, &out, opts).unwrap_or_else(|e| panic!("{}: {e}", ply.display()));
@@ -101,18 +103,20 @@ fn check_soup(ply: &Path, opts: &SoupOptions) -> octolod::soup::SoupReport {
     // Only the soup is left: no scratch or partial files.
     let left: Vec<_> = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
     assert_eq!(left, vec![std::ffi::OsString::from("out.soup")]);
-    rep
+    (rep, std::fs::read(&out).unwrap())
 }
 
 #[test]
 fn fixture_soups_equal_reference_on_both_paths() {
     for (name, _) in FIXTURES {
         let p = fixture(name);
-        let mem = check_soup(&p, &SoupOptions::default());
+        let (mem, mem_file) = check_soup_file(&p, &SoupOptions::default());
         // Faces-first files cannot take the one-pass path.
         assert_eq!(mem.external, name.contains("faces_first"), "{name}");
-        let ext = check_soup(&p, &SoupOptions { mem: 64 << 10, force_external: true, max_fan_in: Some(2), ..Default::default() });
+        let (ext, ext_file) = check_soup_file(&p, &SoupOptions { mem: 64 << 10, force_external: true, ..Default::default() });
         assert!(ext.external);
+        assert_eq!(ext.vertex_slabs, 1, "{name}: 8 vertices fit one slab");
+        assert!(mem_file == ext_file, "{name}: the paths' soups differ");
         assert_eq!((mem.header.triangles, mem.header.degenerate), (14, 2));
         assert_eq!(mem.header.bbox, ext.header.bbox);
         assert_eq!(mem.header.bbox.min, [-0.25, 0.5, -0.875]);
@@ -122,8 +126,9 @@ fn fixture_soups_equal_reference_on_both_paths() {
 
 /// A grid mesh with shuffled vertex order (so corners reference vertices all
 /// over the file), written by hand as binary big endian with normals, colors
-/// and double positions, plus some quads and degenerate faces.
-fn write_shuffled_grid(path: &Path, n: u32) -> u64 {
+/// and double positions, plus some quads and degenerate faces; the face
+/// element comes first when `faces_first`.
+fn write_shuffled_grid(path: &Path, n: u32, faces_first: bool) -> u64 {
     let nv = (n + 1) * (n + 1);
     // A permutation of vertex ids: multiply by a unit mod nv.
     let mut mult = 7919u64;
@@ -152,12 +157,24 @@ fn write_shuffled_grid(path: &Path, n: u32) -> u64 {
         }
     }
     let mut f = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
-    write!(
-        f,
-        "ply\nformat binary_big_endian 1.0\nelement vertex {nv}\nproperty double x\nproperty double y\nproperty double z\nproperty float nx\nproperty float ny\nproperty float nz\nproperty uchar red\nproperty uchar green\nproperty uchar blue\nelement face {}\nproperty list uchar int vertex_indices\nend_header\n",
-        faces.len()
-    )
-    .unwrap();
+    let vertex_elem = format!("element vertex {nv}\nproperty double x\nproperty double y\nproperty double z\nproperty float nx\nproperty float ny\nproperty float nz\nproperty uchar red\nproperty uchar green\nproperty uchar blue\n");
+    let face_elem = format!("element face {}\nproperty list uchar int vertex_indices\n", faces.len());
+    let (first, second) = if faces_first { (&face_elem, &vertex_elem) } else { (&vertex_elem, &face_elem) };
+    write!(f, "ply\nformat binary_big_endian 1.0\n{first}{second}end_header\n").unwrap();
+    let mut face_bytes = Vec::new();
+    let mut tris = 0;
+    for face in &faces {
+        face_bytes.push(face.len() as u8);
+        for &i in face {
+            face_bytes.extend_from_slice(&(i as i32).to_be_bytes());
+        }
+        if face[0] != face[1] {
+            tris += face.len() as u64 - 2;
+        }
+    }
+    if faces_first {
+        f.write_all(&face_bytes).unwrap();
+    }
     for s in 0..nv {
         let i = inv[s as usize];
         let (x, y) = ((i % (n + 1)) as f64, (i / (n + 1)) as f64);
@@ -169,15 +186,8 @@ fn write_shuffled_grid(path: &Path, n: u32) -> u64 {
         }
         f.write_all(&[(x as u32 % 256) as u8, (y as u32 % 256) as u8, 7]).unwrap();
     }
-    let mut tris = 0;
-    for face in &faces {
-        f.write_all(&[face.len() as u8]).unwrap();
-        for &i in face {
-            f.write_all(&(i as i32).to_be_bytes()).unwrap();
-        }
-        if face[0] != face[1] {
-            tris += face.len() as u64 - 2;
-        }
+    if !faces_first {
+        f.write_all(&face_bytes).unwrap();
     }
     tris
 }
@@ -194,30 +204,42 @@ fn gcd(a: u64, b: u64) -> u64 {
 fn soup_is_exact_for_budgets_from_tiny_to_large() {
     let dir = tempfile::tempdir().unwrap();
     let ply = dir.path().join("grid.ply");
-    let tris = write_shuffled_grid(&ply, 120);
-    let mut seen_multipass = false;
-    for (mem, fan, external) in [
-        (64 << 10, Some(2), true),
-        (64 << 10, None, true),
-        (256 << 10, None, true),
-        (4 << 20, None, true),
-        (64 << 20, None, false),
-    ] {
-        let rep = check_soup(&ply, &SoupOptions { mem, force_external: external, max_fan_in: fan, ..Default::default() });
+    let tris = write_shuffled_grid(&ply, 120, false);
+    let mut in_memory = None;
+    for (mem, external) in [(64 << 20, false), (64 << 10, true), (256 << 10, true), (4 << 20, true)] {
+        let (rep, file) = check_soup_file(&ply, &SoupOptions { mem, force_external: external, ..Default::default() });
         assert_eq!(rep.header.triangles, tris);
         assert_eq!(rep.external, external);
         assert!(rep.header.attrs.pos_f64(), "far-from-origin doubles keep double precision");
-        if mem == 64 << 10 {
-            assert!(rep.sort_by_vertex.runs >= 20, "tiny budget must spill many runs: {:?}", rep.sort_by_vertex);
-            assert!(rep.sort_by_vertex.merge_passes >= 2, "{:?}", rep.sort_by_vertex);
-            assert!(rep.slot_buckets >= 10, "tiny budget must distribute into many slot buckets: {}", rep.slot_buckets);
-            seen_multipass = true;
+        let corner_bytes = if external { 3 * tris * 12 } else { 0 };
+        assert_eq!(rep.corner_bucket_bytes, corner_bytes, "mem {mem}");
+        match mem {
+            // The one-pass path: the reference for the external runs below.
+            m if m == 64 << 20 => {
+                assert_eq!((rep.vertex_slabs, rep.slot_buckets), (0, 0));
+                in_memory = Some(file.clone());
+            }
+            m if m == 64 << 10 => {
+                assert!(rep.vertex_slabs >= 20, "tiny budget must cut many vertex slabs: {}", rep.vertex_slabs);
+                assert!(rep.slot_buckets >= 10, "tiny budget must distribute into many slot buckets: {}", rep.slot_buckets);
+            }
+            m if m == 256 << 10 => assert!(rep.vertex_slabs > 1 && rep.slot_buckets > 1, "{rep:?}"),
+            // Every vertex in one slab.
+            _ => assert_eq!(rep.vertex_slabs, 1),
         }
-        if !external {
-            assert_eq!(rep.sort_by_vertex.runs, 0);
-        }
+        // The whole file, header included, byte for byte the in-memory path's.
+        assert!(in_memory.as_ref() == Some(&file), "mem {mem}: soup differs from the in-memory path's");
     }
-    assert!(seen_multipass);
+    // Faces before vertices: corners are distributed before any vertex is
+    // read; the same soup, whatever the budget.
+    let faces_first = dir.path().join("grid-faces-first.ply");
+    assert_eq!(write_shuffled_grid(&faces_first, 120, true), tris);
+    for mem in [64 << 10, 64 << 20] {
+        let (rep, file) = check_soup_file(&faces_first, &SoupOptions { mem, ..Default::default() });
+        assert!(rep.external, "faces-first files take the external path");
+        assert_eq!(rep.vertex_slabs > 1, mem == 64 << 10, "mem {mem}: {rep:?}");
+        assert!(in_memory.as_ref() == Some(&file), "mem {mem}: faces-first soup differs from the in-memory path's");
+    }
 }
 
 #[test]

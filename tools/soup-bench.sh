@@ -5,7 +5,7 @@
 #
 #   tools/soup-bench.sh [TRIANGLES] [MEM] [WORKDIR]
 #
-# Needs about 10x the input size of free disk in WORKDIR (scratch runs + soup).
+# Needs about 4x the input size of free disk in WORKDIR (scratch buckets + soup).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 tris=${1:-120000000}
@@ -38,6 +38,6 @@ print(f"soup: {r['triangles']/1e6:.1f} M triangles in {r['seconds']:.1f} s = {r[
       f"{size/1e6/r['seconds']:.0f} MB/s of PLY; peak RSS {r['peak_rss_bytes']/2**20:.0f} MiB "
       f"(budget {r['mem_budget_bytes']/2**20:.0f} MiB, limit budget+64 MiB: "
       f"{'OK' if r['peak_rss_bytes'] <= r['mem_budget_bytes'] + (64 << 20) else 'EXCEEDED'}); "
-      f"corner runs {r['corner_runs']}, merge passes {r['corner_merge_passes']}, slot buckets {r['slot_buckets']}, spilled {r['spilled_bytes']/1e9:.1f} GB")
+      f"vertex slabs {r['vertex_slabs']}, slot buckets {r['slot_buckets']}, spilled {r['spilled_bytes']/1e9:.1f} GB")
 PY
 rm -f "$dir/out.soup"

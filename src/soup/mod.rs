@@ -10,25 +10,32 @@
 //!   precede faces in the file: one pass, faces dereferenced on the fly;
 //! * **external** otherwise, never random-accessing the disk:
 //!   1. stream the PLY once: vertices go to a packed vertex file in index
-//!      order, each triangle corner becomes a record (vertex index, slot =
-//!      3·triangle + corner);
-//!   2. external-sort the corner records by vertex index ([`crate::extsort`]);
-//!   3. merge them against the vertex file read sequentially (a join): each
-//!      corner becomes (slot, vertex bytes);
-//!   4. sort those by slot with a one-pass distribution sort: slots are dense,
-//!      so corners go to bucket files by slot range (each range's vertex
-//!      bytes fit the budget), then each bucket is placed in memory by slot
-//!      and written out as triangles, in order.
+//!      order; vertex indices are cut into K consecutive *slabs*, each
+//!      slab's vertex bytes fitting half the budget, and each triangle
+//!      corner becomes a record (index within its slab, slot = 3·triangle +
+//!      corner) appended to its slab's bucket file;
+//!   2. slab by slab: read the slab's vertices from the vertex file (the
+//!      slabs are consecutive ranges of it, so the file is read once, in
+//!      order) into memory, then stream the slab's bucket, each corner
+//!      becoming (slot, vertex bytes) by a lookup in memory, distributed to
+//!      bucket files by slot range (slots are dense; each range's vertex
+//!      bytes fit the budget);
+//!   3. each slot bucket is placed in memory by slot and written out as
+//!      triangles, in order.
 //!
-//! Budget split: phase 1 gives the corner sort the whole budget less I/O
-//! buffers; in phase 3 the corner merge's read buffers and the bucket
-//! writers' buffers share it half and half; phase 4 places one bucket, at
-//! most the whole budget, at a time.
+//!   No comparison sort: corners are only distributed, by slab and by slot
+//!   range, so no record is ever compared or merged, and the only random
+//!   access (corner → vertex) is in RAM, as on the in-memory path.
+//!
+//! Budget split: phase 1 holds only write buffers (the slab buckets', at
+//! most about the budget less I/O buffers, together); in phase 2 one slab
+//! (at most half the budget) and the slot buckets' write buffers (half)
+//! share it; phase 3 places one slot bucket, at most the whole budget, at a
+//! time.
 
 pub mod format;
 
 use crate::error::{Error, IoContext, Location, Result};
-use crate::extsort::{ExtSorter, SortStats};
 use crate::io::SEQ_BUF;
 use crate::mesh::{Vertex, VertexLayout};
 use crate::ply::read::{read_body, BodySink, BodyStats};
@@ -36,8 +43,8 @@ use crate::ply::{read_header, PlyHeader};
 use crate::progress::Progress;
 use format::{SoupHeader, SoupWriter};
 use std::fs::File;
-use std::io::{BufReader, BufWriter, Read, Write};
-use std::path::Path;
+use std::io::{BufWriter, Read, Write};
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// Options for [`build_soup`].
@@ -48,15 +55,13 @@ pub struct SoupOptions {
     pub quiet: bool,
     /// Take the external path even when the input fits (tests, benchmarks).
     pub force_external: bool,
-    /// Cap on runs per merge (tests force multi-pass merges with 2).
-    pub max_fan_in: Option<usize>,
     /// Replace an existing soup at the output path (`--force`).
     pub replace: bool,
 }
 
 impl Default for SoupOptions {
     fn default() -> Self {
-        SoupOptions { mem: crate::mem::DEFAULT_BUDGET, quiet: true, force_external: false, max_fan_in: None, replace: false }
+        SoupOptions { mem: crate::mem::DEFAULT_BUDGET, quiet: true, force_external: false, replace: false }
     }
 }
 
@@ -67,13 +72,16 @@ pub struct SoupReport {
     pub body: BodyStats,
     pub input_bytes: u64,
     pub external: bool,
-    /// The external sort of corners by vertex index.
-    pub sort_by_vertex: SortStats,
-    /// Slot-range bucket files of the distribution pass (0: placed in memory).
+    /// Vertex slabs, each with a bucket file of corners (0 on the in-memory path).
+    pub vertex_slabs: u64,
+    /// Bytes written to the slabs' corner bucket files.
+    pub corner_bucket_bytes: u64,
+    /// Slot-range bucket files of the distribution by slot (0: placed in memory).
     pub slot_buckets: u64,
-    /// Bytes written to bucket files.
-    pub bucket_bytes: u64,
-    /// Seconds in (read PLY + sort runs, merge + join + distribute, place + write soup).
+    /// Bytes written to slot bucket files.
+    pub slot_bucket_bytes: u64,
+    /// Seconds in (read PLY + distribute corners by slab, join slabs +
+    /// distribute by slot, place + write soup).
     pub phase_seconds: [f64; 3],
     pub seconds: f64,
 }
@@ -113,7 +121,7 @@ pub struct SoupJson {
     pub vertices: u64,
     /// Size of the input PLY in bytes.
     pub input_bytes: u64,
-    /// True when the external-sort path ran.
+    /// True when the external path ran.
     pub external: bool,
     /// Wall-clock seconds of the whole soup build.
     pub seconds: f64,
@@ -125,15 +133,14 @@ pub struct SoupJson {
     pub peak_rss_bytes: u64,
     /// The `--mem` budget in bytes.
     pub mem_budget_bytes: u64,
-    /// Sorted runs of the corner sort (0 on the in-memory path).
-    pub corner_runs: u64,
-    /// Merge passes of the corner sort.
-    pub corner_merge_passes: u32,
-    /// Slot-range bucket files of the distribution pass.
+    /// Vertex slabs of the external path (0 on the in-memory path).
+    pub vertex_slabs: u64,
+    /// Slot-range bucket files of the distribution by slot.
     pub slot_buckets: u64,
-    /// Scratch bytes written: corner-sort spills plus bucket files.
+    /// Scratch bytes written: corner and slot bucket files (not the vertex file).
     pub spilled_bytes: u64,
-    /// Seconds in (read PLY + sort runs, merge + join + distribute, place + write soup).
+    /// Seconds in (read PLY + distribute corners by slab, join slabs +
+    /// distribute by slot, place + write soup).
     pub phase_seconds: [f64; 3],
 }
 
@@ -154,16 +161,15 @@ impl SoupReport {
             mtris_per_s: self.body.triangles as f64 / 1e6 / secs,
             peak_rss_bytes: peak_rss.unwrap_or(0),
             mem_budget_bytes: mem,
-            corner_runs: self.sort_by_vertex.runs,
-            corner_merge_passes: self.sort_by_vertex.merge_passes,
+            vertex_slabs: self.vertex_slabs,
             slot_buckets: self.slot_buckets,
-            spilled_bytes: self.sort_by_vertex.spilled_bytes + self.bucket_bytes,
+            spilled_bytes: self.corner_bucket_bytes + self.slot_bucket_bytes,
             phase_seconds: self.phase_seconds,
         }
     }
 }
 
-/// I/O buffers held besides the budgeted sort memory.
+/// I/O buffers held besides the budgeted memory.
 const IO_RESERVE: u64 = 6 * SEQ_BUF as u64;
 
 /// Builds a soup from `input` into `output`; see the module doc.
@@ -266,9 +272,10 @@ fn build_in_memory(input: &Path, output: &Path, header: &PlyHeader, opts: &SoupO
         body,
         input_bytes: 0,
         external: false,
-        sort_by_vertex: SortStats::default(),
+        vertex_slabs: 0,
+        corner_bucket_bytes: 0,
         slot_buckets: 0,
-        bucket_bytes: 0,
+        slot_bucket_bytes: 0,
         phase_seconds: [0.0; 3],
         seconds: 0.0,
     })
@@ -276,12 +283,19 @@ fn build_in_memory(input: &Path, output: &Path, header: &PlyHeader, opts: &SoupO
 
 // ------------------------------------------------------------------- external
 
+/// A corner record of the external path: the vertex's index within its slab
+/// (u32) and the corner's slot (u64), little endian.
+const CORNER_REC: usize = 12;
+
 struct ExternalSink<'a> {
     layout: VertexLayout,
     vfile: BufWriter<File>,
     vpath: &'a Path,
     vbuf: Vec<u8>,
-    corners: ExtSorter,
+    /// Vertices per slab.
+    per_slab: u64,
+    /// One bucket of corner records per vertex slab.
+    corners: BucketFiles,
     next_tri: u64,
 }
 
@@ -297,11 +311,12 @@ impl BodySink for ExternalSink<'_> {
     fn triangles(&mut self, batch: &[[u64; 3]]) -> Result<()> {
         for t in batch {
             let slot0 = self.next_tri * 3;
-            for c in 0..3 {
-                self.corners.push_with(|b| {
-                    b[..8].copy_from_slice(&t[c].to_le_bytes());
-                    b[8..16].copy_from_slice(&(slot0 + c as u64).to_le_bytes());
-                })?;
+            for (c, &vi) in t.iter().enumerate() {
+                // Indices were checked against the vertex count by the reader.
+                let (slab, local) = (vi / self.per_slab, vi % self.per_slab);
+                let r = self.corners.record(slab as usize)?;
+                r[..4].copy_from_slice(&(local as u32).to_le_bytes());
+                r[4..12].copy_from_slice(&(slot0 + c as u64).to_le_bytes());
             }
             self.next_tri += 1;
         }
@@ -317,15 +332,16 @@ fn build_external(
     progress: &Progress,
 ) -> Result<SoupReport> {
     let layout = VertexLayout::new(header.attrs);
+    let s = layout.size;
     let scratch = crate::io::scratch_dir(output)?;
     let budget = opts.mem.saturating_sub(IO_RESERVE).max(opts.mem / 2) as usize;
-    let fan = |s: ExtSorter| match opts.max_fan_in {
-        Some(k) => s.with_max_fan_in(k),
-        None => s,
-    };
+    // Vertex slabs: consecutive index ranges whose vertex bytes fit half the budget.
+    let n_vertices = header.vertex_count();
+    let per_slab = ((budget / 2 / s) as u64).clamp(1, u32::MAX as u64);
+    let n_slabs = n_vertices.div_ceil(per_slab).max(1) as usize;
 
     let t0 = Instant::now();
-    // Phase 1: one pass over the PLY.
+    // Phase 1: one pass over the PLY; corners distributed by vertex slab.
     let vpath = scratch.path().join("vertices.bin");
     let vfile = File::create(&vpath).ctx(&vpath, "create vertex file")?;
     let mut sink = ExternalSink {
@@ -333,7 +349,8 @@ fn build_external(
         vfile: BufWriter::with_capacity(SEQ_BUF, vfile),
         vpath: &vpath,
         vbuf: Vec::new(),
-        corners: fan(ExtSorter::new("corners", 16, budget, scratch.path())),
+        per_slab,
+        corners: BucketFiles::create(scratch.path(), "corners", n_slabs, CORNER_REC, budget)?,
         next_tri: 0,
     };
     let body = read_body(input, header, &mut sink, progress)?;
@@ -342,45 +359,49 @@ fn build_external(
     }
     let ExternalSink { vfile, corners, .. } = sink;
     vfile.into_inner().map_err(|e| e.into_error()).ctx(&vpath, "write vertex file")?;
+    let corner_buckets = corners.finish()?;
     progress.finish();
 
     let t1 = Instant::now();
-    // Phases 2+3: corners in vertex order, joined with the vertex file, then
-    // distributed by slot range.
+    // Phase 2: slab by slab, the slab's vertices in memory (read in sequence
+    // from the vertex file), its corners dereferenced and distributed by slot.
     let n_corners = body.triangles * 3;
     let join_progress = Progress::items(n_corners, "joining", opts.quiet);
-    let mut buckets = SlotBuckets::new(scratch.path(), n_corners, layout.size, budget, budget / 2)?;
-    let mut vreader = BufReader::with_capacity(SEQ_BUF, File::open(&vpath).ctx(&vpath, "open vertex file")?);
-    let mut vcur = vec![0u8; layout.size];
-    let mut vnext: u64 = 0; // index of the next vertex record to read
+    let mut buckets = SlotBuckets::new(scratch.path(), n_corners, s, budget, budget / 2)?;
+    let mut vfile = File::open(&vpath).ctx(&vpath, "open vertex file")?;
+    let mut slab = vec![0u8; per_slab.min(n_vertices) as usize * s];
+    let mut chunk = vec![0u8; SEQ_BUF / CORNER_REC * CORNER_REC];
     let mut done = 0u64;
-    let corners = corners.with_merge_mem(budget / 2);
-    let sort_by_vertex = corners.finish(|r| {
-        let vi = u64::from_le_bytes(r[..8].try_into().unwrap());
-        let slot = u64::from_le_bytes(r[8..16].try_into().unwrap());
-        // Advance the vertex stream to `vi` (monotone: records come sorted by vertex).
-        while vnext <= vi {
-            vreader.read_exact(&mut vcur).ctx(&vpath, "read vertex file")?;
-            vnext += 1;
-        }
-        buckets.push(slot, &vcur)?;
-        done += 1;
-        if done % 65536 == 0 {
-            join_progress.set(done);
-        }
-        Ok(())
-    })?;
-    drop(vreader);
+    let mut corner_bucket_bytes = 0;
+    for (k, (path, records)) in corner_buckets.into_iter().enumerate() {
+        let n = (n_vertices - k as u64 * per_slab).min(per_slab) as usize;
+        let slab = &mut slab[..n * s];
+        vfile.read_exact(slab).ctx(&vpath, "read vertex file")?;
+        read_records(&path, CORNER_REC, records, &mut chunk, |r| {
+            let local = u32::from_le_bytes(r[..4].try_into().unwrap()) as usize;
+            let slot = u64::from_le_bytes(r[4..12].try_into().unwrap());
+            buckets.push(slot, &slab[local * s..(local + 1) * s])?;
+            done += 1;
+            if done % 65536 == 0 {
+                join_progress.set(done);
+            }
+            Ok(())
+        })?;
+        let _ = std::fs::remove_file(&path);
+        corner_bucket_bytes += records * CORNER_REC as u64;
+    }
+    debug_assert_eq!(done, n_corners);
+    drop((vfile, slab, chunk));
     let _ = std::fs::remove_file(&vpath);
     join_progress.finish();
 
     let t2 = Instant::now();
-    // Phase 4: each slot range placed in memory, written as triangles in order.
+    // Phase 3: each slot range placed in memory, written as triangles in order.
     let write_progress = Progress::items(body.triangles, "writing", opts.quiet);
     let mut soup = SoupWriter::create(output, header.attrs, opts.replace)?;
     let mut written = 0u64;
     let slot_buckets = buckets.len();
-    let bucket_bytes = buckets.finish(|tri| {
+    let slot_bucket_bytes = buckets.finish(|tri| {
         soup.push_encoded(tri)?;
         written += 1;
         if written % 65536 == 0 {
@@ -397,102 +418,59 @@ fn build_external(
         body,
         input_bytes: 0,
         external: true,
-        sort_by_vertex,
+        vertex_slabs: n_slabs as u64,
+        corner_bucket_bytes,
         slot_buckets,
-        bucket_bytes,
+        slot_bucket_bytes,
         phase_seconds,
         seconds: 0.0,
     })
 }
 
-/// Phase 3–4 of the external path: a one-pass distribution sort by slot.
-///
-/// Slots are dense (0..3·triangles), so instead of a second comparison sort
-/// the joined corners are appended to bucket files, each covering a slot
-/// range whose vertex bytes fit the budget; each bucket is then read back
-/// sequentially, its corners placed at their slot in memory, and written out
-/// in order. When all corners fit in half the budget no file is written.
-struct SlotBuckets {
-    vsize: usize,
-    n_slots: u64,
-    /// Slots per bucket (a multiple of 3, so no triangle straddles two buckets).
-    per: u64,
-    files: Vec<(std::path::PathBuf, File)>,
-    /// Write buffers of all buckets in one allocation: bucket b owns
-    /// `arena[b * region..(b + 1) * region]`, filled up to `fill[b]`.
+/// Append-only bucket files of fixed-size records, their write buffers in
+/// one allocation: bucket `b` owns `arena[b * region..(b + 1) * region]`,
+/// filled up to `fill[b]`.
+struct BucketFiles {
+    rec: usize,
+    files: Vec<(PathBuf, File)>,
     arena: Vec<u8>,
     region: usize,
     fill: Vec<usize>,
-    /// The single in-memory bucket, when everything fits.
-    mem: Option<Vec<u8>>,
+    /// Records per bucket.
     counts: Vec<u64>,
 }
 
-impl SlotBuckets {
-    fn new(dir: &Path, n_slots: u64, vsize: usize, place_mem: usize, write_mem: usize) -> Result<SlotBuckets> {
-        let total = n_slots * vsize as u64;
-        if total <= write_mem as u64 {
-            return Ok(SlotBuckets {
-                vsize,
-                n_slots,
-                per: n_slots.max(3),
-                files: Vec::new(),
-                arena: Vec::new(),
-                region: 0,
-                fill: Vec::new(),
-                mem: Some(vec![0u8; total as usize]),
-                counts: vec![0],
-            });
-        }
-        let per = ((place_mem / vsize) as u64 / 3 * 3).clamp(3, u32::MAX as u64 / 3 * 3);
-        let n = n_slots.div_ceil(per) as usize;
-        let rec = 4 + vsize;
-        let region = ((write_mem / n).clamp(4 << 10, SEQ_BUF) / rec).max(1) * rec;
+impl BucketFiles {
+    /// `n` files named `{name}-{b}.bin` in `dir`, with write buffers of
+    /// about `mem` bytes in all (at least 4 KiB, at most [`SEQ_BUF`] each).
+    fn create(dir: &Path, name: &str, n: usize, rec: usize, mem: usize) -> Result<BucketFiles> {
+        let region = ((mem / n.max(1)).clamp(4 << 10, SEQ_BUF) / rec).max(1) * rec;
         let mut files = Vec::with_capacity(n);
         for b in 0..n {
-            let path = dir.join(format!("slots-{b:05}.bin"));
+            let path = dir.join(format!("{name}-{b:05}.bin"));
             let f = File::create(&path).ctx(&path, "create bucket file")?;
             files.push((path, f));
         }
-        Ok(SlotBuckets {
-            vsize,
-            n_slots,
-            per,
-            files,
-            arena: vec![0u8; region * n],
-            region,
-            fill: vec![0; n],
-            mem: None,
-            counts: vec![0; n],
-        })
+        Ok(BucketFiles { rec, files, arena: vec![0u8; region * n], region, fill: vec![0; n], counts: vec![0; n] })
     }
 
-    fn len(&self) -> u64 {
-        self.files.len() as u64
+    fn len(&self) -> usize {
+        self.files.len()
     }
 
+    /// The bytes of a new record appended to bucket `b`, to be filled.
     #[inline]
-    fn push(&mut self, slot: u64, vertex: &[u8]) -> Result<()> {
-        let s = self.vsize;
-        if let Some(m) = &mut self.mem {
-            m[slot as usize * s..(slot as usize + 1) * s].copy_from_slice(vertex);
-            self.counts[0] += 1;
-            return Ok(());
+    fn record(&mut self, b: usize) -> Result<&mut [u8]> {
+        if self.fill[b] + self.rec > self.region {
+            self.flush(b)?;
         }
-        let b = (slot / self.per) as usize;
         self.counts[b] += 1;
-        let rec = 4 + s;
-        if self.fill[b] + rec > self.region {
-            self.flush_bucket(b)?;
-        }
         let at = b * self.region + self.fill[b];
-        self.arena[at..at + 4].copy_from_slice(&((slot % self.per) as u32).to_le_bytes());
-        self.arena[at + 4..at + rec].copy_from_slice(vertex);
-        self.fill[b] += rec;
-        Ok(())
+        self.fill[b] += self.rec;
+        Ok(&mut self.arena[at..at + self.rec])
     }
 
-    fn flush_bucket(&mut self, b: usize) -> Result<()> {
+    fn flush(&mut self, b: usize) -> Result<()> {
         let (path, f) = &mut self.files[b];
         let start = b * self.region;
         f.write_all(&self.arena[start..start + self.fill[b]]).ctx(path, "write bucket file")?;
@@ -500,11 +478,94 @@ impl SlotBuckets {
         Ok(())
     }
 
+    /// Writes out every buffer and frees them; gives each bucket's path and record count.
+    fn finish(mut self) -> Result<Vec<(PathBuf, u64)>> {
+        for b in 0..self.files.len() {
+            self.flush(b)?;
+        }
+        Ok(self.files.into_iter().zip(self.counts).map(|((p, _), n)| (p, n)).collect())
+    }
+}
+
+/// Reads `records` records of `rec` bytes from `path` through `chunk` (a
+/// multiple of `rec` bytes) and hands each to `each`.
+fn read_records(
+    path: &Path,
+    rec: usize,
+    records: u64,
+    chunk: &mut [u8],
+    mut each: impl FnMut(&[u8]) -> Result<()>,
+) -> Result<()> {
+    let mut f = File::open(path).ctx(path, "open bucket file")?;
+    let mut left = records * rec as u64;
+    while left > 0 {
+        let want = (left as usize).min(chunk.len());
+        f.read_exact(&mut chunk[..want]).ctx(path, "read bucket file")?;
+        for r in chunk[..want].chunks_exact(rec) {
+            each(r)?;
+        }
+        left -= want as u64;
+    }
+    Ok(())
+}
+
+/// Phases 2–3 of the external path: a one-pass distribution sort by slot.
+///
+/// Slots are dense (0..3·triangles), so instead of a comparison sort the
+/// joined corners are appended to bucket files, each covering a slot range
+/// whose vertex bytes fit the budget; each bucket is then read back
+/// sequentially, its corners placed at their slot in memory, and written out
+/// in order. When all corners fit in half the budget no file is written.
+struct SlotBuckets {
+    vsize: usize,
+    n_slots: u64,
+    /// Slots per bucket (a multiple of 3, so no triangle straddles two buckets).
+    per: u64,
+    /// Records (slot within the bucket: u32, vertex bytes), when spilling.
+    files: Option<BucketFiles>,
+    /// The single in-memory bucket, when everything fits.
+    mem: Option<Vec<u8>>,
+    placed: u64,
+}
+
+impl SlotBuckets {
+    fn new(dir: &Path, n_slots: u64, vsize: usize, place_mem: usize, write_mem: usize) -> Result<SlotBuckets> {
+        let total = n_slots * vsize as u64;
+        if total <= write_mem as u64 {
+            let mem = Some(vec![0u8; total as usize]);
+            return Ok(SlotBuckets { vsize, n_slots, per: n_slots.max(3), files: None, mem, placed: 0 });
+        }
+        let per = ((place_mem / vsize) as u64 / 3 * 3).clamp(3, u32::MAX as u64 / 3 * 3);
+        let n = n_slots.div_ceil(per) as usize;
+        let files = Some(BucketFiles::create(dir, "slots", n, 4 + vsize, write_mem)?);
+        Ok(SlotBuckets { vsize, n_slots, per, files, mem: None, placed: 0 })
+    }
+
+    /// Bucket files (0: placed in memory).
+    fn len(&self) -> u64 {
+        self.files.as_ref().map_or(0, |f| f.len() as u64)
+    }
+
+    #[inline]
+    fn push(&mut self, slot: u64, vertex: &[u8]) -> Result<()> {
+        let s = self.vsize;
+        if let Some(m) = &mut self.mem {
+            m[slot as usize * s..(slot as usize + 1) * s].copy_from_slice(vertex);
+            self.placed += 1;
+            return Ok(());
+        }
+        let files = self.files.as_mut().expect("slot buckets spill or place in memory");
+        let r = files.record((slot / self.per) as usize)?;
+        r[..4].copy_from_slice(&((slot % self.per) as u32).to_le_bytes());
+        r[4..].copy_from_slice(vertex);
+        Ok(())
+    }
+
     /// Emits every triangle (3 corners) in slot order; returns bytes spilled to bucket files.
-    fn finish(mut self, mut out: impl FnMut(&[u8]) -> Result<()>) -> Result<u64> {
+    fn finish(self, mut out: impl FnMut(&[u8]) -> Result<()>) -> Result<u64> {
         let s = self.vsize;
         if let Some(m) = self.mem {
-            debug_assert_eq!(self.counts[0], self.n_slots);
+            debug_assert_eq!(self.placed, self.n_slots);
             for tri in m.chunks_exact(3 * s) {
                 out(tri)?;
             }
@@ -514,30 +575,19 @@ impl SlotBuckets {
         let rec = 4 + s;
         // Flush every bucket first: the write buffers must not sit in
         // memory beside the bucket being placed.
-        for b in 0..self.files.len() {
-            self.flush_bucket(b)?;
-        }
-        self.arena = Vec::new();
-        let paths: Vec<_> = self.files.into_iter().map(|(p, _)| p).collect();
-        for (b, path) in paths.into_iter().enumerate() {
+        let buckets = self.files.expect("slot buckets spill or place in memory").finish()?;
+        let mut chunk = vec![0u8; (SEQ_BUF / rec).max(1) * rec];
+        for (b, (path, records)) in buckets.into_iter().enumerate() {
             let first = b as u64 * self.per;
             let n = (self.n_slots - first).min(self.per) as usize;
-            assert_eq!(self.counts[b], n as u64, "bucket {b} misses corners");
+            assert_eq!(records, n as u64, "bucket {b} misses corners");
+            // A single large allocation, freed per bucket.
             let mut placed = vec![0u8; n * s];
-            let mut r = BufReader::with_capacity(SEQ_BUF, File::open(&path).ctx(&path, "open bucket file")?);
-            let mut chunk = vec![0u8; (SEQ_BUF / rec).max(1) * rec];
-            // `placed` and `chunk` are single large allocations, freed per bucket.
-            let mut left = n * rec;
-            while left > 0 {
-                let want = left.min(chunk.len());
-                r.read_exact(&mut chunk[..want]).ctx(&path, "read bucket file")?;
-                for c in chunk[..want].chunks_exact(rec) {
-                    let i = u32::from_le_bytes(c[..4].try_into().unwrap()) as usize;
-                    placed[i * s..(i + 1) * s].copy_from_slice(&c[4..]);
-                }
-                left -= want;
-            }
-            drop(r);
+            read_records(&path, rec, records, &mut chunk, |c| {
+                let i = u32::from_le_bytes(c[..4].try_into().unwrap()) as usize;
+                placed[i * s..(i + 1) * s].copy_from_slice(&c[4..]);
+                Ok(())
+            })?;
             let _ = std::fs::remove_file(&path);
             spilled += (n * rec) as u64;
             for tri in placed.chunks_exact(3 * s) {
@@ -547,4 +597,3 @@ impl SlotBuckets {
         Ok(spilled)
     }
 }
-

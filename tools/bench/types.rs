@@ -160,7 +160,7 @@ pub struct BuildOut {
     pub octree_seconds: f64,
     #[serde(with = "nullable", default = "nan")]
     pub simplify_seconds: f64,
-    /// The soup took the external-sort path.
+    /// The soup took the external (out-of-core) path.
     pub soup_external: bool,
     pub nodes: u64,
     pub leaves: u64,
