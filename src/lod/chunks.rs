@@ -110,6 +110,35 @@ impl ChunkFile {
         }
     }
 
+    /// Encodes soup records (`3 × layout.size` bytes per triangle, the
+    /// store's vertex layout) as one chunk with no quadrics and nothing
+    /// locked: corners with identical bytes become one vertex, in order of
+    /// first appearance. The same bytes as indexing the triangles and
+    /// [`ChunkFile::encode`], without decoding a vertex.
+    pub fn encode_soup(&self, target: u32, source: u32, soup: &[u8], out: &mut Vec<u8>) {
+        debug_assert_eq!(self.a_len, 0);
+        let vs = self.layout.size;
+        let tris = soup.len() / (3 * vs);
+        let mut map: FxHashMap<&[u8], u32> = FxHashMap::with_capacity_and_hasher(tris, Default::default());
+        let mut verts: Vec<u8> = Vec::with_capacity(tris * (vs + 1));
+        let mut ids: Vec<u8> = Vec::with_capacity(tris * 12);
+        for corner in soup.chunks_exact(vs).take(3 * tris) {
+            let next = map.len() as u32;
+            let id = *map.entry(corner).or_insert_with(|| {
+                verts.extend_from_slice(corner);
+                verts.push(0);
+                next
+            });
+            ids.extend_from_slice(&id.to_le_bytes());
+        }
+        out.clear();
+        for x in [target, source, map.len() as u32, tris as u32] {
+            out.extend_from_slice(&x.to_le_bytes());
+        }
+        out.extend_from_slice(&verts);
+        out.extend_from_slice(&ids);
+    }
+
     /// Appends an encoded chunk.
     pub fn append(&mut self, target: u32, bytes: &[u8]) -> Result<()> {
         let w = self.w.as_mut().expect("chunk file already finished");
@@ -284,4 +313,52 @@ pub fn split_by_target(
         i = j;
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::{AttrSet, Vertex};
+
+    /// `encode_soup` writes what indexing the triangles (first appearance,
+    /// identical bytes shared) and `encode` write, attributes included.
+    #[test]
+    fn soup_records_encode_as_indexed_chunks() {
+        let attrs = AttrSet(AttrSet::NORMAL | AttrSet::UV | AttrSet::COLOR);
+        let layout = VertexLayout::new(attrs);
+        let dir = tempfile::tempdir().unwrap();
+        let file = ChunkFile::create(dir.path().join("c.bin"), layout, 0).unwrap();
+        let mut rng = crate::geom::Rng::new(5);
+        let pool: Vec<Vertex> = (0..40)
+            .map(|_| Vertex {
+                pos: [0, 1, 2].map(|_| rng.range(-1.0, 1.0)),
+                normal: [0, 1, 2].map(|_| rng.range(-1.0, 1.0) as f32),
+                uv: [rng.range(0.0, 1.0) as f32, rng.range(0.0, 1.0) as f32],
+                color: [0, 1, 2, 3].map(|_| (rng.next_u64() % 256) as u8),
+            })
+            .collect();
+        let mut soup = Vec::new();
+        let mut buf = vec![0u8; layout.size];
+        let mut mesh = IndexedMesh::default();
+        let mut index: FxHashMap<Vec<u8>, u32> = FxHashMap::default();
+        for _ in 0..100 {
+            let mut t = [0u32; 3];
+            for c in &mut t {
+                let v = &pool[(rng.next_u64() % pool.len() as u64) as usize];
+                layout.encode(v, &mut buf);
+                soup.extend_from_slice(&buf);
+                let n = mesh.vertices.len() as u32;
+                *c = *index.entry(buf.clone()).or_insert_with(|| {
+                    mesh.vertices.push(layout.decode(&buf));
+                    n
+                });
+            }
+            mesh.triangles.push(t);
+        }
+        let (mut a, mut b) = (Vec::new(), Vec::new());
+        file.encode_soup(7, 3, &soup, &mut a);
+        file.encode(7, 3, &mesh, &[], &vec![false; mesh.vertices.len()], &mut b);
+        assert!(mesh.vertices.len() < 300 && mesh.vertices.len() > 20);
+        assert_eq!(a, b);
+    }
 }

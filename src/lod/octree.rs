@@ -45,7 +45,7 @@ use super::LeafStats;
 use crate::mesh::VertexLayout;
 use crate::progress::Progress;
 use crate::soup::format::{SoupHeader, SoupReader};
-use crate::store::{IndexedMesh, NO_NODE};
+use crate::store::NO_NODE;
 use rayon::prelude::*;
 use std::path::Path;
 
@@ -264,9 +264,8 @@ impl Router {
         let encoded: Vec<(usize, usize, Vec<u8>, LeafStats)> = parts
             .into_par_iter()
             .map(|(t, data)| {
-                let mesh = index_triangles(layout, &data);
                 let mut bytes = Vec::new();
-                chunks.encode(t as u32, NO_NODE, &mesh, &[], &vec![false; mesh.vertices.len()], &mut bytes);
+                chunks.encode_soup(t as u32, NO_NODE, &data, &mut bytes);
                 (t, data.len(), bytes, part_stats(layout, &data))
             })
             .collect();
@@ -309,25 +308,5 @@ fn centroid(layout: &VertexLayout, t: &[u8]) -> [f64; 3] {
         }
     }
     c
-}
-
-/// Soup triangles → indexed mesh (exactly equal corners share a vertex).
-pub fn index_triangles(layout: &VertexLayout, soup: &[u8]) -> IndexedMesh {
-    let s = layout.size;
-    let mut map: rustc_hash::FxHashMap<&[u8], u32> = rustc_hash::FxHashMap::with_capacity_and_hasher(soup.len() / (3 * s), Default::default());
-    let mut mesh = IndexedMesh::default();
-    for t in soup.chunks_exact(3 * s) {
-        let mut tri = [0u32; 3];
-        for c in 0..3 {
-            let key = &t[c * s..(c + 1) * s];
-            let next = mesh.vertices.len() as u32;
-            tri[c] = *map.entry(key).or_insert_with(|| {
-                mesh.vertices.push(layout.decode(key));
-                next
-            });
-        }
-        mesh.triangles.push(tri);
-    }
-    mesh
 }
 
