@@ -89,25 +89,13 @@ impl ChunkFile {
     /// Encodes one chunk into `out` (see the module doc). `a` holds
     /// `a_len` values per vertex, `locked` one flag per vertex.
     pub fn encode(&self, target: u32, source: u32, m: &IndexedMesh, a: &[f32], locked: &[bool], out: &mut Vec<u8>) {
-        out.clear();
-        for x in [target, source, m.vertices.len() as u32, m.triangles.len() as u32] {
-            out.extend_from_slice(&x.to_le_bytes());
-        }
-        let vs = self.layout.size;
-        let mut buf = vec![0u8; vs];
-        for (k, v) in m.vertices.iter().enumerate() {
-            self.layout.encode(v, &mut buf);
-            out.extend_from_slice(&buf);
-            for x in &a[k * self.a_len..(k + 1) * self.a_len] {
-                out.extend_from_slice(&x.to_le_bytes());
-            }
-            out.push(locked[k] as u8);
-        }
-        for t in &m.triangles {
-            for &i in t {
-                out.extend_from_slice(&i.to_le_bytes());
-            }
-        }
+        self.encoder().encode(target, source, m, a, locked, out)
+    }
+
+    /// What encoding needs, apart from the file (so workers can encode
+    /// while the file is appended to).
+    pub fn encoder(&self) -> ChunkEncoder {
+        ChunkEncoder { layout: self.layout, a_len: self.a_len }
     }
 
     /// Encodes soup records (`3 × layout.size` bytes per triangle, the
@@ -248,6 +236,38 @@ impl ChunkFile {
     pub fn remove(self) {
         drop(self.reader);
         let _ = std::fs::remove_file(&self.path);
+    }
+}
+
+/// [`ChunkFile::encode`] without the file.
+#[derive(Clone, Copy, Debug)]
+pub struct ChunkEncoder {
+    layout: VertexLayout,
+    a_len: usize,
+}
+
+impl ChunkEncoder {
+    /// See [`ChunkFile::encode`].
+    pub fn encode(&self, target: u32, source: u32, m: &IndexedMesh, a: &[f32], locked: &[bool], out: &mut Vec<u8>) {
+        out.clear();
+        for x in [target, source, m.vertices.len() as u32, m.triangles.len() as u32] {
+            out.extend_from_slice(&x.to_le_bytes());
+        }
+        let vs = self.layout.size;
+        let mut buf = vec![0u8; vs];
+        for (k, v) in m.vertices.iter().enumerate() {
+            self.layout.encode(v, &mut buf);
+            out.extend_from_slice(&buf);
+            for x in &a[k * self.a_len..(k + 1) * self.a_len] {
+                out.extend_from_slice(&x.to_le_bytes());
+            }
+            out.push(locked[k] as u8);
+        }
+        for t in &m.triangles {
+            for &i in t {
+                out.extend_from_slice(&i.to_le_bytes());
+            }
+        }
     }
 }
 

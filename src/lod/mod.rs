@@ -107,6 +107,7 @@ pub mod octree;
 pub mod collapse;
 pub mod cluster;
 pub mod partition;
+pub mod ordered;
 pub mod shared;
 
 use crate::error::{Error, Result};
@@ -118,6 +119,7 @@ use crate::store::Simplifier;
 pub use crate::store::{BuildParams, LevelReport};
 use crate::store::{encode_payload, IndexedMesh, NodeRec, PackWriter, StoreHeader, NO_NODE};
 use chunks::{split_by_target, ChunkFile, Gathered};
+use ordered::ordered;
 use cluster::{Prio, Splits};
 use std::collections::BinaryHeap;
 use partition::{Histogram, LevelCube, Tiling, KEY_DEPTH};
@@ -239,49 +241,48 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
         let mut samples: Vec<Curve> = Vec::new();
         let mut error_samples: Vec<collapse::ErrorCurve> = Vec::new();
         let mut positions_total = 0u64;
-        for (bi, group) in ids.chunks(batch).enumerate() {
-            let done: Vec<Result<Pass1>> = group
-                .par_iter()
-                .enumerate()
-                .map(|(j, &leaf)| {
-                    let k = bi * batch + j;
-                    let g = chunks.gather(leaf)?;
-                    let w = Welded::new(&g.mesh);
-                    let test = band.tester(k, &leaves[leaf].bounds);
-                    let mut records = Vec::new();
-                    for (pi, p) in w.pos.iter().enumerate() {
-                        if test.may_share(*p) {
-                            let flags = if w.was_locked(&g, pi) { WAS_LOCKED } else { 0 };
-                            records.push((*p, w.normal[pi].map(|x| x as f32), flags));
+        ordered(
+            ids.len(),
+            batch,
+            |_| Ok(()),
+            |k, ()| {
+                let leaf = ids[k];
+                let g = chunks.gather(leaf)?;
+                let w = Welded::new(&g.mesh);
+                let test = band.tester(k, &leaves[leaf].bounds);
+                let mut records = Vec::new();
+                for (pi, p) in w.pos.iter().enumerate() {
+                    if test.may_share(*p) {
+                        let flags = if w.was_locked(&g, pi) { WAS_LOCKED } else { 0 };
+                        records.push((*p, w.normal[pi].map(|x| x as f32), flags));
+                    }
+                }
+                // Centroid counts at the histogram's depth, as sorted runs.
+                let mut h: Vec<(u64, u64)> = Vec::new();
+                if !is_final {
+                    let mut keys: Vec<u64> =
+                        g.mesh.triangles.iter().map(|t| nc.key(tri_centroid(&g.mesh, t)) >> (3 * (KEY_DEPTH - HIST_DEPTH) as u32)).collect();
+                    keys.sort_unstable();
+                    for k in keys {
+                        match h.last_mut() {
+                            Some(l) if l.0 == k => l.1 += 1,
+                            _ => h.push((k, 1)),
                         }
                     }
-                    // Centroid counts at the histogram's depth, as sorted runs.
-                    let mut h: Vec<(u64, u64)> = Vec::new();
-                    if !is_final {
-                        let mut keys: Vec<u64> =
-                            g.mesh.triangles.iter().map(|t| nc.key(tri_centroid(&g.mesh, t)) >> (3 * (KEY_DEPTH - HIST_DEPTH) as u32)).collect();
-                        keys.sort_unstable();
-                        for k in keys {
-                            match h.last_mut() {
-                                Some(l) if l.0 == k => l.1 += 1,
-                                _ => h.push((k, 1)),
-                            }
-                        }
-                    }
-                    Ok(Pass1 { records, hist: h, positions: w.pos.len() as u64 })
-                })
-                .collect();
-            for (j, r) in done.into_iter().enumerate() {
-                let r = r?;
-                let node = (base + bi * batch + j) as u32;
+                }
+                Ok(Pass1 { records, hist: h, positions: w.pos.len() as u64 })
+            },
+            |k, r: Pass1| {
+                let node = (base + k) as u32;
                 for (p, n, f) in r.records {
                     sorter.push(node, p, n, f)?;
                 }
                 hist.add_runs(HIST_DEPTH, &r.hist);
                 positions_total += r.positions;
                 progress.inc(1);
-            }
-        }
+                Ok(())
+            },
+        )?;
         let (mut resolved, sstats) = sorter.resolve((opts.params.mem / 4) as usize, scratch.path(), scratch.path().join("shared.bin"))?;
 
         // Error curves of a sample of nodes (edge collapse), with their exact locks.
@@ -349,118 +350,111 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
         let mut prev_freed = 0u64;
         let mut next_total = 0u64;
         let mut far_nodes: Vec<FarNode> = Vec::new();
-        for (bi, group) in ids.chunks(batch).enumerate() {
-            let sets = group
-                .iter()
-                .enumerate()
-                .map(|(j, _)| resolved.take((base + bi * batch + j) as u32))
-                .collect::<Result<Vec<_>>>()?;
-            let done: Vec<Result<Pass2>> = group
-                .par_iter()
-                .zip(sets.par_iter())
-                .enumerate()
-                .map(|(j, (&leaf, set))| {
-                    let id = base + bi * batch + j;
-                    let g = chunks.gather(leaf)?;
-                    let w = Welded::new(&g.mesh);
-                    let mut p2 = Pass2::default();
-                    // Locks: shared positions and attribute seams.
-                    let locked = w.locks(set);
-                    for pi in 0..w.pos.len() {
-                        let sh = set.contains_key(&pos_bits(w.pos[pi]));
-                        p2.shared += sh as u64;
-                        p2.seam_only += (w.seam[pi] && !sh) as u64;
-                        p2.prev_freed += (w.was_locked(&g, pi) && !sh) as u64;
-                    }
-                    // The stored mesh, with normals from the whole neighbourhood.
-                    let mut stored = g.mesh.clone();
-                    if derived {
-                        for (v, x) in stored.vertices.iter_mut().enumerate() {
-                            let pi = w.pos_of[v] as usize;
-                            let n = match set.get(&pos_bits(w.pos[pi])) {
-                                Some((n, _)) => n.map(|c| c as f64),
-                                None => w.normal[pi],
-                            };
-                            x.normal = unit(n);
-                        }
-                    }
-                    let patches: Vec<(u32, u32)> = if level == 0 { vec![(NO_NODE, g.mesh.triangles.len() as u32)] } else { g.patches.clone() };
-                    encode_payload(if derived { &payload_layout } else { &layout }, &stored, &patches, &mut p2.payload);
-                    p2.content = w.bounds;
-                    p2.tris = g.mesh.triangles.len() as u32;
-                    p2.verts = g.mesh.vertices.len() as u32;
-                    p2.children = if level == 0 { Vec::new() } else { g.patches.iter().map(|p| p.0).collect() };
-                    if !is_final {
-                        // Positions as stored, so errors and welding see the same bits.
-                        let as_stored = |m: &mut IndexedMesh| {
-                            let mut vb = vec![0u8; layout.size];
-                            for v in m.vertices.iter_mut() {
-                                layout.encode(v, &mut vb);
-                                *v = layout.decode(&vb);
-                            }
+        let encoder = next_chunks.as_ref().map(ChunkFile::encoder);
+        ordered(
+            ids.len(),
+            batch,
+            |k| resolved.take((base + k) as u32),
+            |k, set| {
+                let (leaf, id, set) = (ids[k], base + k, &set);
+                let g = chunks.gather(leaf)?;
+                let w = Welded::new(&g.mesh);
+                let mut p2 = Pass2::default();
+                // Locks: shared positions and attribute seams.
+                let locked = w.locks(set);
+                for pi in 0..w.pos.len() {
+                    let sh = set.contains_key(&pos_bits(w.pos[pi]));
+                    p2.shared += sh as u64;
+                    p2.seam_only += (w.seam[pi] && !sh) as u64;
+                    p2.prev_freed += (w.was_locked(&g, pi) && !sh) as u64;
+                }
+                // The stored mesh, with normals from the whole neighbourhood.
+                let mut stored = g.mesh.clone();
+                if derived {
+                    for (v, x) in stored.vertices.iter_mut().enumerate() {
+                        let pi = w.pos_of[v] as usize;
+                        let n = match set.get(&pos_bits(w.pos[pi])) {
+                            Some((n, _)) => n.map(|c| c as f64),
+                            None => w.normal[pi],
                         };
-                        // The simplified mesh, its carried quadrics and which
-                        // of its vertices were locked.
-                        let (out, qa, out_locked) = match opts.params.simplifier {
-                            Simplifier::Cluster => {
-                                let a = (level > 0).then_some(&g.a[..]);
-                                let sp = Splits::new(&g.mesh, a, &locked, attrs, usize::MAX, tau);
-                                let mut no = sp.build(sp.steps(), opts.rel_tol);
-                                p2.clamped = no.stats.clamped;
-                                as_stored(&mut no.mesh);
-                                let ne = node_error(&g.mesh, &no);
-                                p2.error = ne.error;
-                                p2.base = ne.base;
-                                // A few far points setting the error: worth measuring again.
-                                if ne.error > 2.0 * ne.base {
-                                    p2.far = ne.far;
-                                    p2.far_reps = ne.far_reps;
-                                }
-                                let out_locked: Vec<bool> = no.kept_from.iter().map(|&k| k != u32::MAX).collect();
-                                (no.mesh, no.a, out_locked)
-                            }
-                            Simplifier::Collapse => {
-                                // Down to the level's error limit (τ).
-                                let c = collapse::collapse(&g.mesh, &locked, attrs, 0, Some(tau));
-                                let (mut out, from) = collapse::compact(&c.vertices, &collapse::unfold(&c.vertices, &c.triangles));
-                                as_stored(&mut out);
-                                let ne = collapse::collapse_error(&g.mesh, &locked, &out, &from);
-                                p2.error = ne.error;
-                                p2.base = ne.base;
-                                if ne.error > 2.0 * ne.base {
-                                    p2.far = ne.far;
-                                    p2.far_reps = ne.far_reps;
-                                }
-                                let out_locked: Vec<bool> = from.iter().map(|&f| locked[f as usize]).collect();
-                                (out, Vec::new(), out_locked)
-                            }
-                        };
-                        let out = &out;
-                        let leaf_of: Vec<u32> =
-                            out.triangles.iter().map(|t| next_tiling.locate(nc.key(tri_centroid(out, t))) as u32).collect();
-                        p2.simp_tris = out.triangles.len() as u32;
-                        let file = next_chunks.as_ref().expect("a next level");
-                        let mut routed = split_by_target(out, &qa, a_len, &out_locked, &leaf_of);
-                        if routed.is_empty() {
-                            // Everything collapsed: still give the node a parent.
-                            let c = w.bounds.center();
-                            routed.push((next_tiling.locate(nc.key(c)) as u32, IndexedMesh::default(), Vec::new(), Vec::new()));
-                        }
-                        p2.routed = routed
-                            .into_iter()
-                            .map(|(target, m, a, l)| {
-                                let mut bytes = Vec::new();
-                                file.encode(target, id as u32, &m, &a, &l, &mut bytes);
-                                (target, bytes, leaf_stats(&m))
-                            })
-                            .collect();
+                        x.normal = unit(n);
                     }
-                    Ok(p2)
-                })
-                .collect();
-            for (j, r) in done.into_iter().enumerate() {
-                let r = r?;
-                let leaf = group[j];
+                }
+                let patches: Vec<(u32, u32)> = if level == 0 { vec![(NO_NODE, g.mesh.triangles.len() as u32)] } else { g.patches.clone() };
+                encode_payload(if derived { &payload_layout } else { &layout }, &stored, &patches, &mut p2.payload);
+                p2.content = w.bounds;
+                p2.tris = g.mesh.triangles.len() as u32;
+                p2.verts = g.mesh.vertices.len() as u32;
+                p2.children = if level == 0 { Vec::new() } else { g.patches.iter().map(|p| p.0).collect() };
+                if !is_final {
+                    // Positions as stored, so errors and welding see the same bits.
+                    let as_stored = |m: &mut IndexedMesh| {
+                        let mut vb = vec![0u8; layout.size];
+                        for v in m.vertices.iter_mut() {
+                            layout.encode(v, &mut vb);
+                            *v = layout.decode(&vb);
+                        }
+                    };
+                    // The simplified mesh, its carried quadrics and which
+                    // of its vertices were locked.
+                    let (out, qa, out_locked) = match opts.params.simplifier {
+                        Simplifier::Cluster => {
+                            let a = (level > 0).then_some(&g.a[..]);
+                            let sp = Splits::new(&g.mesh, a, &locked, attrs, usize::MAX, tau);
+                            let mut no = sp.build(sp.steps(), opts.rel_tol);
+                            p2.clamped = no.stats.clamped;
+                            as_stored(&mut no.mesh);
+                            let ne = node_error(&g.mesh, &no);
+                            p2.error = ne.error;
+                            p2.base = ne.base;
+                            // A few far points setting the error: worth measuring again.
+                            if ne.error > 2.0 * ne.base {
+                                p2.far = ne.far;
+                                p2.far_reps = ne.far_reps;
+                            }
+                            let out_locked: Vec<bool> = no.kept_from.iter().map(|&k| k != u32::MAX).collect();
+                            (no.mesh, no.a, out_locked)
+                        }
+                        Simplifier::Collapse => {
+                            // Down to the level's error limit (τ).
+                            let c = collapse::collapse(&g.mesh, &locked, attrs, 0, Some(tau));
+                            let (mut out, from) = collapse::compact(&c.vertices, &collapse::unfold(&c.vertices, &c.triangles));
+                            as_stored(&mut out);
+                            let ne = collapse::collapse_error(&g.mesh, &locked, &out, &from);
+                            p2.error = ne.error;
+                            p2.base = ne.base;
+                            if ne.error > 2.0 * ne.base {
+                                p2.far = ne.far;
+                                p2.far_reps = ne.far_reps;
+                            }
+                            let out_locked: Vec<bool> = from.iter().map(|&f| locked[f as usize]).collect();
+                            (out, Vec::new(), out_locked)
+                        }
+                    };
+                    let out = &out;
+                    let leaf_of: Vec<u32> =
+                        out.triangles.iter().map(|t| next_tiling.locate(nc.key(tri_centroid(out, t))) as u32).collect();
+                    p2.simp_tris = out.triangles.len() as u32;
+                    let file = encoder.as_ref().expect("a next level");
+                    let mut routed = split_by_target(out, &qa, a_len, &out_locked, &leaf_of);
+                    if routed.is_empty() {
+                        // Everything collapsed: still give the node a parent.
+                        let c = w.bounds.center();
+                        routed.push((next_tiling.locate(nc.key(c)) as u32, IndexedMesh::default(), Vec::new(), Vec::new()));
+                    }
+                    p2.routed = routed
+                        .into_iter()
+                        .map(|(target, m, a, l)| {
+                            let mut bytes = Vec::new();
+                            file.encode(target, id as u32, &m, &a, &l, &mut bytes);
+                            (target, bytes, leaf_stats(&m))
+                        })
+                        .collect();
+                }
+                Ok(p2)
+            },
+            |k, r: Pass2| {
+                let leaf = ids[k];
                 let (offset, bytes) = pack.append(&r.payload)?;
                 let mut bounds = r.content;
                 let mut error = 0.0f64;
@@ -508,8 +502,9 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
                     }
                 }
                 progress.inc(1);
-            }
-        }
+                Ok(())
+            },
+        )?;
         progress.finish();
         pack.finish()?;
         resolved.remove();
