@@ -92,22 +92,35 @@ const COUNT_DEPTHS: u8 = 10;
 /// Most triangles per batch read from the soup.
 const BATCH: usize = 1 << 16;
 
-/// Calls `f` with each batch of the soup's records and their centroids' keys.
+/// Calls `f` with each batch of the soup's records and their centroids'
+/// keys. A reader thread reads the next batches (two at most) while `f`
+/// works on this one.
 fn scan(soup: &Path, cube: &LevelCube, batch: usize, progress: &Progress, mut f: impl FnMut(&[u8], &[u64]) -> Result<()>) -> Result<()> {
     let mut reader = SoupReader::open(soup)?;
     let layout = reader.header.layout();
     let rec = reader.header.record_size();
-    let mut buf = Vec::new();
-    let mut keys = Vec::new();
-    loop {
-        let n = reader.read_batch(&mut buf, batch)?;
-        if n == 0 {
-            return Ok(());
+    std::thread::scope(|scope| {
+        let (tx, rx) = std::sync::mpsc::sync_channel::<Result<Vec<u8>>>(2);
+        scope.spawn(move || loop {
+            let mut buf = Vec::new();
+            let r = reader.read_batch(&mut buf, batch);
+            let end = !matches!(r, Ok(n) if n > 0);
+            if !matches!(r, Ok(0)) && tx.send(r.map(|_| buf)).is_err() {
+                return; // the consumer stopped
+            }
+            if end {
+                return;
+            }
+        });
+        let mut keys = Vec::new();
+        for buf in rx {
+            let buf = buf?;
+            buf.par_chunks_exact(rec).map(|t| cube.key(centroid(&layout, t))).collect_into_vec(&mut keys);
+            f(&buf, &keys)?;
+            progress.inc((buf.len() / rec) as u64);
         }
-        buf.par_chunks_exact(rec).map(|t| cube.key(centroid(&layout, t))).collect_into_vec(&mut keys);
-        f(&buf, &keys)?;
-        progress.inc(n as u64);
-    }
+        Ok(())
+    })
 }
 
 /// Cuts `soup` into the level-0 leaves; chunks are written to `chunk_path`.
