@@ -10,14 +10,16 @@
 //!
 //! Out of core, in sequential passes over the soup and no sort:
 //! 1. **Counting.** The centroids' Morton keys in the level-0 cube are
-//!    counted in a [`Histogram`] at `max_depth`, which coarsens itself to
-//!    fit its memory share (`--mem` / 128 bytes' worth of cells); the
+//!    counted in a [`Histogram`] ten levels below the cells being cut (at
+//!    most `max_depth`), which coarsens itself to fit its memory share
+//!    (`--mem` / 128 bytes' worth of cells); the
 //!    top-down rule "split while a cell holds more than `leaf_tris` and is
 //!    shallower than `max_depth`" is applied to the counts
 //!    ([`Histogram::cut`]). Cells left at the histogram's depth still
 //!    holding too many are counted again, alone, in another pass at a finer
-//!    depth, until none is left. One pass suffices unless the input is
-//!    dense beyond the histogram's depth (the 120 M-triangle sphere under
+//!    depth, until none is left (at most `--mem` / 1 KiB cells per pass,
+//!    so their children fit the histogram). One pass suffices unless the
+//!    input is dense beyond the histogram's depth (the 120 M-triangle sphere under
 //!    `--mem 512M`: one). The leaves are exactly the top-down rule's on the
 //!    exact counts, whatever the budget.
 //! 2. **Routing.** One pass sends each triangle to its leaf's buffer (the
@@ -140,14 +142,18 @@ pub fn build_octree(soup: &Path, chunk_path: std::path::PathBuf, cube: &LevelCub
 
     // Pass 1 (and more where needed): count, cut.
     let mut found: Vec<(u64, u8, u64)> = Vec::new();
-    // Cells still to cut: sorted paths, all at depth `open_depth`.
-    let mut open: Vec<u64> = vec![0];
-    let mut open_depth = 0u8;
+    // Cells still to cut: groups of sorted paths at one depth, each group
+    // small enough that its cells' children fit the histogram's share.
+    let cap = ((opts.mem / 128) as usize).max(64);
+    let mut todo: Vec<(u8, Vec<u64>)> = vec![(0, vec![0])];
     let mut passes = 0u32;
-    while !open.is_empty() {
+    while let Some((open_depth, mut open)) = todo.pop() {
+        if open.len() > cap / 8 {
+            let rest = open.split_off(cap / 8);
+            todo.push((open_depth, rest));
+        }
         passes += 1;
         // Room for every open cell's eight children: each pass goes deeper.
-        let cap = ((opts.mem / 128) as usize).max(8 * open.len() + 64);
         let depth = opts.max_depth.min(open_depth + COUNT_DEPTHS);
         let mut hist = Histogram::new(depth, cap);
         let progress = Progress::items(sh.triangles, "counting", opts.quiet);
@@ -178,8 +184,9 @@ pub fn build_octree(soup: &Path, chunk_path: std::path::PathBuf, cube: &LevelCub
                 found.push((path, depth, n));
             }
         }
-        open = next;
-        open_depth = hd;
+        if !next.is_empty() {
+            todo.push((hd, next));
+        }
     }
     let leaf_start = |&(path, depth, _): &(u64, u8, u64)| path << (3 * (KEY_DEPTH - depth) as u32);
     found.sort_unstable_by_key(leaf_start);
