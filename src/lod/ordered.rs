@@ -27,6 +27,17 @@ struct State<F> {
     take: F,
 }
 
+struct StopOnPanic<'a, F>(&'a Mutex<State<F>>, &'a Condvar);
+
+impl<F> Drop for StopOnPanic<'_, F> {
+    fn drop(&mut self) {
+        if std::thread::panicking() {
+            self.0.lock().unwrap_or_else(|e| e.into_inner()).stop = true;
+            self.1.notify_all();
+        }
+    }
+}
+
 /// Runs `compute(i, take(i))` for `i` in `0..n` on the rayon pool's number
 /// of threads and calls `consume(i, result)` in order of `i` on this
 /// thread. `take` is called in order of `i` (under a lock: it may read a
@@ -53,26 +64,33 @@ where
         for _ in 0..threads {
             let tx = tx.clone();
             let (state, ready, compute) = (&state, &ready, &compute);
-            scope.spawn(move || loop {
-                let (i, input) = {
-                    let mut s = state.lock().unwrap_or_else(|e| e.into_inner());
-                    while !s.stop && s.next < n && s.next >= s.consumed + window {
-                        s = ready.wait(s).unwrap_or_else(|e| e.into_inner());
-                    }
-                    if s.stop || s.next >= n {
+            scope.spawn(move || {
+                // A panicking worker stops the others (none waits for the
+                // item it lost); the scope then passes the panic on.
+                let _guard = StopOnPanic(state, ready);
+                loop {
+                    let (i, input) = {
+                        let mut s = state.lock().unwrap_or_else(|e| e.into_inner());
+                        while !s.stop && s.next < n && s.next >= s.consumed + window {
+                            s = ready.wait(s).unwrap_or_else(|e| e.into_inner());
+                        }
+                        if s.stop || s.next >= n {
+                            return;
+                        }
+                        let i = s.next;
+                        s.next += 1;
+                        (i, (s.take)(i))
+                    };
+                    let r = input.and_then(|x| compute(i, x));
+                    if tx.send((i, r)).is_err() {
                         return;
                     }
-                    let i = s.next;
-                    s.next += 1;
-                    (i, (s.take)(i))
-                };
-                let r = input.and_then(|x| compute(i, x));
-                if tx.send((i, r)).is_err() {
-                    return;
                 }
             });
         }
         drop(tx);
+        // A panicking consumer stops the workers too (the scope waits for them).
+        let _guard = StopOnPanic(&state, &ready);
         let mut waiting: BTreeMap<usize, Result<T>> = BTreeMap::new();
         let mut want = 0usize;
         let mut out = Ok(());
@@ -133,6 +151,14 @@ mod tests {
         assert_eq!(seen, (0..1000).collect::<Vec<_>>());
         drop(r);
         assert_eq!(taken, (0..1000).collect::<Vec<_>>());
+    }
+
+    #[test]
+    fn a_panicking_item_panics_the_caller_instead_of_hanging() {
+        let r = std::panic::catch_unwind(|| ordered(1000, 4, Ok, |i, _| if i == 20 { panic!("item 20") } else { Ok(i) }, |_, _| Ok(())));
+        assert!(r.is_err());
+        let r = std::panic::catch_unwind(|| ordered(1000, 4, Ok, |i, _| Ok(i), |i, _| if i == 20 { panic!("consumer at 20") } else { Ok(()) }));
+        assert!(r.is_err());
     }
 
     #[test]
