@@ -18,7 +18,7 @@ in="$dir/sphere-$tris.ply"
 if [[ ! -f $in ]]; then
   "$bin/octolod-gen" --shape sphere --tris "$tris" --seed 1 -o "$in" --quiet
 fi
-size=$(stat -c %s "$in")
+size=$(stat -L -c %s "$in")
 echo "input: $in, $size bytes, budget $mem, $(nproc) cores"
 # Warm the page cache, then time pure decoding.
 "$bin/octolod" ply-info "$in" --quiet >/dev/null
