@@ -174,37 +174,51 @@ impl Histogram {
     /// `roots` (sorted paths at `root_depth`, at most the histogram's
     /// depth): its non-empty leaves as (path, depth, count), in Morton order.
     pub fn cut(&self, roots: &[u64], root_depth: u8, limit: u64, max_depth: u8) -> Vec<(u64, u8, u64)> {
+        self.cut_scaled(roots, root_depth, 1.0, limit, max_depth, false)
+    }
+
+    /// [`Histogram::cut`] on the counts × `scale` (predicted counts);
+    /// with `keep_empty`, empty cells are leaves too (a tiling).
+    fn cut_scaled(&self, roots: &[u64], root_depth: u8, scale: f64, limit: u64, max_depth: u8, keep_empty: bool) -> Vec<(u64, u8, u64)> {
         let mut cells: Vec<(u64, u64)> = self.map.iter().map(|(&k, &n)| (k, n)).collect();
         cells.sort_unstable();
         let hd = self.depth;
         let max_depth = max_depth.min(hd);
-        fn go(out: &mut Vec<(u64, u8, u64)>, cells: &[(u64, u64)], hd: u8, path: u64, depth: u8, limit: u64, max_depth: u8) {
+        struct Rule {
+            hd: u8,
+            scale: f64,
+            limit: u64,
+            max_depth: u8,
+            keep_empty: bool,
+        }
+        fn go(out: &mut Vec<(u64, u8, u64)>, cells: &[(u64, u64)], r: &Rule, path: u64, depth: u8) {
             let n: u64 = cells.iter().map(|c| c.1).sum();
-            if n == 0 {
+            if n == 0 && !r.keep_empty {
                 return;
             }
-            if depth >= max_depth || n <= limit {
+            if depth >= r.max_depth || (n as f64 * r.scale) <= r.limit as f64 {
                 out.push((path, depth, n));
                 return;
             }
-            let sh = 3 * (hd - depth - 1) as u32;
+            let sh = 3 * (r.hd - depth - 1) as u32;
             let mut rest = cells;
             for o in 0..8u64 {
                 let child = path << 3 | o;
                 let k = rest.partition_point(|c| c.0 >> sh == child);
                 let (mine, tail) = rest.split_at(k);
-                go(out, mine, hd, child, depth + 1, limit, max_depth);
+                go(out, mine, r, child, depth + 1);
                 rest = tail;
             }
         }
+        let rule = Rule { hd, scale, limit, max_depth, keep_empty };
         let mut out = Vec::new();
         let sh = 3 * (hd - root_depth.min(hd)) as u32;
         let mut rest = &cells[..];
-        for &r in roots {
-            let from = rest.partition_point(|c| c.0 >> sh < r);
+        for &root in roots {
+            let from = rest.partition_point(|c| c.0 >> sh < root);
             rest = &rest[from..];
-            let k = rest.partition_point(|c| c.0 >> sh == r);
-            go(&mut out, &rest[..k], hd, r, root_depth, limit, max_depth);
+            let k = rest.partition_point(|c| c.0 >> sh == root);
+            go(&mut out, &rest[..k], &rule, root, root_depth);
             rest = &rest[k..];
         }
         out
@@ -236,29 +250,8 @@ impl Tiling {
     /// exceeds `leaf_tris` and the depth is below `max_depth` and the
     /// histogram's resolution".
     pub fn from_histogram(h: &Histogram, scale: f64, leaf_tris: u64, max_depth: u8) -> Tiling {
-        let mut cells: Vec<(u64, u64)> = h.map.iter().map(|(&k, &n)| (k, n)).collect();
-        cells.sort_unstable();
-        let max_depth = max_depth.min(h.depth);
-        let mut t = Tiling::default();
-        // Recursive descent over the sorted cells.
-        fn go(t: &mut Tiling, cells: &[(u64, u64)], hd: u8, path: u64, depth: u8, scale: f64, leaf: u64, max_depth: u8) {
-            let n: u64 = cells.iter().map(|c| c.1).sum();
-            if depth >= max_depth || (n as f64 * scale) <= leaf as f64 {
-                t.leaves.push(Tiling::leaf(path, depth));
-                return;
-            }
-            let sh = 3 * (hd - depth - 1) as u32;
-            let mut rest = cells;
-            for o in 0..8u64 {
-                let child = path << 3 | o;
-                let k = rest.partition_point(|c| c.0 >> sh == child);
-                let (mine, tail) = rest.split_at(k);
-                go(t, mine, hd, child, depth + 1, scale, leaf, max_depth);
-                rest = tail;
-            }
-        }
-        go(&mut t, &cells, h.depth, 0, 0, scale, leaf_tris, max_depth);
-        t
+        let leaves = h.cut_scaled(&[0], 0, scale, leaf_tris, max_depth, true);
+        Tiling { leaves: leaves.into_iter().map(|(path, depth, _)| Tiling::leaf(path, depth)).collect() }
     }
 
     /// A tiling given by its (non-empty) leaves, e.g. from the level-0 cut;
