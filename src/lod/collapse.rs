@@ -271,9 +271,7 @@ pub fn compact(vertices: &[Vertex], tris: &[[u32; 3]]) -> (IndexedMesh, Vec<u32>
 /// [`super::node_error`] does, for [`super::remeasure_far`].
 pub fn collapse_error(input: &IndexedMesh, locked: &[bool], output: &IndexedMesh, from: &[u32]) -> super::NodeError {
     use crate::geom::{Bvh, Mesh};
-    use super::{keep_top, NodeError, Prio};
-    use std::cmp::Reverse;
-    use std::collections::BinaryHeap;
+    use super::{Farthest, NodeError};
     if input.triangles.is_empty() {
         return NodeError::default();
     }
@@ -296,30 +294,28 @@ pub fn collapse_error(input: &IndexedMesh, locked: &[bool], output: &IndexedMesh
     }
     // Each side's largest distances (squared) kept for `remeasure_far`,
     // as node_error keeps them; `rest` is the largest of the others.
-    let mut top: BinaryHeap<Reverse<(Prio, u32)>> = BinaryHeap::new();
-    let mut rest = 0.0f64;
+    let mut top = Farthest::default();
     let out_bvh = Bvh::new(&Mesh::from_vertices(&output.vertices, output.triangles.clone()));
     for (v, x) in input.vertices.iter().enumerate() {
         if used[v] && !on_output[v] {
             if let Some(c) = out_bvh.closest(x.pos) {
-                keep_top(&mut top, &mut rest, c.dist2, v as u32);
+                top.push(c.dist2, v as u32);
             }
         }
     }
     drop(out_bvh);
-    let mut top_r: BinaryHeap<Reverse<(Prio, u32)>> = BinaryHeap::new();
-    let mut rest_r = 0.0f64;
+    let mut top_r = Farthest::default();
     let in_bvh = Bvh::new(&Mesh::from_vertices(&input.vertices, input.triangles.clone()));
     for (o, x) in output.vertices.iter().enumerate() {
         if !is_locked(from[o] as usize) {
             if let Some(c) = in_bvh.closest(x.pos) {
-                keep_top(&mut top_r, &mut rest_r, c.dist2, o as u32);
+                top_r.push(c.dist2, o as u32);
             }
         }
     }
-    let max = |t: &BinaryHeap<Reverse<(Prio, u32)>>| t.iter().map(|r| r.0 .0 .0).fold(0.0f64, f64::max);
-    let error = max(&top).max(max(&top_r)).max(rest).max(rest_r).sqrt();
-    let far = top.into_iter().map(|r| (input.vertices[r.0 .1 as usize].pos, r.0 .0 .0.sqrt())).collect();
-    let far_reps = top_r.into_iter().map(|r| (output.vertices[r.0 .1 as usize].pos, r.0 .0 .0.sqrt())).collect();
-    NodeError { error, base: rest.max(rest_r).sqrt(), far, far_reps }
+    let error = top.max().max(top_r.max()).sqrt();
+    let base = top.rest.max(top_r.rest).sqrt();
+    let far = top.points(|v| input.vertices[v as usize].pos);
+    let far_reps = top_r.points(|o| output.vertices[o as usize].pos);
+    NodeError { error, base, far, far_reps }
 }

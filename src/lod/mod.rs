@@ -154,6 +154,20 @@ pub struct LeafStats {
     pub reach: f64,
 }
 
+impl LeafStats {
+    /// Counts a triangle (corners `c`, centroid `centroid`, as its leaf was chosen by).
+    #[inline]
+    pub fn add_triangle(&mut self, c: [[f64; 3]; 3], centroid: [f64; 3]) {
+        self.tris += 1;
+        for p in c {
+            self.bounds.add(p);
+            for a in 0..3 {
+                self.reach = self.reach.max((p[a] - centroid[a]).abs());
+            }
+        }
+    }
+}
+
 impl Default for LeafStats {
     fn default() -> Self {
         LeafStats { tris: 0, bounds: Aabb::EMPTY, reach: 0.0 }
@@ -740,16 +754,9 @@ fn choose_tau(samples: &[Curve], share: f64) -> (f64, f64) {
 }
 
 fn leaf_stats(m: &IndexedMesh) -> LeafStats {
-    let mut s = LeafStats { tris: m.triangles.len() as u64, ..Default::default() };
+    let mut s = LeafStats::default();
     for t in &m.triangles {
-        let c = tri_centroid(m, t);
-        for &v in t {
-            let p = m.vertices[v as usize].pos;
-            s.bounds.add(p);
-            for a in 0..3 {
-                s.reach = s.reach.max((p[a] - c[a]).abs());
-            }
-        }
+        s.add_triangle(t.map(|v| m.vertices[v as usize].pos), tri_centroid(m, t));
     }
     s
 }
@@ -798,7 +805,6 @@ pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> NodeError {
     let (out_first, out_around) = vertex_triangles(output.vertices.len(), &output.triangles);
     let out_centroid: Vec<[f64; 3]> = output.triangles.iter().map(|t| tri_centroid(output, t)).collect();
     let dist2_pts = |a: [f64; 3], b: [f64; 3]| (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f64>();
-    let mut d2 = 0.0f64;
     let mut bbox = Aabb::EMPTY;
     let mut whole: Option<Bvh> = None;
     // The MAX_FAR largest bounds (squared) of input vertices, smallest on
@@ -806,9 +812,7 @@ pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> NodeError {
     // them (it can no longer enter), so every bound kept is a full one, and
     // `rest` (the largest of all others) is what the error would be without
     // them.
-    let mut top: BinaryHeap<std::cmp::Reverse<(Prio, u32)>> = BinaryHeap::new();
-    let mut rest = 0.0f64;
-    let floor = |top: &BinaryHeap<std::cmp::Reverse<(Prio, u32)>>| if top.len() < MAX_FAR { 0.0 } else { top.peek().map_or(0.0, |r| r.0 .0 .0) };
+    let mut top = Farthest::default();
     // Input vertices to the output triangles around their image (an upper
     // bound of the distance to the whole output surface).
     for v in 0..nv {
@@ -838,7 +842,7 @@ pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> NodeError {
                 seen[n_seen] = o as u32;
                 n_seen += 1;
             }
-            let low = floor(&top);
+            let low = top.floor();
             let fan = &out_around[out_first[o] as usize..out_first[o + 1] as usize];
             // The triangle whose centroid is nearest first: usually the one
             // under p, so the search mostly stops after one distance.
@@ -851,15 +855,13 @@ pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> NodeError {
             }
         }
         if best.is_finite() {
-            d2 = d2.max(best);
-            keep_top(&mut top, &mut rest, best, v as u32);
+            top.push(best, v as u32);
         } else if !output.triangles.is_empty() {
             // The image lost every triangle (its cluster folded away): the
             // exact distance to the whole output, through a BVH built once.
             let bvh = whole.get_or_insert_with(|| Bvh::new(&Mesh::from_vertices(&output.vertices, output.triangles.clone())));
             if let Some(c) = bvh.closest(p) {
-                d2 = d2.max(c.dist2);
-                keep_top(&mut top, &mut rest, c.dist2, v as u32);
+                top.push(c.dist2, v as u32);
             }
         }
     }
@@ -868,14 +870,14 @@ pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> NodeError {
         let e = bbox.diagonal();
         return NodeError { error: e, base: e, ..Default::default() };
     }
-    let in_d2 = d2;
+    let in_d2 = top.max();
     // The representatives' side. A first pass finds its maximum, each
     // search stopping once it cannot raise it (cheap); only when that
     // maximum stands out against the input side's (over 4× the distance
     // of its 65th largest) is a second pass run for the representatives'
     // own largest bounds (a representative can sit over a neighbour's
     // surface too), each search stopping at the smallest of those.
-    let reps_pass = |top_r: &mut Option<BinaryHeap<std::cmp::Reverse<(Prio, u32)>>>, rest_r: &mut f64| -> f64 {
+    let reps_pass = |top_r: &mut Option<Farthest>| -> f64 {
         let mut r2 = 0.0f64;
         for o in 0..output.vertices.len() {
             let ms = &out.members[out.members_first[o] as usize..out.members_first[o + 1] as usize];
@@ -885,7 +887,7 @@ pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> NodeError {
             let p = output.vertices[o].pos;
             // The input triangles around the members and their neighbours.
             let mut best = f64::INFINITY;
-            let low = top_r.as_ref().map_or(r2, floor);
+            let low = top_r.as_ref().map_or(r2, Farthest::floor);
             'members: for ring in 0..2 {
                 for &m in ms {
                     let around_m = &in_around[in_first[m as usize] as usize..in_first[m as usize + 1] as usize];
@@ -904,41 +906,71 @@ pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> NodeError {
             if best.is_finite() {
                 r2 = r2.max(best);
                 if let Some(t) = top_r.as_mut() {
-                    keep_top(t, rest_r, best, o as u32);
+                    t.push(best, o as u32);
                 }
             }
         }
         r2
     };
     let mut top_r = None;
-    let mut rest_r = 0.0f64;
-    let r2 = reps_pass(&mut top_r, &mut rest_r);
-    if r2 > 16.0 * rest {
-        top_r = Some(BinaryHeap::new());
-        reps_pass(&mut top_r, &mut rest_r);
+    let r2 = reps_pass(&mut top_r);
+    let rest_r = if r2 > 16.0 * top.rest {
+        let mut t = Some(Farthest::default());
+        reps_pass(&mut t);
+        top_r = t;
+        top_r.as_ref().map_or(0.0, |t| t.rest)
     } else {
-        rest_r = r2;
-    }
+        r2
+    };
     // The far points: those with the largest bounds; every other one is
     // within `rest` (input side) or `rest_r` (representatives).
-    let far: Vec<([f64; 3], f64)> = top.into_iter().map(|r| (input.vertices[r.0 .1 as usize].pos, r.0 .0 .0.sqrt())).collect();
-    let far_reps: Vec<([f64; 3], f64)> = top_r.into_iter().flatten().map(|r| (output.vertices[r.0 .1 as usize].pos, r.0 .0 .0.sqrt())).collect();
-    NodeError { error: in_d2.max(r2).sqrt(), base: rest.max(rest_r).sqrt(), far, far_reps }
+    let base = top.rest.max(rest_r).sqrt();
+    let far = top.points(|v| input.vertices[v as usize].pos);
+    let far_reps = top_r.map_or_else(Vec::new, |t| t.points(|o| output.vertices[o as usize].pos));
+    NodeError { error: in_d2.max(r2).sqrt(), base, far, far_reps }
 }
 
-/// Keeps the [`MAX_FAR`] largest bounds in `top`; `rest` takes the largest
-/// of the others.
-fn keep_top(top: &mut BinaryHeap<std::cmp::Reverse<(Prio, u32)>>, rest: &mut f64, b: f64, v: u32) {
-    if top.len() >= MAX_FAR && top.peek().is_some_and(|r| b.total_cmp(&r.0 .0 .0).is_lt()) {
-        // It would be popped right away (indices only grow, so ties go in).
-        *rest = rest.max(b);
-        return;
-    }
-    top.push(std::cmp::Reverse((Prio(b, 0), v)));
-    if top.len() > MAX_FAR {
-        if let Some(r) = top.pop() {
-            *rest = rest.max(r.0 .0 .0);
+/// The [`MAX_FAR`] largest bounds (squared) seen, with the point each
+/// belongs to, smallest on top; `rest` is the largest of all the others.
+#[derive(Default)]
+struct Farthest {
+    top: BinaryHeap<std::cmp::Reverse<(Prio, u32)>>,
+    rest: f64,
+}
+
+impl Farthest {
+    /// Bound `b` of point `v` (points come in increasing order).
+    fn push(&mut self, b: f64, v: u32) {
+        if self.top.len() >= MAX_FAR && self.top.peek().is_some_and(|r| b.total_cmp(&r.0 .0 .0).is_lt()) {
+            // It would be popped right away (indices only grow, so ties go in).
+            self.rest = self.rest.max(b);
+            return;
         }
+        self.top.push(std::cmp::Reverse((Prio(b, 0), v)));
+        if self.top.len() > MAX_FAR {
+            if let Some(r) = self.top.pop() {
+                self.rest = self.rest.max(r.0 .0 .0);
+            }
+        }
+    }
+
+    /// What a bound must exceed to be kept (0 until `MAX_FAR` are).
+    fn floor(&self) -> f64 {
+        if self.top.len() < MAX_FAR {
+            0.0
+        } else {
+            self.top.peek().map_or(0.0, |r| r.0 .0 .0)
+        }
+    }
+
+    /// The largest bound seen.
+    fn max(&self) -> f64 {
+        self.top.iter().map(|r| r.0 .0 .0).fold(self.rest, f64::max)
+    }
+
+    /// The kept points (through `pos`) with their distances.
+    fn points(self, pos: impl Fn(u32) -> [f64; 3]) -> Vec<([f64; 3], f64)> {
+        self.top.into_iter().map(|r| (pos(r.0 .1), r.0 .0 .0.sqrt())).collect()
     }
 }
 

@@ -306,15 +306,7 @@ impl Router {
 fn part_stats(layout: &VertexLayout, data: &[u8]) -> LeafStats {
     let mut st = LeafStats::default();
     for t in data.chunks_exact(3 * layout.size) {
-        let c = centroid(layout, t);
-        for k in 0..3 {
-            let p = layout.position(&t[k * layout.size..]);
-            st.bounds.add(p);
-            for a in 0..3 {
-                st.reach = st.reach.max((p[a] - c[a]).abs());
-            }
-        }
-        st.tris += 1;
+        st.add_triangle([0, 1, 2].map(|k| layout.position(&t[k * layout.size..])), centroid(layout, t));
     }
     st
 }
