@@ -206,15 +206,25 @@ impl<'a> Splits<'a> {
                 q[al + dim] -= 2.0 * c[al + k] * p[k];
             }
         }
-        let local: Vec<[f64; 3]> = sp.free.iter().map(|&v| sp.space.to_local(mesh.vertices[v as usize].pos)).collect();
-        let mut order: Vec<u32> = (0..nf as u32).collect();
+        // Members' rows (quadric, local position, free index) are kept in
+        // cell order, each cell's members contiguous: a split reads and
+        // swaps them in two sequential sweeps instead of gathering them
+        // through an index (which cost a cache miss per member and level).
+        let mut rows = Rows { q: vq, pts: sp.free.iter().map(|&v| sp.space.to_local(mesh.vertices[v as usize].pos)).collect(), ids: (0..nf as u32).collect(), cl };
         let (rlo, rhi) = sp.space.local_bounds(&root);
+        sp.cells.reserve(2 * nf);
         sp.cells.push(Cell { lo: rlo, hi: rhi, start: 0, end: nf as u32, created: 0, parent: u32::MAX });
-        sp.cq = vec![0.0; cl];
+        sp.cq = Vec::with_capacity(2 * nf * cl);
+        sp.cq.resize(cl, 0.0);
+        // Per cell: the sums of its members' local positions and of their
+        // squares (the split's mean and variance), kept as cells are made
+        // so a split reads its members once.
+        let mut moments: Vec<[f64; 6]> = Vec::with_capacity(2 * nf);
+        moments.push([0.0; 6]);
         for i in 0..nf {
-            add(&mut sp.cq[..cl], &vq[i * cl..(i + 1) * cl]);
+            rows.add_to(i, &mut sp.cq[..cl], &mut moments[0]);
         }
-        sp.leaf_of = vec![0u32; nf];
+        let mut split = vec![false];
         // The error at the members' mean: measured better than the error
         // at the optimum on the scans and terrains tried (it also favours
         // compact clusters).
@@ -222,7 +232,6 @@ impl<'a> Splits<'a> {
         let mut heap = BinaryHeap::new();
         heap.push(Prio(prio(&sp.cq[..cl]), 0));
         let mut clusters = 1usize;
-        let mut members: Vec<u32> = Vec::new();
         while clusters < max_clusters {
             let Some(Prio(p, c)) = heap.pop() else { break };
             if !(p > 0.0) || p <= min_priority {
@@ -237,29 +246,43 @@ impl<'a> Splits<'a> {
             // variance (a binary kd-split: clusters of one level of
             // refinement differ by 2x in size, not 8x as octree splits do).
             let n = (end - start) as f64;
-            let mut m = [0.0; 3];
-            let mut m2 = [0.0; 3];
-            for &i in &order[start..end] {
-                let p = local[i as usize];
-                for k in 0..3 {
-                    m[k] += p[k];
-                    m2[k] += p[k] * p[k];
-                }
-            }
-            let var = [0, 1, 2].map(|k| m2[k] / n - (m[k] / n).powi(2));
+            let m = moments[c as usize];
+            let var = [0, 1, 2].map(|k| m[3 + k] / n - (m[k] / n).powi(2));
             let axis = (0..3).max_by(|&a, &b| var[a].total_cmp(&var[b])).unwrap();
             let mid = m[axis] / n;
-            let oct = |i: u32| (local[i as usize][axis] >= mid) as usize;
-            let mut count = [0usize; 2];
-            for &i in &order[start..end] {
-                count[oct(i)] += 1;
+            // In place (Hoare): members below the mean first, each side's
+            // quadric and moments summed as its members are met (both
+            // directly: a difference with the parent's would lose the small
+            // errors of fine clusters to the parent's roundoff).
+            let at = sp.cq.len();
+            sp.cq.resize(at + 2 * cl, 0.0);
+            let (q0, q1) = sp.cq[at..].split_at_mut(cl);
+            let mut mo = [[0.0; 6]; 2];
+            let (mut i, mut j) = (start, end);
+            loop {
+                while i < j && rows.pts[i][axis] < mid {
+                    rows.add_to(i, q0, &mut mo[0]);
+                    i += 1;
+                }
+                while i < j && rows.pts[j - 1][axis] >= mid {
+                    rows.add_to(j - 1, q1, &mut mo[1]);
+                    j -= 1;
+                }
+                if i >= j {
+                    break;
+                }
+                rows.swap(i, j - 1);
+                rows.add_to(i, q0, &mut mo[0]);
+                rows.add_to(j - 1, q1, &mut mo[1]);
+                i += 1;
+                j -= 1;
             }
-            if count[0] == 0 || count[1] == 0 {
-                // All members in one octant: shrink the box (no new cluster).
+            if i == start || i == end {
+                // All members on one side: shrink the box (no new cluster).
+                sp.cq.truncate(at);
                 let mut blo = [f64::INFINITY; 3];
                 let mut bhi = [f64::NEG_INFINITY; 3];
-                for &i in &order[start..end] {
-                    let p = local[i as usize];
+                for p in &rows.pts[start..end] {
                     for k in 0..3 {
                         blo[k] = blo[k].min(p[k]);
                         bhi[k] = bhi[k].max(p[k]);
@@ -276,21 +299,9 @@ impl<'a> Splits<'a> {
             }
             sp.prio.push(p);
             let step = sp.prio.len() as u32;
-            let mut first = [0usize; 2];
-            let mut acc = start;
-            for o in 0..2 {
-                first[o] = acc;
-                acc += count[o];
-            }
-            let mut next = first;
-            members.clear();
-            members.extend_from_slice(&order[start..end]);
-            for &i in &members {
-                let o = oct(i);
-                order[next[o]] = i;
-                next[o] += 1;
-            }
+            split[c as usize] = true;
             clusters -= 1;
+            let id = sp.cells.len() as u32;
             for o in 0..2 {
                 let mut clo = lo;
                 let mut chi = hi;
@@ -299,17 +310,21 @@ impl<'a> Splits<'a> {
                 } else {
                     chi[axis] = mid;
                 }
-                let id = sp.cells.len() as u32;
-                let (a, b) = (first[o], first[o] + count[o]);
+                let (a, b) = if o == 0 { (start, i) } else { (i, end) };
                 sp.cells.push(Cell { lo: clo, hi: chi, start: a as u32, end: b as u32, created: step, parent: c });
-                let at = sp.cq.len();
-                sp.cq.resize(at + cl, 0.0);
-                for &i in &order[a..b] {
-                    add(&mut sp.cq[at..at + cl], &vq[i as usize * cl..(i as usize + 1) * cl]);
-                    sp.leaf_of[i as usize] = id;
-                }
-                heap.push(Prio(prio(&sp.cq[at..at + cl]), id));
+                moments.push(mo[o]);
+                split.push(false);
+                heap.push(Prio(prio(&sp.cq[at + o * cl..at + (o + 1) * cl]), id + o as u32));
                 clusters += 1;
+            }
+        }
+        // Each member's deepest cell: the unsplit cell holding its row.
+        sp.leaf_of = vec![0u32; nf];
+        for (c, cell) in sp.cells.iter().enumerate() {
+            if !split[c] {
+                for &i in &rows.ids[cell.start as usize..cell.end as usize] {
+                    sp.leaf_of[i as usize] = c as u32;
+                }
             }
         }
         sp
@@ -611,6 +626,42 @@ pub fn scale_carried(c: &mut [f64], dim: usize, d: &[f64]) {
 }
 
 /// Index of the diagonal entry k in a packed upper-triangular row-major matrix.
+/// The free vertices' split data in cell order: quadric rows (`cl` each),
+/// local positions and free indices, permuted together.
+struct Rows {
+    q: Vec<f64>,
+    pts: Vec<[f64; 3]>,
+    ids: Vec<u32>,
+    cl: usize,
+}
+
+impl Rows {
+    /// Adds row `i` to a cell's quadric and moments.
+    #[inline]
+    fn add_to(&self, i: usize, q: &mut [f64], m: &mut [f64; 6]) {
+        add(q, &self.q[i * self.cl..(i + 1) * self.cl]);
+        add_moments(m, self.pts[i]);
+    }
+
+    #[inline]
+    fn swap(&mut self, i: usize, j: usize) {
+        let cl = self.cl;
+        let (a, b) = self.q.split_at_mut(j * cl);
+        a[i * cl..(i + 1) * cl].swap_with_slice(&mut b[..cl]);
+        self.pts.swap(i, j);
+        self.ids.swap(i, j);
+    }
+}
+
+/// Adds a point to a cell's sums of positions and of their squares.
+#[inline]
+fn add_moments(m: &mut [f64; 6], p: [f64; 3]) {
+    for k in 0..3 {
+        m[k] += p[k];
+        m[3 + k] += p[k] * p[k];
+    }
+}
+
 fn diag_at(dim: usize, k: usize) -> usize {
     k * dim - k * k.saturating_sub(1) / 2
 }

@@ -803,8 +803,23 @@ pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> NodeError {
     }
     let (in_first, in_around) = vertex_triangles(nv, &input.triangles);
     let (out_first, out_around) = vertex_triangles(output.vertices.len(), &output.triangles);
-    let out_centroid: Vec<[f64; 3]> = output.triangles.iter().map(|t| tri_centroid(output, t)).collect();
     let dist2_pts = |a: [f64; 3], b: [f64; 3]| (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f64>();
+    // Each output triangle's centroid and bounding-sphere radius about it:
+    // |p − c| − r is a lower bound of p's distance to the triangle, so a
+    // triangle that cannot beat the best distance so far is skipped.
+    let out_sphere: Vec<([f64; 3], f64)> = output
+        .triangles
+        .iter()
+        .map(|t| {
+            let c = tri_centroid(output, t);
+            let r2 = t.iter().map(|&x| dist2_pts(c, output.vertices[x as usize].pos)).fold(0.0, f64::max);
+            // A hair wider than computed: rounding must not skip a triangle.
+            (c, r2.sqrt() * (1.0 + 1e-9))
+        })
+        .collect();
+    // The vertex whose search last met each output triangle (each is
+    // measured once per vertex, though it lies in up to three fans).
+    let mut met = vec![u32::MAX; output.triangles.len()];
     let mut bbox = Aabb::EMPTY;
     let mut whole: Option<Bvh> = None;
     // The MAX_FAR largest bounds (squared) of input vertices, smallest on
@@ -828,9 +843,10 @@ pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> NodeError {
         // The output triangles around the images of v and of its neighbours
         // cover v's surroundings.
         let mut best = f64::INFINITY;
+        let mut best_root = f64::INFINITY;
+        let low = top.floor();
         // Neighbours come once per triangle around v and often share an
-        // image: each image's fan is measured once (same minimum, about
-        // half the point-triangle distances).
+        // image: each image's fan is met once.
         let mut seen = [u32::MAX; 32];
         let mut n_seen = 0;
         'near: for &w in std::iter::once(&(v as u32)).chain(in_around[in_first[v] as usize..in_first[v + 1] as usize].iter().flat_map(|&t| input.triangles[t as usize].iter())) {
@@ -842,13 +858,32 @@ pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> NodeError {
                 seen[n_seen] = o as u32;
                 n_seen += 1;
             }
-            let low = top.floor();
             let fan = &out_around[out_first[o] as usize..out_first[o + 1] as usize];
             // The triangle whose centroid is nearest first: usually the one
             // under p, so the search mostly stops after one distance.
-            let near = fan.iter().enumerate().map(|(k, &ti)| (dist2_pts(p, out_centroid[ti as usize]), k)).min_by(|a, b| a.0.total_cmp(&b.0)).map_or(0, |m| m.1);
+            let near = fan
+                .iter()
+                .enumerate()
+                .filter(|&(_, &ti)| met[ti as usize] != v as u32)
+                .map(|(k, &ti)| (dist2_pts(p, out_sphere[ti as usize].0), k))
+                .min_by(|a, b| a.0.total_cmp(&b.0))
+                .map_or(0, |m| m.1);
             for k in std::iter::once(near).chain((0..fan.len()).filter(|&k| k != near)) {
-                best = best.min(dist2(p, output.triangles[fan[k] as usize].map(|x| output.vertices[x as usize].pos)));
+                let ti = fan[k] as usize;
+                if met[ti] == v as u32 {
+                    continue;
+                }
+                met[ti] = v as u32;
+                let (c, r) = out_sphere[ti];
+                let reach = (r + best_root) * (1.0 + 1e-9);
+                if dist2_pts(p, c) > reach * reach {
+                    continue; // cannot come nearer than the best so far
+                }
+                let d = dist2(p, output.triangles[ti].map(|x| output.vertices[x as usize].pos));
+                if d < best {
+                    best = d;
+                    best_root = d.sqrt();
+                }
                 if best <= low {
                     break 'near; // cannot be among the largest
                 }
@@ -877,7 +912,10 @@ pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> NodeError {
     // of its 65th largest) is a second pass run for the representatives'
     // own largest bounds (a representative can sit over a neighbour's
     // surface too), each search stopping at the smallest of those.
-    let reps_pass = |top_r: &mut Option<Farthest>| -> f64 {
+    // The representative whose search last met each input triangle.
+    let mut met_in = vec![u32::MAX; input.triangles.len()];
+    let mut reps_pass = |top_r: &mut Option<Farthest>| -> f64 {
+        met_in.fill(u32::MAX);
         let mut r2 = 0.0f64;
         for o in 0..output.vertices.len() {
             let ms = &out.members[out.members_first[o] as usize..out.members_first[o + 1] as usize];
@@ -895,6 +933,9 @@ pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> NodeError {
                     let (own, around) = if ring == 0 { (Some(m), &[][..]) } else { (None, around_m) };
                     for w in own.into_iter().chain(around.iter().flat_map(|&t| input.triangles[t as usize])) {
                         for &ti in &in_around[in_first[w as usize] as usize..in_first[w as usize + 1] as usize] {
+                            if std::mem::replace(&mut met_in[ti as usize], o as u32) == o as u32 {
+                                continue; // met before (rings overlap)
+                            }
                             best = best.min(dist2(p, input.triangles[ti as usize].map(|x| input.vertices[x as usize].pos)));
                             if best <= low {
                                 break 'members; // cannot raise the maximum, or be among the largest
