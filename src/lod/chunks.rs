@@ -176,6 +176,12 @@ impl ChunkFile {
     /// carries its share of the vertex's fan), triangles stay in chunk
     /// order, one patch per chunk.
     pub fn gather(&self, t: usize) -> Result<Gathered> {
+        self.gather_with(t, true)
+    }
+
+    /// [`ChunkFile::gather`], the carried quadrics summed only when
+    /// `quadrics` (a band pass needs none; `a` is then empty).
+    pub fn gather_with(&self, t: usize, quadrics: bool) -> Result<Gathered> {
         use std::os::unix::fs::FileExt;
         let f = self.reader.as_ref().expect("chunk file not finished");
         let refs = self.refs_of(t);
@@ -207,13 +213,17 @@ impl ChunkFile {
                 let next = g.mesh.vertices.len() as u32;
                 let id = *map.entry(&v[..vs]).or_insert_with(|| {
                     g.mesh.vertices.push(self.layout.decode(&v[..vs]));
-                    g.a.extend(std::iter::repeat_n(0.0, self.a_len));
+                    if quadrics {
+                        g.a.extend(std::iter::repeat_n(0.0, self.a_len));
+                    }
                     g.was_locked.push(false);
                     next
                 });
-                let at = id as usize * self.a_len;
-                for (j, x) in v[vs..vs + 4 * self.a_len].chunks_exact(4).enumerate() {
-                    g.a[at + j] += f32::from_le_bytes(x.try_into().unwrap()) as f64;
+                if quadrics {
+                    let at = id as usize * self.a_len;
+                    for (j, x) in v[vs..vs + 4 * self.a_len].chunks_exact(4).enumerate() {
+                        g.a[at + j] += f32::from_le_bytes(x.try_into().unwrap()) as f64;
+                    }
                 }
                 g.was_locked[id as usize] |= v[rec - 1] & 1 != 0;
                 ids.push(id);

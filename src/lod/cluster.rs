@@ -135,6 +135,27 @@ impl<'a> Splits<'a> {
         max_clusters: usize,
         min_priority: f64,
     ) -> Splits<'a> {
+        Self::grow(mesh, vertex_a, locked, attrs, max_clusters, min_priority, true)
+    }
+
+    /// Every split whose priority is above `tau`, in no particular order:
+    /// the partition is the same as the greedy sequence's prefix at `tau`
+    /// (every cell above it is split, whatever the order, and its children
+    /// do not depend on when), without a priority queue. Only
+    /// `build(steps())` is meaningful on the result.
+    pub fn to_threshold(mesh: &'a IndexedMesh, vertex_a: Option<&[f64]>, locked: &[bool], attrs: AttrSet, tau: f64) -> Splits<'a> {
+        Self::grow(mesh, vertex_a, locked, attrs, usize::MAX, tau, false)
+    }
+
+    fn grow(
+        mesh: &'a IndexedMesh,
+        vertex_a: Option<&[f64]>,
+        locked: &[bool],
+        attrs: AttrSet,
+        max_clusters: usize,
+        min_priority: f64,
+        ordered: bool,
+    ) -> Splits<'a> {
         let nv = mesh.vertices.len();
         let mut stats = ClusterStats::default();
         let mut used = vec![false; nv];
@@ -166,8 +187,10 @@ impl<'a> Splits<'a> {
                 // Carried in raw attribute units; this node weighs attributes by its size.
                 let mut va = a[..nv * cs].to_vec();
                 let d = attr_scale(&sp.space, false);
-                for v in va.chunks_exact_mut(cs) {
-                    scale_carried(v, dim, &d);
+                if d.iter().any(|&x| x != 1.0) {
+                    for v in va.chunks_exact_mut(cs) {
+                        scale_carried(v, dim, &d);
+                    }
                 }
                 va
             }
@@ -229,13 +252,18 @@ impl<'a> Splits<'a> {
         // at the optimum on the scans and terrains tried (it also favours
         // compact clusters).
         let prio = |q: &[f64]| -> f64 { crate::quadric::packed_error_at_mean(dim, q) };
-        let mut heap = BinaryHeap::new();
+        let mut heap = if ordered { Queue::Heap(BinaryHeap::new()) } else { Queue::Stack(Vec::new()) };
         heap.push(Prio(prio(&sp.cq[..cl]), 0));
         let mut clusters = 1usize;
         while clusters < max_clusters {
             let Some(Prio(p, c)) = heap.pop() else { break };
             if !(p > 0.0) || p <= min_priority {
-                break; // everything left is exact (flat, single points) or good enough
+                // Exact (flat, single points) or good enough; in priority
+                // order, so is everything left.
+                if ordered {
+                    break;
+                }
+                continue;
             }
             let cell = &sp.cells[c as usize];
             let (lo, hi, start, end) = (cell.lo, cell.hi, cell.start as usize, cell.end as usize);
@@ -412,6 +440,7 @@ impl<'a> Splits<'a> {
         let al = dim * (dim + 1) / 2;
         let cl = self.cl;
         let d = attr_scale(&self.space, true);
+        let rescale = d.iter().any(|&x| x != 1.0);
         let cs = carry_len(dim);
         let mut remap = vec![u32::MAX; nv];
         let mut rep_cell: Vec<u32> = Vec::new();
@@ -466,7 +495,9 @@ impl<'a> Splits<'a> {
                 dst[..al].copy_from_slice(self.rep_a(rep_cell[r] as usize));
                 dst[al..].copy_from_slice(&rep_ge[r * (dim + 1)..(r + 1) * (dim + 1)]);
             }
-            scale_carried(dst, dim, &d);
+            if rescale {
+                scale_carried(dst, dim, &d);
+            }
         }
         // Members of each representative (by output vertex), CSR.
         let mut out_of_rep = vec![u32::MAX; reps.len()];
@@ -626,6 +657,29 @@ pub fn scale_carried(c: &mut [f64], dim: usize, d: &[f64]) {
 }
 
 /// Index of the diagonal entry k in a packed upper-triangular row-major matrix.
+/// Cells waiting to be split: by priority (the greedy sequence) or in any
+/// order (a threshold's partition).
+enum Queue {
+    Heap(BinaryHeap<Prio>),
+    Stack(Vec<Prio>),
+}
+
+impl Queue {
+    fn push(&mut self, p: Prio) {
+        match self {
+            Queue::Heap(h) => h.push(p),
+            Queue::Stack(s) => s.push(p),
+        }
+    }
+
+    fn pop(&mut self) -> Option<Prio> {
+        match self {
+            Queue::Heap(h) => h.pop(),
+            Queue::Stack(s) => s.pop(),
+        }
+    }
+}
+
 /// The free vertices' split data in cell order: quadric rows (`cl` each),
 /// local positions and free indices, permuted together.
 struct Rows {

@@ -210,6 +210,9 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
     let derived = !attrs.normal();
     let payload_layout = VertexLayout::new(attrs.with(AttrSet::NORMAL, true));
     let dim = attrs.quadric_dim();
+    // Gathered vertices are welded by their bytes; with no attribute those
+    // are the position's, so each vertex is a position of its own.
+    let unique_positions = dim == 3;
     // Edge collapse measures each level against the level below, so carried
     // quadrics would go unused: its chunks carry none.
     let a_len = match opts.params.simplifier {
@@ -261,8 +264,8 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
             |_| Ok(()),
             |k, ()| {
                 let leaf = ids[k];
-                let g = chunks.gather(leaf)?;
-                let w = Welded::new(&g.mesh);
+                let g = chunks.gather_with(leaf, false)?;
+                let w = Welded::new(&g.mesh, unique_positions);
                 let test = band.tester(k, &leaves[leaf].bounds);
                 let mut records = Vec::new();
                 for (pi, p) in w.pos.iter().enumerate() {
@@ -309,7 +312,7 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
                 .zip(sets.par_iter())
                 .map(|(&k, set)| {
                     let g = chunks.gather(ids[k])?;
-                    let w = Welded::new(&g.mesh);
+                    let w = Welded::new(&g.mesh, unique_positions);
                     Ok(collapse::ErrorCurve::of(&g.mesh, &w.locks(set), attrs))
                 })
                 .collect();
@@ -327,7 +330,7 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
                 .zip(sets.par_iter())
                 .map(|(&k, set)| {
                     let g = chunks.gather(ids[k])?;
-                    let w = Welded::new(&g.mesh);
+                    let w = Welded::new(&g.mesh, unique_positions);
                     let locked = w.locks(set);
                     let a = (level > 0).then_some(&g.a[..]);
                     let sp = Splits::new(&g.mesh, a, &locked, attrs, usize::MAX, 0.0);
@@ -372,7 +375,7 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
             |k, set| {
                 let (leaf, id, set) = (ids[k], base + k, &set);
                 let g = chunks.gather(leaf)?;
-                let w = Welded::new(&g.mesh);
+                let w = Welded::new(&g.mesh, unique_positions);
                 let mut p2 = Pass2::default();
                 // Locks: shared positions and attribute seams.
                 let locked = w.locks(set);
@@ -414,7 +417,7 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
                     let (out, qa, out_locked) = match opts.params.simplifier {
                         Simplifier::Cluster => {
                             let a = (level > 0).then_some(&g.a[..]);
-                            let sp = Splits::new(&g.mesh, a, &locked, attrs, usize::MAX, tau);
+                            let sp = Splits::to_threshold(&g.mesh, a, &locked, attrs, tau);
                             let mut no = sp.build(sp.steps(), opts.rel_tol);
                             p2.clamped = no.stats.clamped;
                             as_stored(&mut no.mesh);
@@ -624,21 +627,27 @@ struct Welded {
 }
 
 impl Welded {
-    fn new(m: &IndexedMesh) -> Welded {
-        let mut map: FxHashMap<[u64; 3], u32> = FxHashMap::with_capacity_and_hasher(m.vertices.len(), Default::default());
+    /// `unique`: no two vertices of `m` share a position (a gathered node
+    /// without attributes), so none is looked up.
+    fn new(m: &IndexedMesh, unique: bool) -> Welded {
         let mut pos = Vec::new();
         let mut bounds = Aabb::EMPTY;
-        let pos_of: Vec<u32> = m
-            .vertices
-            .iter()
-            .map(|v| {
-                let n = pos.len() as u32;
-                *map.entry(pos_bits(v.pos)).or_insert_with(|| {
-                    pos.push(v.pos);
-                    n
+        let pos_of: Vec<u32> = if unique {
+            pos.extend(m.vertices.iter().map(|v| v.pos));
+            (0..m.vertices.len() as u32).collect()
+        } else {
+            let mut map: FxHashMap<[u64; 3], u32> = FxHashMap::with_capacity_and_hasher(m.vertices.len(), Default::default());
+            m.vertices
+                .iter()
+                .map(|v| {
+                    let n = pos.len() as u32;
+                    *map.entry(pos_bits(v.pos)).or_insert_with(|| {
+                        pos.push(v.pos);
+                        n
+                    })
                 })
-            })
-            .collect();
+                .collect()
+        };
         let mut count = vec![0u32; pos.len() + 1];
         for &p in &pos_of {
             count[p as usize + 1] += 1;
