@@ -764,16 +764,26 @@ fn compact(mesh: &IndexedMesh, remap: &[u32], reps: &[Vertex]) -> (IndexedMesh, 
 /// the same orientation (duplicated input faces) are all kept.
 pub(crate) fn unfold(images: &[[usize; 3]]) -> Vec<bool> {
     let mut keep = vec![true; images.len()];
+    let sorted = |k: &[usize; 3]| {
+        let mut s = *k;
+        s.sort_unstable();
+        s
+    };
+    // Triangles sharing their corners with another are rare: counted by
+    // hashing, only those are sorted into groups.
+    let mut count: rustc_hash::FxHashMap<[usize; 3], u32> = rustc_hash::FxHashMap::with_capacity_and_hasher(images.len(), Default::default());
+    for k in images {
+        *count.entry(sorted(k)).or_insert(0) += 1;
+    }
     // (sorted corners, odd orientation, index), grouped by sorting.
     let mut keyed: Vec<([usize; 3], bool, u32)> = images
         .iter()
         .enumerate()
-        .map(|(i, k)| {
-            let mut s = *k;
-            s.sort_unstable();
+        .filter_map(|(i, k)| {
+            let s = sorted(k);
             // Orientation: rotations of the sorted triple are even.
             let even = *k == s || *k == [s[1], s[2], s[0]] || *k == [s[2], s[0], s[1]];
-            (s, !even, i as u32)
+            (count[&s] > 1).then_some((s, !even, i as u32))
         })
         .collect();
     keyed.sort_unstable();
