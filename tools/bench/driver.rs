@@ -297,55 +297,17 @@ fn find_octolod(args: &BenchArgs, exe: &Path) -> (Option<PathBuf>, String) {
 /// A row for an octolod level.
 fn level_row(b: &BuildOut, l: &LevelOut, n_in: f64) -> Row {
     Row {
-        method: Method::Octolod,
         setting: b.setting(),
         level: Some(l.level),
-        target: None,
-        triangles: l.triangles,
-        vertices: l.vertices,
-        path: l.path.clone(),
-        seconds: b.timed.seconds,
-        load_seconds: None,
-        throughput: n_in / b.timed.seconds / 1e6,
-        rss_mib: b.timed.peak_rss_mib,
-        rms: None,
-        hausdorff: None,
-        mean: None,
-        rms_rel_diag: None,
-        hausdorff_rel_diag: None,
-        error_figures: None,
-        error_note: None,
-        metro_seconds: None,
-        metro: None,
-        child: RowChild::Level(l.clone()),
+        ..Row::unmeasured(Method::Octolod, l.triangles, l.vertices, l.path.clone(), &b.timed, n_in, RowChild::Level(l.clone()))
     }
 }
 
 /// A row for a peer's or `octolod simplify`'s run.
 fn run_row(j: RunOut, n_in: f64) -> Row {
-    Row {
-        method: j.method,
-        setting: String::new(),
-        level: None,
-        target: Some(j.target),
-        triangles: j.triangles,
-        vertices: j.vertices,
-        path: j.path.clone(),
-        seconds: j.timed.seconds,
-        load_seconds: j.load_seconds,
-        throughput: n_in / j.timed.seconds / 1e6,
-        rss_mib: j.timed.peak_rss_mib,
-        rms: None,
-        hausdorff: None,
-        mean: None,
-        rms_rel_diag: None,
-        hausdorff_rel_diag: None,
-        error_figures: None,
-        error_note: None,
-        metro_seconds: None,
-        metro: None,
-        child: RowChild::Run(Box::new(j)),
-    }
+    let (method, target, load_seconds) = (j.method, j.target, j.load_seconds);
+    let (triangles, vertices, path, timed) = (j.triangles, j.vertices, j.path.clone(), j.timed.clone());
+    Row { target: Some(target), load_seconds, ..Row::unmeasured(method, triangles, vertices, path, &timed, n_in, RowChild::Run(Box::new(j))) }
 }
 
 /// Every method on one input: the octolod builds (one per setting), then
@@ -543,24 +505,10 @@ mod tests {
     const METRO: &str = r#"{"a":{"source":"x.ply","vertices":50,"faces":96,"area":12.5,"bbox":{"min":[-1.0,-1.0,-1.0],"max":[1.0,1.0,1.0]},"diagonal":3.4641016151377544},"b":{"source":"o.ply","vertices":22,"faces":40,"area":12.1,"bbox":{"min":[-1.0,-1.0,-1.0],"max":[1.0,1.0,1.0]},"diagonal":3.4641016151377544},"diagonal":2.0,"diagonal_of":"a","union_diagonal":2.0,"seed":1,"samples_target":1000,"a_to_b":{"samples":1000,"vertex_samples":50,"edge_samples":100,"face_samples":850,"max":0.15,"mean":0.04,"rms":0.08,"max_rel":0.075,"mean_rel":0.02,"rms_rel":0.04,"max_at":[0.1,0.2,0.3]},"b_to_a":{"samples":1000,"vertex_samples":22,"edge_samples":100,"face_samples":878,"max":0.2,"mean":0.06,"rms":0.12,"max_rel":0.1,"mean_rel":0.03,"rms_rel":0.06,"max_at":[0.1,0.2,null]},"combined":{"samples":2000,"vertex_samples":72,"edge_samples":200,"face_samples":1728,"max":0.2,"mean":0.05,"rms":0.1,"max_rel":0.1,"mean_rel":0.025,"rms_rel":0.05,"max_at":[0.1,0.2,0.3]},"hausdorff":0.2,"hausdorff_rel":0.1,"thresholds":[],"pass":true}"#;
 
     fn run(method: Method, target: u64) -> RunOut {
+        let timed = Timed { seconds: 0.5, peak_rss_mib: 30.0, other_cpu_cores: Some(0.1), child_seconds: 0.7, ..Timed::default() };
         RunOut {
-            method,
-            target,
-            input_triangles: 96,
             load_seconds: (method.simplifier().is_none()).then_some(0.1),
-            triangles: target,
-            vertices: 22,
-            path: format!("{}-{target}.ply", method.name()).into(),
-            peak_rss_load_mib: None,
-            peak_rss_simplify_mib: None,
-            meshopt_result_error: None,
             grid: (method == Method::Oocs).then_some(7),
-            grid_dims: None,
-            cells: None,
-            clamped: None,
-            search_seconds: None,
-            search_tries: None,
-            command: None,
             exit_code: method.simplifier().map(|_| 0),
             simplify: method.simplifier().map(|_| SimplifyJson {
                 route: "in-memory".into(),
@@ -576,7 +524,7 @@ mod tests {
                 hausdorff: None,
                 tries: 0,
             }),
-            timed: Timed { seconds: 0.5, peak_rss_mib: 30.0, other_cpu_cores: Some(0.1), child_seconds: 0.7, ..Timed::default() },
+            ..RunOut::new(method, target, 96, target, 22, format!("{}-{target}.ply", method.name()).into(), timed)
         }
     }
 

@@ -168,28 +168,7 @@ fn run_octolod(a: &RunOne) -> Result<BuildOut> {
 
 /// A [`RunOut`] with only the fields every method has.
 fn run_out(a: &RunOne, m: Method, input_triangles: u64, triangles: u64, vertices: u64, timed: Timed) -> RunOut {
-    RunOut {
-        method: m,
-        target: a.target,
-        input_triangles,
-        load_seconds: None,
-        triangles,
-        vertices,
-        path: a.output.clone(),
-        peak_rss_load_mib: None,
-        peak_rss_simplify_mib: None,
-        meshopt_result_error: None,
-        grid: None,
-        grid_dims: None,
-        cells: None,
-        clamped: None,
-        search_seconds: None,
-        search_tries: None,
-        command: None,
-        exit_code: None,
-        simplify: None,
-        timed,
-    }
+    RunOut::new(m, a.target, input_triangles, triangles, vertices, a.output.clone(), timed)
 }
 
 fn run_peer(a: &RunOne, m: Method) -> Result<RunOut> {

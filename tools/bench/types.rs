@@ -242,6 +242,35 @@ pub struct RunOut {
     pub timed: Timed,
 }
 
+impl RunOut {
+    /// A run's common fields; every method's own are absent (set them with
+    /// struct update syntax).
+    pub fn new(method: Method, target: u64, input_triangles: u64, triangles: u64, vertices: u64, path: PathBuf, timed: Timed) -> RunOut {
+        RunOut {
+            method,
+            target,
+            input_triangles,
+            load_seconds: None,
+            triangles,
+            vertices,
+            path,
+            peak_rss_load_mib: None,
+            peak_rss_simplify_mib: None,
+            meshopt_result_error: None,
+            grid: None,
+            grid_dims: None,
+            cells: None,
+            clamped: None,
+            search_seconds: None,
+            search_tries: None,
+            command: None,
+            exit_code: None,
+            simplify: None,
+            timed,
+        }
+    }
+}
+
 impl ChildOut for RunOut {
     fn timed(&mut self) -> &mut Timed {
         &mut self.timed
@@ -321,6 +350,35 @@ pub enum RowChild {
 }
 
 impl Row {
+    /// A row not yet measured by metro: its output, the run's time and
+    /// memory against the input's `n_in` triangles, its child's report
+    /// (set the method's own fields with struct update syntax).
+    pub fn unmeasured(method: Method, triangles: u64, vertices: u64, path: PathBuf, timed: &Timed, n_in: f64, child: RowChild) -> Row {
+        Row {
+            method,
+            setting: String::new(),
+            level: None,
+            target: None,
+            triangles,
+            vertices,
+            path,
+            seconds: timed.seconds,
+            load_seconds: None,
+            throughput: n_in / timed.seconds / 1e6,
+            rss_mib: timed.peak_rss_mib,
+            rms: None,
+            hausdorff: None,
+            mean: None,
+            rms_rel_diag: None,
+            hausdorff_rel_diag: None,
+            error_figures: None,
+            error_note: None,
+            metro_seconds: None,
+            metro: None,
+            child,
+        }
+    }
+
     /// metro's combined (RMS, Hausdorff), object space, when measured.
     pub fn err(&self) -> Option<(f64, f64)> {
         Some((self.rms?, self.hausdorff?))
