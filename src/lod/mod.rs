@@ -274,18 +274,17 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
                         records.push((*p, w.normal[pi].map(|x| x as f32), flags));
                     }
                 }
-                // Centroid counts at the histogram's depth, as sorted runs.
+                // Centroid counts at the histogram's depth, as sorted runs
+                // (counted by hashing: a node's triangles fall in far fewer
+                // cells than they are, so only the cells are sorted).
                 let mut h: Vec<(u64, u64)> = Vec::new();
                 if !is_final {
-                    let mut keys: Vec<u64> =
-                        g.mesh.triangles.iter().map(|t| nc.key(tri_centroid(&g.mesh, t)) >> (3 * (KEY_DEPTH - HIST_DEPTH) as u32)).collect();
-                    keys.sort_unstable();
-                    for k in keys {
-                        match h.last_mut() {
-                            Some(l) if l.0 == k => l.1 += 1,
-                            _ => h.push((k, 1)),
-                        }
+                    let mut counts: FxHashMap<u64, u64> = FxHashMap::default();
+                    for t in &g.mesh.triangles {
+                        *counts.entry(nc.key(tri_centroid(&g.mesh, t)) >> (3 * (KEY_DEPTH - HIST_DEPTH) as u32)).or_insert(0) += 1;
                     }
+                    h.extend(counts);
+                    h.sort_unstable();
                 }
                 Ok(Pass1 { records, hist: h, positions: w.pos.len() as u64 })
             },
