@@ -197,8 +197,10 @@ impl<'a> Splits<'a> {
             None => {
                 // The input's planes pass through their corners: g = 0, e = 0.
                 let mut va = vec![0.0f64; nv * cs];
+                let mut tq = Quadric::zero(dim);
                 for t in &mesh.triangles {
-                    let tq = Quadric::from_triangle(&sp.space, &embedded[t[0] as usize], &embedded[t[1] as usize], &embedded[t[2] as usize]);
+                    tq.clear();
+                    tq.add_triangle(&embedded[t[0] as usize], &embedded[t[1] as usize], &embedded[t[2] as usize]);
                     for &v in t {
                         add(&mut va[v as usize * cs..v as usize * cs + al], tq.matrix_packed());
                     }

@@ -361,6 +361,12 @@ impl Quadric {
         Quadric { dim, k: [0.0; MAX_COEFFS] }
     }
 
+    /// Back to the empty quadric of its dimension, clearing only the
+    /// coefficients it uses (a loop over many triangles reuses one).
+    pub fn clear(&mut self) {
+        self.k[..Self::coeff_len(self.dim)].fill(0.0);
+    }
+
     /// The area-weighted quadric of one triangle given by embedded points
     /// (length ≥ `space.dim`, e.g. from [`QuadricSpace::embed`]).
     pub fn from_triangle(space: &QuadricSpace, p: &[f64], q: &[f64], r: &[f64]) -> Quadric {
