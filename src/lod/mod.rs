@@ -420,14 +420,7 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
                             let mut no = sp.build(sp.steps(), opts.rel_tol);
                             p2.clamped = no.stats.clamped;
                             as_stored(&mut no.mesh);
-                            let ne = node_error(&g.mesh, &no);
-                            p2.error = ne.error;
-                            p2.base = ne.base;
-                            // A few far points setting the error: worth measuring again.
-                            if ne.error > 2.0 * ne.base {
-                                p2.far = ne.far;
-                                p2.far_reps = ne.far_reps;
-                            }
+                            p2.set_error(node_error(&g.mesh, &no));
                             let out_locked: Vec<bool> = no.kept_from.iter().map(|&k| k != u32::MAX).collect();
                             (no.mesh, no.a, out_locked)
                         }
@@ -436,13 +429,7 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
                             let c = collapse::collapse(&g.mesh, &locked, attrs, 0, Some(tau));
                             let (mut out, from) = collapse::compact(&c.vertices, &collapse::unfold(&c.vertices, &c.triangles));
                             as_stored(&mut out);
-                            let ne = collapse::collapse_error(&g.mesh, &locked, &out, &from);
-                            p2.error = ne.error;
-                            p2.base = ne.base;
-                            if ne.error > 2.0 * ne.base {
-                                p2.far = ne.far;
-                                p2.far_reps = ne.far_reps;
-                            }
+                            p2.set_error(collapse::collapse_error(&g.mesh, &locked, &out, &from));
                             let out_locked: Vec<bool> = from.iter().map(|&f| locked[f as usize]).collect();
                             (out, Vec::new(), out_locked)
                         }
@@ -609,6 +596,19 @@ struct Pass2 {
     prev_freed: u64,
     /// Encoded chunks for the next level: (target leaf, bytes, their stats).
     routed: Vec<(u32, Vec<u8>, LeafStats)>,
+}
+
+impl Pass2 {
+    /// The node's measured error; its far points are kept only when a few
+    /// of them set it (worth measuring again, [`remeasure_far`]).
+    fn set_error(&mut self, ne: NodeError) {
+        self.error = ne.error;
+        self.base = ne.base;
+        if ne.error > 2.0 * ne.base {
+            self.far = ne.far;
+            self.far_reps = ne.far_reps;
+        }
+    }
 }
 
 /// A node's vertices welded by position: per position its point, the
