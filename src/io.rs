@@ -223,10 +223,26 @@ pub fn clean_up_on_signals() {
     if let Ok(mut signals) = signal_hook::iterator::Signals::new([SIGINT, SIGTERM, SIGHUP]) {
         std::thread::spawn(move || {
             if let Some(sig) = signals.forever().next() {
+                SIGNALLED.store(sig, std::sync::atomic::Ordering::SeqCst);
                 remove_live_temps();
                 std::process::exit(128 + sig);
             }
         });
+    }
+}
+
+/// The signal being handled by [`clean_up_on_signals`] (0: none).
+static SIGNALLED: std::sync::atomic::AtomicI32 = std::sync::atomic::AtomicI32::new(0);
+
+/// For a binary's error exit: when a signal is being handled, its handler
+/// is removing the temp paths and will exit with 128 + the signal, and the
+/// error is only work finding its files gone: wait for that exit rather
+/// than report the error and exit 1 first. Returns at once otherwise.
+pub fn yield_to_signal_handler() {
+    if SIGNALLED.load(std::sync::atomic::Ordering::SeqCst) != 0 {
+        loop {
+            std::thread::park();
+        }
     }
 }
 

@@ -401,6 +401,7 @@ fn main() -> ExitCode {
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
+            octolod::io::yield_to_signal_handler();
             eprintln!("octolod: error: {e}");
             ExitCode::FAILURE
         }

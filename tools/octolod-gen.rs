@@ -212,6 +212,7 @@ fn main() {
     };
     octolod::io::clean_up_on_signals();
     if let Err(e) = run(args) {
+        octolod::io::yield_to_signal_handler();
         eprintln!("octolod-gen: error: {e:#}");
         std::process::exit(1);
     }
