@@ -107,20 +107,18 @@ impl ChunkFile {
         debug_assert_eq!(self.a_len, 0);
         let vs = self.layout.size;
         let tris = soup.len() / (3 * vs);
-        let mut map: FxHashMap<&[u8], u32> = FxHashMap::with_capacity_and_hasher(tris, Default::default());
+        let mut map = ByteIds::new(vs, tris);
         let mut verts: Vec<u8> = Vec::with_capacity(tris * (vs + 1));
         let mut ids: Vec<u8> = Vec::with_capacity(tris * 12);
         for corner in soup.chunks_exact(vs).take(3 * tris) {
-            let next = map.len() as u32;
-            let id = *map.entry(corner).or_insert_with(|| {
+            let id = map.id(corner, || {
                 verts.extend_from_slice(corner);
                 verts.push(0);
-                next
             });
             ids.extend_from_slice(&id.to_le_bytes());
         }
         out.clear();
-        for x in [target, source, map.len() as u32, tris as u32] {
+        for x in [target, source, (verts.len() / (vs + 1)) as u32, tris as u32] {
             out.extend_from_slice(&x.to_le_bytes());
         }
         out.extend_from_slice(&verts);
@@ -195,7 +193,7 @@ impl ChunkFile {
         let vs = self.layout.size;
         let rec = vs + 4 * self.a_len + 1;
         let total_v: usize = bufs.iter().map(|b| if b.len() >= 16 { u32::from_le_bytes(b[8..12].try_into().unwrap()) as usize } else { 0 }).sum();
-        let mut map: FxHashMap<&[u8], u32> = FxHashMap::with_capacity_and_hasher(total_v, Default::default());
+        let mut map = ByteIds::new(vs, total_v);
         let mut ids = Vec::new();
         for (r, b) in refs.iter().zip(&bufs) {
             let bad = || Error::input(Location { file: self.path.clone(), offset: Some(r.offset), ..Default::default() }, "damaged chunk");
@@ -210,14 +208,12 @@ impl ChunkFile {
             ids.clear();
             for k in 0..nv {
                 let v = &b[16 + k * rec..16 + (k + 1) * rec];
-                let next = g.mesh.vertices.len() as u32;
-                let id = *map.entry(&v[..vs]).or_insert_with(|| {
+                let id = map.id(&v[..vs], || {
                     g.mesh.vertices.push(self.layout.decode(&v[..vs]));
                     if quadrics {
                         g.a.extend(std::iter::repeat_n(0.0, self.a_len));
                     }
                     g.was_locked.push(false);
-                    next
                 });
                 if quadrics {
                     let at = id as usize * self.a_len;
@@ -390,5 +386,64 @@ mod tests {
         file.encode(7, 3, &mesh, &[], &vec![false; mesh.vertices.len()], &mut b);
         assert!(mesh.vertices.len() < 300 && mesh.vertices.len() > 20);
         assert_eq!(a, b);
+    }
+}
+
+/// Ids of byte strings of one length (vertex records), numbered in order
+/// of first appearance. The vertex sizes a layout can have (12 to 36 bytes)
+/// are keyed as arrays: hashed and compared inline, where a slice key
+/// costs a `memcmp` call per probe (a tenth of the level-0 routing).
+enum ByteIds<'a> {
+    K12(FxHashMap<[u8; 12], u32>),
+    K16(FxHashMap<[u8; 16], u32>),
+    K20(FxHashMap<[u8; 20], u32>),
+    K24(FxHashMap<[u8; 24], u32>),
+    K28(FxHashMap<[u8; 28], u32>),
+    K32(FxHashMap<[u8; 32], u32>),
+    K36(FxHashMap<[u8; 36], u32>),
+    Any(FxHashMap<&'a [u8], u32>),
+}
+
+impl<'a> ByteIds<'a> {
+    /// For keys of `len` bytes, room for `n` of them.
+    fn new(len: usize, n: usize) -> ByteIds<'a> {
+        fn map<K>(n: usize) -> FxHashMap<K, u32> {
+            FxHashMap::with_capacity_and_hasher(n, Default::default())
+        }
+        match len {
+            12 => ByteIds::K12(map(n)),
+            16 => ByteIds::K16(map(n)),
+            20 => ByteIds::K20(map(n)),
+            24 => ByteIds::K24(map(n)),
+            28 => ByteIds::K28(map(n)),
+            32 => ByteIds::K32(map(n)),
+            36 => ByteIds::K36(map(n)),
+            _ => ByteIds::Any(map(n)),
+        }
+    }
+
+    /// The id of `key` (of the length given to [`ByteIds::new`]); `new` is
+    /// called when it is met for the first time.
+    #[inline]
+    fn id(&mut self, key: &'a [u8], new: impl FnOnce()) -> u32 {
+        macro_rules! get {
+            ($m:expr, $k:expr) => {{
+                let next = $m.len() as u32;
+                *$m.entry($k).or_insert_with(|| {
+                    new();
+                    next
+                })
+            }};
+        }
+        match self {
+            ByteIds::K12(m) => get!(m, key.try_into().unwrap()),
+            ByteIds::K16(m) => get!(m, key.try_into().unwrap()),
+            ByteIds::K20(m) => get!(m, key.try_into().unwrap()),
+            ByteIds::K24(m) => get!(m, key.try_into().unwrap()),
+            ByteIds::K28(m) => get!(m, key.try_into().unwrap()),
+            ByteIds::K32(m) => get!(m, key.try_into().unwrap()),
+            ByteIds::K36(m) => get!(m, key.try_into().unwrap()),
+            ByteIds::Any(m) => get!(m, key),
+        }
     }
 }

@@ -288,25 +288,12 @@ impl<'a> Splits<'a> {
             sp.cq.resize(at + 2 * cl, 0.0);
             let (q0, q1) = sp.cq[at..].split_at_mut(cl);
             let mut mo = [[0.0; 6]; 2];
-            let (mut i, mut j) = (start, end);
-            loop {
-                while i < j && rows.pts[i][axis] < mid {
-                    rows.add_to(i, q0, &mut mo[0]);
-                    i += 1;
-                }
-                while i < j && rows.pts[j - 1][axis] >= mid {
-                    rows.add_to(j - 1, q1, &mut mo[1]);
-                    j -= 1;
-                }
-                if i >= j {
-                    break;
-                }
-                rows.swap(i, j - 1);
-                rows.add_to(i, q0, &mut mo[0]);
-                rows.add_to(j - 1, q1, &mut mo[1]);
-                i += 1;
-                j -= 1;
-            }
+            let i = match cl {
+                10 => rows.partition::<10>(start, end, axis, mid, q0, q1, &mut mo),
+                21 => rows.partition::<21>(start, end, axis, mid, q0, q1, &mut mo),
+                28 => rows.partition::<28>(start, end, axis, mid, q0, q1, &mut mo),
+                _ => rows.partition::<0>(start, end, axis, mid, q0, q1, &mut mo),
+            };
             if i == start || i == end {
                 // All members on one side: shrink the box (no new cluster).
                 sp.cq.truncate(at);
@@ -658,7 +645,6 @@ pub fn scale_carried(c: &mut [f64], dim: usize, d: &[f64]) {
     }
 }
 
-/// Index of the diagonal entry k in a packed upper-triangular row-major matrix.
 /// Cells waiting to be split: by priority (the greedy sequence) or in any
 /// order (a threshold's partition).
 enum Queue {
@@ -699,9 +685,52 @@ impl Rows {
         add_moments(m, self.pts[i]);
     }
 
+    /// Splits rows `start..end` in place (Hoare) at `mid` along `axis`:
+    /// rows below it first, each side's quadric (`q0`, `q1`) and moments
+    /// summed as its rows are met; returns where the upper side starts.
+    /// `CL`: the quadric's length when it is one of the common ones (the
+    /// sums then unroll), 0 for any other (`self.cl`). Same sums in the
+    /// same order either way.
+    #[allow(clippy::too_many_arguments)]
+    fn partition<const CL: usize>(
+        &mut self,
+        start: usize,
+        end: usize,
+        axis: usize,
+        mid: f64,
+        q0: &mut [f64],
+        q1: &mut [f64],
+        mo: &mut [[f64; 6]; 2],
+    ) -> usize {
+        let cl = if CL > 0 { CL } else { self.cl };
+        let (q0, q1) = (&mut q0[..cl], &mut q1[..cl]);
+        let add_row = |rows: &Rows, i: usize, q: &mut [f64], m: &mut [f64; 6]| {
+            add(q, &rows.q[i * cl..(i + 1) * cl]);
+            add_moments(m, rows.pts[i]);
+        };
+        let (mut i, mut j) = (start, end);
+        loop {
+            while i < j && self.pts[i][axis] < mid {
+                add_row(self, i, q0, &mut mo[0]);
+                i += 1;
+            }
+            while i < j && self.pts[j - 1][axis] >= mid {
+                add_row(self, j - 1, q1, &mut mo[1]);
+                j -= 1;
+            }
+            if i >= j {
+                return i;
+            }
+            self.swap_rows(i, j - 1, cl);
+            add_row(self, i, q0, &mut mo[0]);
+            add_row(self, j - 1, q1, &mut mo[1]);
+            i += 1;
+            j -= 1;
+        }
+    }
+
     #[inline]
-    fn swap(&mut self, i: usize, j: usize) {
-        let cl = self.cl;
+    fn swap_rows(&mut self, i: usize, j: usize, cl: usize) {
         let (a, b) = self.q.split_at_mut(j * cl);
         a[i * cl..(i + 1) * cl].swap_with_slice(&mut b[..cl]);
         self.pts.swap(i, j);
@@ -718,6 +747,7 @@ fn add_moments(m: &mut [f64; 6], p: [f64; 3]) {
     }
 }
 
+/// Index of the diagonal entry k in a packed upper-triangular row-major matrix.
 fn diag_at(dim: usize, k: usize) -> usize {
     k * dim - k * k.saturating_sub(1) / 2
 }

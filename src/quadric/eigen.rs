@@ -72,6 +72,9 @@ impl Eigen {
 /// Cyclic Jacobi on the leading n×n block (n ≤ N) of `a`, accumulating the
 /// rotations in `v`; returns the sweeps used.
 fn jacobi<const N: usize>(a: &mut [[f64; N]; N], v: &mut [[f64; N]; N], n: usize) -> usize {
+    // The sized arrays are called with n == N: a constant bound lets the
+    // loops unroll (same operations in the same order).
+    let n = if N < MAX_DIM { N } else { n };
     let mut sweeps = 0;
     while sweeps < 50 {
         let mut off = 0.0;
