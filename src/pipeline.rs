@@ -12,7 +12,8 @@ use crate::io::{AtomicDir, OutputKind};
 use crate::lod::{LevelReport, LodOptions};
 use crate::octree::OctreeReport;
 use crate::ply::write::{PlyEncoder, PlyWriteOptions, PlyWriter};
-use crate::soup::{build_soup, SoupOptions, SoupReport};
+use crate::octree::FirstCount;
+use crate::soup::{build_soup_tapped, SoupOptions, SoupReport};
 use crate::store::{write_index, BuildParams, Cut, IndexedMesh, Manifest, ManifestSeconds, Store};
 use crate::mesh::{AttrSet, Vertex, VertexLayout};
 use rustc_hash::FxHashMap;
@@ -53,10 +54,13 @@ pub fn build_store(input: &Path, output: &Path, opts: &BuildOptions) -> Result<B
     let t0 = Instant::now();
     let out = AtomicDir::create(output, OutputKind::Store, opts.force)?;
     let soup_path = out.path().join("input.soup");
-    let soup = build_soup(input, &soup_path, &SoupOptions { mem: opts.params.mem, quiet: opts.quiet, ..Default::default() })?;
-    let t1 = Instant::now();
     let lo = LodOptions { params: opts.params.clone(), quiet: opts.quiet, ..Default::default() };
-    let built = crate::lod::build(&soup_path, out.path(), &lo)?;
+    // Level 0's cells are counted as the soup is written (external path).
+    let mut first = FirstCount::new(&lo.octree());
+    let soup_opts = SoupOptions { mem: opts.params.mem, quiet: opts.quiet, ..Default::default() };
+    let soup = build_soup_tapped(input, &soup_path, &soup_opts, Some(&mut first))?;
+    let t1 = Instant::now();
+    let built = crate::lod::build(&soup_path, out.path(), &lo, Some(first))?;
     std::fs::remove_file(&soup_path).ctx(&soup_path, "remove")?;
     write_index(out.path(), &built.header, &built.nodes, &built.children, &built.parents)?;
     let total = t0.elapsed().as_secs_f64();

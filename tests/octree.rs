@@ -49,7 +49,7 @@ fn check(shape: Shape, tris: u64, attrs: u32, limit: u64, max_depth: u8) {
     let cube = LevelCube::for_level(&sh.bbox, 0);
     let mut results = Vec::new();
     for mem in [16 << 10, 64 << 20] {
-        let l0 = build_octree(&soup, dir.path().join(format!("chunks-{mem}")), &cube, &OctreeOptions { leaf_tris: limit, max_depth, mem, quiet: true })
+        let l0 = build_octree(&soup, dir.path().join(format!("chunks-{mem}")), &cube, &OctreeOptions { leaf_tris: limit, max_depth, mem, quiet: true }, None)
             .unwrap();
         if mem == 16 << 10 && all.len() > 1000 {
             // Buffers of a quarter of the budget cannot hold a leaf, and

@@ -113,7 +113,7 @@ pub mod shared;
 use crate::error::{Error, Result};
 use crate::geom::{cross, sub};
 use crate::mesh::{Aabb, AttrSet, VertexLayout};
-use octree::{build_octree, OctreeOptions, OctreeReport};
+use octree::{build_octree, FirstCount, OctreeOptions, OctreeReport};
 use crate::progress::Progress;
 use crate::store::Simplifier;
 pub use crate::store::{BuildParams, LevelReport};
@@ -194,8 +194,16 @@ const HIST_DEPTH: u8 = 10;
 /// Nodes per level whose split curves choose the level's threshold.
 const SAMPLED_NODES: usize = 32;
 
-/// Builds every level from `soup` into store directory `dir`.
-pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
+impl LodOptions {
+    /// The level-0 partition's options.
+    pub fn octree(&self) -> OctreeOptions {
+        OctreeOptions { leaf_tris: self.params.leaf_tris, max_depth: self.params.max_depth, mem: self.params.mem, quiet: self.quiet }
+    }
+}
+
+/// Builds every level from `soup` into store directory `dir`. `first`:
+/// level 0's first counting pass, when it was done as the soup was written.
+pub fn build(soup: &Path, dir: &Path, opts: &LodOptions, first: Option<FirstCount>) -> Result<Built> {
     if !(opts.params.level_ratio > 1.0 && opts.params.level_ratio.is_finite()) {
         return Err(Error::Usage("--level-ratio must be above 1".into()));
     }
@@ -221,8 +229,7 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
     };
     let hist_cap = (opts.params.mem / 256).max(1 << 16) as usize;
     let cube = |l: u32| LevelCube::for_level(&bbox, l);
-    let oo = OctreeOptions { leaf_tris: opts.params.leaf_tris, max_depth: opts.params.max_depth, mem: opts.params.mem, quiet: opts.quiet };
-    let l0 = build_octree(soup, scratch.path().join("chunks-0.bin"), &cube(0), &oo)?;
+    let l0 = build_octree(soup, scratch.path().join("chunks-0.bin"), &cube(0), &opts.octree(), first)?;
     let octree = l0.report.clone();
     let mut tiling = l0.tiling;
     let mut leaves = l0.leaves;
@@ -435,8 +442,9 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions) -> Result<Built> {
                         }
                     };
                     let out = &out;
+                    let mut last = 0;
                     let leaf_of: Vec<u32> =
-                        out.triangles.iter().map(|t| next_tiling.locate(nc.key(tri_centroid(out, t))) as u32).collect();
+                        out.triangles.iter().map(|t| next_tiling.locate_near(nc.key(tri_centroid(out, t)), &mut last) as u32).collect();
                     p2.simp_tris = out.triangles.len() as u32;
                     let file = encoder.as_ref().expect("a next level");
                     let mut routed = split_by_target(out, &qa, a_len, &out_locked, &leaf_of);

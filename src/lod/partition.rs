@@ -52,9 +52,11 @@ impl LevelCube {
     #[inline]
     pub fn key(&self, p: [f64; 3]) -> u64 {
         let n = (1u64 << KEY_DEPTH) as f64;
+        // Truncation is the floor from 1 up; below 1 (NaN too) the cell is 0.
+        // (No `floor`: without SSE4.1 it is a libm call per coordinate.)
         let q = |k: usize| {
-            let t = ((p[k] - self.origin[k]) / self.size * n).floor();
-            if t > 0.0 {
+            let t = (p[k] - self.origin[k]) / self.size * n;
+            if t >= 1.0 {
                 (t as u64).min((1 << KEY_DEPTH) - 1)
             } else {
                 0
@@ -158,6 +160,14 @@ impl Histogram {
         for (k, n) in old {
             *self.map.entry(k >> 3).or_insert(0) += n;
         }
+    }
+
+    /// Most bytes a histogram of at most `cap` cells holds: a hash table
+    /// of 17-byte buckets, a power of two at most 7/8 full, and the half
+    /// as large one it outgrew while it is rehashed.
+    pub fn max_bytes(cap: usize) -> u64 {
+        let buckets = (cap.max(64) * 8 / 7 + 1).next_power_of_two() as u64;
+        buckets * 17 * 3 / 2
     }
 
     pub fn total(&self) -> u64 {
@@ -291,6 +301,20 @@ impl Tiling {
     #[inline]
     pub fn locate(&self, key: u64) -> usize {
         self.leaves.partition_point(|l| l.end <= key)
+    }
+
+    /// [`Tiling::locate`], trying leaf `*last` first (consecutive
+    /// triangles of a mesh mostly fall in the same leaf) and remembering
+    /// the leaf found.
+    #[inline]
+    pub fn locate_near(&self, key: u64, last: &mut usize) -> usize {
+        if let Some(l) = self.leaves.get(*last) {
+            if l.start <= key && key < l.end {
+                return *last;
+            }
+        }
+        *last = self.locate(key);
+        *last
     }
 }
 

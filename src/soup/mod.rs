@@ -30,14 +30,18 @@
 //! Budget split: phase 1 holds only write buffers (the slab buckets', at
 //! most about the budget less I/O buffers, together); in phase 2 one slab
 //! (at most half the budget) and the slot buckets' write buffers (half)
-//! share it; phase 3 places one slot bucket, at most the whole budget, at a
-//! time.
+//! share it; phase 3 places one slot bucket, at most the whole budget less
+//! what a [`SoupTap`] reserves, at a time.
+//!
+//! A [`SoupTap`] sees phase 3's triangles as they are written, with the
+//! soup's bounding box (gathered in phase 2) beforehand: `build` counts
+//! level 0's octree cells there instead of reading the soup again.
 
 pub mod format;
 
 use crate::error::{Error, IoContext, Location, Result};
 use crate::io::SEQ_BUF;
-use crate::mesh::{Vertex, VertexLayout};
+use crate::mesh::{Aabb, Vertex, VertexLayout};
 use crate::ply::read::{read_body, BodySink, BodyStats};
 use crate::ply::{read_header, PlyHeader};
 use crate::progress::Progress;
@@ -169,11 +173,31 @@ impl SoupReport {
     }
 }
 
+/// Sees the soup's triangles as they are written, on the external path
+/// (where the soup's bounding box is known before its first triangle): the
+/// build counts level 0's octree cells with it instead of reading the
+/// soup once more ([`crate::octree::FirstCount`]).
+pub trait SoupTap {
+    /// Most bytes the tap holds while it sees triangles (taken from the
+    /// budget of the phase that shows them).
+    fn reserve(&self) -> u64;
+    /// Before the first triangle: the soup's bounding box (its header's) and vertex layout.
+    fn begin(&mut self, bbox: &Aabb, layout: VertexLayout);
+    /// Soup records (whole triangles), in soup order.
+    fn triangles(&mut self, records: &[u8]);
+}
+
 /// I/O buffers held besides the budgeted memory.
 const IO_RESERVE: u64 = 6 * SEQ_BUF as u64;
 
 /// Builds a soup from `input` into `output`; see the module doc.
 pub fn build_soup(input: &Path, output: &Path, opts: &SoupOptions) -> Result<SoupReport> {
+    build_soup_tapped(input, output, opts, None)
+}
+
+/// [`build_soup`], showing the triangles to `tap` as they are written
+/// when the external path runs (the in-memory path never begins it).
+pub fn build_soup_tapped(input: &Path, output: &Path, opts: &SoupOptions, tap: Option<&mut dyn SoupTap>) -> Result<SoupReport> {
     let t0 = Instant::now();
     if opts.mem < crate::mem::MIN_BUDGET {
         return Err(Error::Usage(format!("--mem must be at least {} bytes", crate::mem::MIN_BUDGET)));
@@ -190,7 +214,7 @@ pub fn build_soup(input: &Path, output: &Path, opts: &SoupOptions) -> Result<Sou
     let mut report = if in_memory {
         build_in_memory(input, output, &header, opts, &progress)?
     } else {
-        build_external(input, output, &header, opts, &progress)?
+        build_external(input, output, &header, opts, &progress, tap)?
     };
     progress.finish();
     report.input_bytes = input_bytes;
@@ -330,6 +354,7 @@ fn build_external(
     header: &PlyHeader,
     opts: &SoupOptions,
     progress: &Progress,
+    mut tap: Option<&mut dyn SoupTap>,
 ) -> Result<SoupReport> {
     let layout = VertexLayout::new(header.attrs);
     let s = layout.size;
@@ -367,12 +392,17 @@ fn build_external(
     // from the vertex file), its corners dereferenced and distributed by slot.
     let n_corners = body.triangles * 3;
     let join_progress = Progress::items(n_corners, "joining", opts.quiet);
-    let mut buckets = SlotBuckets::new(scratch.path(), n_corners, s, budget, budget / 2)?;
+    // Phase 3 places a slot range beside what the tap holds.
+    let place_mem = budget.saturating_sub(tap.as_ref().map_or(0, |t| t.reserve()) as usize).max(budget / 4);
+    let mut buckets = SlotBuckets::new(scratch.path(), n_corners, s, place_mem, budget / 2)?;
     let mut vfile = File::open(&vpath).ctx(&vpath, "open vertex file")?;
     let mut slab = vec![0u8; per_slab.min(n_vertices) as usize * s];
     let mut chunk = vec![0u8; SEQ_BUF / CORNER_REC * CORNER_REC];
     let mut done = 0u64;
     let mut corner_bucket_bytes = 0;
+    // The soup's bounding box (its corners'), for the tap.
+    let mut bbox = Aabb::EMPTY;
+    let with_bbox = tap.is_some();
     for (k, (path, records)) in corner_buckets.into_iter().enumerate() {
         let n = (n_vertices - k as u64 * per_slab).min(per_slab) as usize;
         let slab = &mut slab[..n * s];
@@ -380,7 +410,11 @@ fn build_external(
         read_records(&path, CORNER_REC, records, &mut chunk, |r| {
             let local = u32::from_le_bytes(r[..4].try_into().unwrap()) as usize;
             let slot = u64::from_le_bytes(r[4..12].try_into().unwrap());
-            buckets.push(slot, &slab[local * s..(local + 1) * s])?;
+            let v = &slab[local * s..(local + 1) * s];
+            if with_bbox {
+                bbox.add(layout.position(v));
+            }
+            buckets.push(slot, v)?;
             done += 1;
             if done % 65536 == 0 {
                 join_progress.set(done);
@@ -401,11 +435,19 @@ fn build_external(
     let mut soup = SoupWriter::create(output, header.attrs, opts.replace)?;
     let mut written = 0u64;
     let slot_buckets = buckets.len();
-    let slot_bucket_bytes = buckets.finish(|tri| {
-        soup.push_encoded(tri)?;
-        written += 1;
-        if written % 65536 == 0 {
-            write_progress.set(written);
+    if let Some(t) = tap.as_mut() {
+        t.begin(&bbox, layout);
+    }
+    let slot_bucket_bytes = buckets.finish(|tris| {
+        for tri in tris.chunks_exact(3 * s) {
+            soup.push_encoded(tri)?;
+            written += 1;
+            if written % 65536 == 0 {
+                write_progress.set(written);
+            }
+        }
+        if let Some(t) = tap.as_mut() {
+            t.triangles(tris);
         }
         Ok(())
     })?;
@@ -561,14 +603,13 @@ impl SlotBuckets {
         Ok(())
     }
 
-    /// Emits every triangle (3 corners) in slot order; returns bytes spilled to bucket files.
+    /// Emits every triangle (3 corners) in slot order, several at a time;
+    /// returns bytes spilled to bucket files.
     fn finish(self, mut out: impl FnMut(&[u8]) -> Result<()>) -> Result<u64> {
         let s = self.vsize;
         if let Some(m) = self.mem {
             debug_assert_eq!(self.placed, self.n_slots);
-            for tri in m.chunks_exact(3 * s) {
-                out(tri)?;
-            }
+            out(&m)?;
             return Ok(0);
         }
         let mut spilled = 0;
@@ -590,9 +631,7 @@ impl SlotBuckets {
             })?;
             let _ = std::fs::remove_file(&path);
             spilled += (n * rec) as u64;
-            for tri in placed.chunks_exact(3 * s) {
-                out(tri)?;
-            }
+            out(&placed)?;
         }
         Ok(spilled)
     }
