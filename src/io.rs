@@ -32,6 +32,97 @@ use std::sync::Mutex;
 /// Buffer size for large sequential reads and writes.
 pub const SEQ_BUF: usize = 1 << 20;
 
+/// Writes behind the caller: filled buffers are handed to one writer
+/// thread, which appends them to their files (the kernel's copy into the
+/// page cache then runs on another core, beside the caller's work), and
+/// come back to be filled again. Each file gets its buffers in the order
+/// they were handed over. At most `depth` buffers are in flight.
+pub struct WriteBehind {
+    tx: Option<std::sync::mpsc::SyncSender<(usize, Vec<u8>, usize)>>,
+    back: std::sync::mpsc::Receiver<Vec<u8>>,
+    thread: Option<std::thread::JoinHandle<Result<()>>>,
+    /// Buffers that may still be allocated rather than waited for.
+    fresh: usize,
+}
+
+impl WriteBehind {
+    /// Writes to `files` (with their paths, for errors, and `what` is
+    /// written, e.g. "write bucket file").
+    pub fn new(files: Vec<(PathBuf, File)>, depth: usize, what: &'static str) -> WriteBehind {
+        let depth = depth.max(1);
+        let (tx, rx) = std::sync::mpsc::sync_channel::<(usize, Vec<u8>, usize)>(depth);
+        let (back_tx, back) = std::sync::mpsc::channel();
+        let thread = std::thread::spawn(move || {
+            let mut files = files;
+            for (f, buf, len) in rx {
+                let (path, file) = &mut files[f];
+                file.write_all(&buf[..len]).ctx(path, what)?;
+                let _ = back_tx.send(buf);
+            }
+            Ok(())
+        });
+        WriteBehind { tx: Some(tx), back, thread: Some(thread), fresh: depth }
+    }
+
+    /// Appends `buf[..len]` to file `f`; gives a buffer of `buf`'s length
+    /// to fill next (a returned one, or a new one while fewer than `depth`
+    /// are in flight).
+    pub fn write(&mut self, f: usize, buf: Vec<u8>, len: usize) -> Result<Vec<u8>> {
+        let size = buf.len();
+        if self.tx.as_ref().expect("writer finished").send((f, buf, len)).is_err() {
+            return Err(self.stop());
+        }
+        if self.fresh > 0 {
+            self.fresh -= 1;
+            return Ok(vec![0u8; size]);
+        }
+        match self.back.recv() {
+            Ok(b) => Ok(b),
+            Err(_) => Err(self.stop()),
+        }
+    }
+
+    /// Appends `buf[..len]` to file `f`, wanting no buffer back (the last
+    /// of a file).
+    pub fn write_last(&mut self, f: usize, buf: Vec<u8>, len: usize) -> Result<()> {
+        if self.tx.as_ref().expect("writer finished").send((f, buf, len)).is_err() {
+            return Err(self.stop());
+        }
+        Ok(())
+    }
+
+    /// Waits for every write; the first error, if any.
+    pub fn finish(mut self) -> Result<()> {
+        self.tx = None;
+        match self.thread.take().map(|t| t.join()) {
+            Some(Ok(r)) => r,
+            Some(Err(p)) => std::panic::resume_unwind(p),
+            None => Ok(()),
+        }
+    }
+
+    /// The writer stopped early: its error.
+    fn stop(&mut self) -> Error {
+        self.tx = None;
+        match self.thread.take().map(|t| t.join()) {
+            Some(Ok(Err(e))) => e,
+            Some(Err(p)) => std::panic::resume_unwind(p),
+            _ => Error::Usage("the background writer stopped".into()),
+        }
+    }
+}
+
+impl Drop for WriteBehind {
+    fn drop(&mut self) {
+        // Not finished (an error elsewhere): let the writer end before the
+        // files are removed.
+        self.tx = None;
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
 /// The marker between a temp path's name and its owner.
 const TMP_TAG: &str = ".octolod-tmp-";
 

@@ -40,7 +40,7 @@
 pub mod format;
 
 use crate::error::{Error, IoContext, Location, Result};
-use crate::io::SEQ_BUF;
+use crate::io::{WriteBehind, SEQ_BUF};
 use crate::mesh::{Aabb, Vertex, VertexLayout};
 use crate::ply::read::{read_body, BodySink, BodyStats};
 use crate::ply::{read_header, PlyHeader};
@@ -49,6 +49,7 @@ use format::{SoupHeader, SoupWriter};
 use std::fs::File;
 use std::io::{BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
+use rayon::prelude::*;
 use std::time::Instant;
 
 /// Options for [`build_soup`].
@@ -469,18 +470,23 @@ fn build_external(
     })
 }
 
-/// Append-only bucket files of fixed-size records, their write buffers in
-/// one allocation: bucket `b` owns `arena[b * region..(b + 1) * region]`,
-/// filled up to `fill[b]`.
+/// Append-only bucket files of fixed-size records, one write buffer of
+/// `region` bytes per bucket, filled up to `fill[b]`; a full buffer is
+/// written behind ([`WriteBehind`]: the kernel's copy runs on another core
+/// while the next records are made) and replaced by an empty one.
 struct BucketFiles {
     rec: usize,
-    files: Vec<(PathBuf, File)>,
-    arena: Vec<u8>,
+    paths: Vec<PathBuf>,
+    bufs: Vec<Vec<u8>>,
     region: usize,
     fill: Vec<usize>,
     /// Records per bucket.
     counts: Vec<u64>,
+    writer: WriteBehind,
 }
+
+/// Buffers in flight to a bucket set's writer.
+const WRITE_DEPTH: usize = 4;
 
 impl BucketFiles {
     /// `n` files named `{name}-{b}.bin` in `dir`, with write buffers of
@@ -493,11 +499,20 @@ impl BucketFiles {
             let f = File::create(&path).ctx(&path, "create bucket file")?;
             files.push((path, f));
         }
-        Ok(BucketFiles { rec, files, arena: vec![0u8; region * n], region, fill: vec![0; n], counts: vec![0; n] })
+        let paths = files.iter().map(|f| f.0.clone()).collect();
+        Ok(BucketFiles {
+            rec,
+            paths,
+            bufs: (0..n).map(|_| vec![0u8; region]).collect(),
+            region,
+            fill: vec![0; n],
+            counts: vec![0; n],
+            writer: WriteBehind::new(files, WRITE_DEPTH, "write bucket file"),
+        })
     }
 
     fn len(&self) -> usize {
-        self.files.len()
+        self.paths.len()
     }
 
     /// The bytes of a new record appended to bucket `b`, to be filled.
@@ -507,25 +522,28 @@ impl BucketFiles {
             self.flush(b)?;
         }
         self.counts[b] += 1;
-        let at = b * self.region + self.fill[b];
+        let at = self.fill[b];
         self.fill[b] += self.rec;
-        Ok(&mut self.arena[at..at + self.rec])
+        Ok(&mut self.bufs[b][at..at + self.rec])
     }
 
     fn flush(&mut self, b: usize) -> Result<()> {
-        let (path, f) = &mut self.files[b];
-        let start = b * self.region;
-        f.write_all(&self.arena[start..start + self.fill[b]]).ctx(path, "write bucket file")?;
-        self.fill[b] = 0;
+        if self.fill[b] > 0 {
+            let full = std::mem::take(&mut self.bufs[b]);
+            self.bufs[b] = self.writer.write(b, full, self.fill[b])?;
+            self.fill[b] = 0;
+        }
         Ok(())
     }
 
     /// Writes out every buffer and frees them; gives each bucket's path and record count.
-    fn finish(mut self) -> Result<Vec<(PathBuf, u64)>> {
-        for b in 0..self.files.len() {
-            self.flush(b)?;
+    fn finish(self) -> Result<Vec<(PathBuf, u64)>> {
+        let BucketFiles { paths, bufs, fill, counts, mut writer, .. } = self;
+        for (b, buf) in bufs.into_iter().enumerate() {
+            writer.write_last(b, buf, fill[b])?;
         }
-        Ok(self.files.into_iter().zip(self.counts).map(|((p, _), n)| (p, n)).collect())
+        writer.finish()?;
+        Ok(paths.into_iter().zip(counts).collect())
     }
 }
 
@@ -577,7 +595,9 @@ impl SlotBuckets {
             let mem = Some(vec![0u8; total as usize]);
             return Ok(SlotBuckets { vsize, n_slots, per: n_slots.max(3), files: None, mem, placed: 0 });
         }
-        let per = ((place_mem / vsize) as u64 / 3 * 3).clamp(3, u32::MAX as u64 / 3 * 3);
+        // One range per thread is placed at a time: each in its share.
+        let threads = rayon::current_num_threads().max(1);
+        let per = ((place_mem / threads / vsize) as u64 / 3 * 3).clamp(3, u32::MAX as u64 / 3 * 3);
         let n = n_slots.div_ceil(per) as usize;
         let files = Some(BucketFiles::create(dir, "slots", n, 4 + vsize, write_mem)?);
         Ok(SlotBuckets { vsize, n_slots, per, files, mem: None, placed: 0 })
@@ -615,23 +635,36 @@ impl SlotBuckets {
         let mut spilled = 0;
         let rec = 4 + s;
         // Flush every bucket first: the write buffers must not sit in
-        // memory beside the bucket being placed.
+        // memory beside the buckets being placed.
         let buckets = self.files.expect("slot buckets spill or place in memory").finish()?;
-        let mut chunk = vec![0u8; (SEQ_BUF / rec).max(1) * rec];
-        for (b, (path, records)) in buckets.into_iter().enumerate() {
-            let first = b as u64 * self.per;
-            let n = (self.n_slots - first).min(self.per) as usize;
-            assert_eq!(records, n as u64, "bucket {b} misses corners");
-            // A single large allocation, freed per bucket.
-            let mut placed = vec![0u8; n * s];
-            read_records(&path, rec, records, &mut chunk, |c| {
-                let i = u32::from_le_bytes(c[..4].try_into().unwrap()) as usize;
-                placed[i * s..(i + 1) * s].copy_from_slice(&c[4..]);
-                Ok(())
-            })?;
-            let _ = std::fs::remove_file(&path);
-            spilled += (n * rec) as u64;
-            out(&placed)?;
+        // As many buckets as threads are placed at once (each read and
+        // placed by its own thread), then written out in order.
+        let threads = rayon::current_num_threads().max(1);
+        let numbered: Vec<(usize, (PathBuf, u64))> = buckets.into_iter().enumerate().collect();
+        for group in numbered.chunks(threads) {
+            let placed: Vec<Result<Vec<u8>>> = group
+                .par_iter()
+                .map(|(b, (path, records))| {
+                    let first = *b as u64 * self.per;
+                    let n = (self.n_slots - first).min(self.per) as usize;
+                    assert_eq!(*records, n as u64, "bucket {b} misses corners");
+                    let mut chunk = vec![0u8; (SEQ_BUF / rec).max(1) * rec];
+                    // A single large allocation per bucket, freed once written.
+                    let mut placed = vec![0u8; n * s];
+                    read_records(path, rec, *records, &mut chunk, |c| {
+                        let i = u32::from_le_bytes(c[..4].try_into().unwrap()) as usize;
+                        placed[i * s..(i + 1) * s].copy_from_slice(&c[4..]);
+                        Ok(())
+                    })?;
+                    let _ = std::fs::remove_file(path);
+                    Ok(placed)
+                })
+                .collect();
+            for p in placed {
+                let p = p?;
+                spilled += (p.len() / s * rec) as u64;
+                out(&p)?;
+            }
         }
         Ok(spilled)
     }
