@@ -39,7 +39,8 @@ pub const SEQ_BUF: usize = 1 << 20;
 /// they were handed over. At most `depth` buffers are in flight.
 pub struct WriteBehind {
     tx: Option<std::sync::mpsc::SyncSender<(usize, Vec<u8>, usize)>>,
-    back: std::sync::mpsc::Receiver<Vec<u8>>,
+    /// (In a mutex only so that a holder can be shared between threads.)
+    back: Mutex<std::sync::mpsc::Receiver<Vec<u8>>>,
     thread: Option<std::thread::JoinHandle<Result<()>>>,
     /// Buffers that may still be allocated rather than waited for.
     fresh: usize,
@@ -61,7 +62,7 @@ impl WriteBehind {
             }
             Ok(())
         });
-        WriteBehind { tx: Some(tx), back, thread: Some(thread), fresh: depth }
+        WriteBehind { tx: Some(tx), back: Mutex::new(back), thread: Some(thread), fresh: depth }
     }
 
     /// Appends `buf[..len]` to file `f`; gives a buffer of `buf`'s length
@@ -76,7 +77,8 @@ impl WriteBehind {
             self.fresh -= 1;
             return Ok(vec![0u8; size]);
         }
-        match self.back.recv() {
+        let back = self.back.get_mut().unwrap_or_else(|e| e.into_inner()).recv();
+        match back {
             Ok(b) => Ok(b),
             Err(_) => Err(self.stop()),
         }
@@ -109,6 +111,42 @@ impl WriteBehind {
             Some(Err(p)) => std::panic::resume_unwind(p),
             _ => Error::Usage("the background writer stopped".into()),
         }
+    }
+}
+
+/// A sequential file written behind the caller ([`WriteBehind`]) through
+/// [`SEQ_BUF`]-sized buffers: a `BufWriter` whose writes run on another thread.
+pub struct FileWriteBehind {
+    buf: Vec<u8>,
+    fill: usize,
+    w: WriteBehind,
+}
+
+impl FileWriteBehind {
+    pub fn new(path: PathBuf, file: File, what: &'static str) -> FileWriteBehind {
+        FileWriteBehind { buf: vec![0u8; SEQ_BUF], fill: 0, w: WriteBehind::new(vec![(path, file)], 2, what) }
+    }
+
+    pub fn write_all(&mut self, mut bytes: &[u8]) -> Result<()> {
+        while !bytes.is_empty() {
+            let n = bytes.len().min(self.buf.len() - self.fill);
+            self.buf[self.fill..self.fill + n].copy_from_slice(&bytes[..n]);
+            self.fill += n;
+            bytes = &bytes[n..];
+            if self.fill == self.buf.len() {
+                let full = std::mem::take(&mut self.buf);
+                self.buf = self.w.write(0, full, self.fill)?;
+                self.fill = 0;
+            }
+        }
+        Ok(())
+    }
+
+    /// Writes what is buffered and waits for every write.
+    pub fn finish(mut self) -> Result<()> {
+        let last = std::mem::take(&mut self.buf);
+        self.w.write_last(0, last, self.fill)?;
+        self.w.finish()
     }
 }
 

@@ -30,7 +30,6 @@ use crate::mesh::VertexLayout;
 use crate::store::IndexedMesh;
 use rustc_hash::FxHashMap;
 use std::fs::File;
-use std::io::Write;
 use std::path::PathBuf;
 
 /// Where one chunk lives.
@@ -44,7 +43,9 @@ pub struct ChunkRef {
 /// A chunk file being written, then read by target.
 pub struct ChunkFile {
     path: PathBuf,
-    w: Option<std::io::BufWriter<File>>,
+    /// Written behind: the routing and the level passes make the next
+    /// chunks while the kernel copies these.
+    w: Option<crate::io::FileWriteBehind>,
     pos: u64,
     layout: VertexLayout,
     /// Quadric matrix values per vertex (0: none stored, level 0).
@@ -71,7 +72,7 @@ impl ChunkFile {
     pub fn create(path: PathBuf, layout: VertexLayout, a_len: usize) -> Result<ChunkFile> {
         let f = File::create(&path).ctx(&path, "create chunk file")?;
         Ok(ChunkFile {
-            w: Some(std::io::BufWriter::with_capacity(crate::io::SEQ_BUF, f)),
+            w: Some(crate::io::FileWriteBehind::new(path.clone(), f, "write chunk file")),
             path,
             pos: 0,
             layout,
@@ -128,7 +129,7 @@ impl ChunkFile {
     /// Appends an encoded chunk.
     pub fn append(&mut self, target: u32, bytes: &[u8]) -> Result<()> {
         let w = self.w.as_mut().expect("chunk file already finished");
-        w.write_all(bytes).ctx(&self.path, "write chunk file")?;
+        w.write_all(bytes)?;
         self.refs.push(ChunkRef { target, offset: self.pos, bytes: bytes.len() as u32 });
         self.pos += bytes.len() as u64;
         Ok(())
@@ -144,8 +145,7 @@ impl ChunkFile {
     /// Ends writing; chunks become readable by target (`targets` leaves).
     pub fn finish(&mut self, targets: usize) -> Result<()> {
         if let Some(w) = self.w.take() {
-            let f = w.into_inner().map_err(|e| e.into_error()).ctx(&self.path, "write chunk file")?;
-            drop(f);
+            w.finish()?;
         }
         self.refs.sort_by_key(|r| (r.target, r.offset));
         self.by_target = vec![0; targets + 1];
