@@ -1,7 +1,10 @@
 //! File plumbing shared by the stages: outputs that appear under their final
 //! name only when complete ([`AtomicFile`], [`AtomicDir`]), scratch
-//! directories next to the output ([`ScratchDir`]), and large sequential
-//! buffers.
+//! directories next to the output ([`ScratchDir`]), large sequential
+//! buffers, and scratch writers that write behind the caller on another
+//! thread ([`WriteBehind`], [`FileWriteBehind`]: the soup's buckets and the
+//! levels' chunks, whose page-cache copies took a third of the soup's
+//! time on the calling thread).
 //!
 //! Takes: a final path, the [`OutputKind`] written there and whether the
 //! user allowed replacing (`--force`). Gives: a temp path in the same
@@ -619,6 +622,32 @@ pub fn scratch_dir(near: &Path) -> Result<ScratchDir> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn writes_behind_land_in_order_and_their_errors_name_the_file() {
+        let d = tempfile::tempdir().unwrap();
+        let (a, b) = (d.path().join("a.bin"), d.path().join("b.bin"));
+        let files = vec![(a.clone(), File::create(&a).unwrap()), (b.clone(), File::create(&b).unwrap())];
+        let mut w = WriteBehind::new(files, 2, "write test file");
+        let mut buf = vec![0u8; 4];
+        for i in 0..10u8 {
+            buf.fill(i);
+            buf = w.write((i % 2) as usize, buf, 1 + (i % 4) as usize).unwrap();
+            assert_eq!(buf.len(), 4);
+        }
+        w.write_last(1, vec![9; 4], 2).unwrap();
+        w.finish().unwrap();
+        let want = |k: u8| (0..10u8).filter(|i| i % 2 == k).flat_map(|i| std::iter::repeat_n(i, 1 + (i % 4) as usize)).collect::<Vec<u8>>();
+        assert_eq!(fs::read(&a).unwrap(), want(0));
+        assert_eq!(fs::read(&b).unwrap(), [want(1), vec![9, 9]].concat());
+
+        // A file that cannot be written: the error comes back, naming it.
+        let ro = File::open(&a).unwrap();
+        let mut w = FileWriteBehind::new(a.clone(), ro, "write test file");
+        let r = w.write_all(&vec![1u8; 3 * SEQ_BUF]).and_then(|_| w.finish());
+        let e = r.expect_err("writing a read-only handle must fail").to_string();
+        assert!(e.contains("a.bin") && e.contains("write test file"), "{e}");
+    }
 
     fn names(d: &Path) -> Vec<String> {
         let mut v: Vec<String> = fs::read_dir(d).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
