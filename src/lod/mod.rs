@@ -380,23 +380,27 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions, first: Option<FirstCoun
             |k| resolved.take((base + k) as u32),
             |k, set| {
                 let (leaf, id, set) = (ids[k], base + k, &set);
-                let g = chunks.gather(leaf)?;
+                let mut g = chunks.gather(leaf)?;
                 let w = Welded::new(&g.mesh, unique_positions);
                 let mut p2 = Pass2::default();
+                // Each position's shared record, looked up once.
+                let hits: Vec<Option<&([f32; 3], u32)>> = w.pos.iter().map(|p| set.get(&pos_bits(*p))).collect();
                 // Locks: shared positions and attribute seams.
-                let locked = w.locks(set);
-                for pi in 0..w.pos.len() {
-                    let sh = set.contains_key(&pos_bits(w.pos[pi]));
+                let locked = w.locks_at(|pi| hits[pi].is_some());
+                for (pi, hit) in hits.iter().enumerate() {
+                    let sh = hit.is_some();
                     p2.shared += sh as u64;
                     p2.seam_only += (w.seam[pi] && !sh) as u64;
                     p2.prev_freed += (w.was_locked(&g, pi) && !sh) as u64;
                 }
                 // The stored mesh, with normals from the whole neighbourhood.
-                let mut stored = g.mesh.clone();
+                // Set in place: without input normals they are in neither
+                // the quadrics nor the next level's chunks, and the
+                // simplified mesh's are reset as it is stored (`as_stored`).
                 if derived {
-                    for (v, x) in stored.vertices.iter_mut().enumerate() {
+                    for (v, x) in g.mesh.vertices.iter_mut().enumerate() {
                         let pi = w.pos_of[v] as usize;
-                        let n = match set.get(&pos_bits(w.pos[pi])) {
+                        let n = match hits[pi] {
                             Some((n, _)) => n.map(|c| c as f64),
                             None => w.normal[pi],
                         };
@@ -404,7 +408,7 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions, first: Option<FirstCoun
                     }
                 }
                 let patches: Vec<(u32, u32)> = if level == 0 { vec![(NO_NODE, g.mesh.triangles.len() as u32)] } else { g.patches.clone() };
-                encode_payload(if derived { &payload_layout } else { &layout }, &stored, &patches, &mut p2.payload);
+                encode_payload(if derived { &payload_layout } else { &layout }, &g.mesh, &patches, &mut p2.payload);
                 p2.content = w.bounds;
                 p2.tris = g.mesh.triangles.len() as u32;
                 p2.verts = g.mesh.vertices.len() as u32;
@@ -692,7 +696,12 @@ impl Welded {
 
     /// Per vertex: locked (its position is shared, or an attribute seam).
     fn locks(&self, shared: &shared::SharedSet) -> Vec<bool> {
-        let at: Vec<bool> = (0..self.pos.len()).map(|p| self.seam[p] || shared.contains_key(&pos_bits(self.pos[p]))).collect();
+        self.locks_at(|p| shared.contains_key(&pos_bits(self.pos[p])))
+    }
+
+    /// [`Welded::locks`], given whether position `p` is shared.
+    fn locks_at(&self, is_shared: impl Fn(usize) -> bool) -> Vec<bool> {
+        let at: Vec<bool> = (0..self.pos.len()).map(|p| self.seam[p] || is_shared(p)).collect();
         self.pos_of.iter().map(|&p| at[p as usize]).collect()
     }
 
