@@ -4,10 +4,10 @@
 
 use octolod::gen::{GenOptions, Generator, Shape};
 use octolod::mesh::{AttrSet, Vertex};
-use octolod::octree::{build_octree, OctreeOptions};
+use octolod::octree::{build_octree, FirstCount, OctreeOptions};
 use octolod::ply::write::{write_ply, PlyWriteOptions};
 use octolod::soup::format::SoupReader;
-use octolod::soup::{build_soup, SoupOptions};
+use octolod::soup::{build_soup, build_soup_tapped, SoupOptions};
 use octolod::lod::partition::{LevelCube, KEY_DEPTH};
 use std::path::Path;
 
@@ -74,6 +74,20 @@ fn check(shape: Shape, tris: u64, attrs: u32, limit: u64, max_depth: u8) {
         l.tiling.leaves.iter().zip(&l.leaves).filter(|(_, s)| s.tris > 0).map(|(t, s)| (t.path, t.depth, s.tris)).collect()
     };
     assert_eq!(leaves(l0), leaves(&results[1]), "octree depends on the memory budget");
+    // Counted as the soup is written (the external soup path, as `build`
+    // does): the same soup, the same leaves, one counting pass fewer.
+    let ply = dir.path().join("in.ply");
+    for (k, mem) in [16u64 << 10, 64 << 20].into_iter().enumerate() {
+        let opts = OctreeOptions { leaf_tris: limit, max_depth, mem, quiet: true };
+        let mut first = FirstCount::new(&opts);
+        let tapped = dir.path().join(format!("tapped-{mem}.soup"));
+        let so = SoupOptions { mem: 1 << 20, force_external: true, ..Default::default() };
+        build_soup_tapped(&ply, &tapped, &so, Some(&mut first)).unwrap();
+        assert_eq!(std::fs::read(&tapped).unwrap(), std::fs::read(&soup).unwrap(), "the tap changed the soup");
+        let t0 = build_octree(&tapped, dir.path().join(format!("chunks-t{mem}")), &cube, &opts, Some(first)).unwrap();
+        assert_eq!(leaves(&t0), leaves(&results[k]), "counting as the soup is written changed the leaves");
+        assert_eq!(t0.report.counting_passes + 1, results[k].report.counting_passes, "{:?}", t0.report);
+    }
     // The tiling covers every key once.
     for w in l0.tiling.leaves.windows(2) {
         assert_eq!(w[0].end, w[1].start);

@@ -46,10 +46,10 @@ use crate::ply::read::{read_body, BodySink, BodyStats};
 use crate::ply::{read_header, PlyHeader};
 use crate::progress::Progress;
 use format::{SoupHeader, SoupWriter};
+use rayon::prelude::*;
 use std::fs::File;
 use std::io::{BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
-use rayon::prelude::*;
 use std::time::Instant;
 
 /// Options for [`build_soup`].
