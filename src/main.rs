@@ -429,6 +429,7 @@ fn run(cli: Cli) -> Result<()> {
                 quiet: cli.quiet,
                 force_external: external,
                 replace: cli.force,
+                ..Default::default()
             };
             let rep = soup::build_soup(&input, &output, &opts)?;
             let peak = peak_rss();
