@@ -73,9 +73,7 @@ impl WriteBehind {
     /// are in flight).
     pub fn write(&mut self, f: usize, buf: Vec<u8>, len: usize) -> Result<Vec<u8>> {
         let size = buf.len();
-        if self.tx.as_ref().expect("writer finished").send((f, buf, len)).is_err() {
-            return Err(self.stop());
-        }
+        self.write_last(f, buf, len)?;
         if self.fresh > 0 {
             self.fresh -= 1;
             return Ok(vec![0u8; size]);
@@ -88,7 +86,7 @@ impl WriteBehind {
     }
 
     /// Appends `buf[..len]` to file `f`, wanting no buffer back (the last
-    /// of a file).
+    /// of a file; [`WriteBehind::write`] then asks for one).
     pub fn write_last(&mut self, f: usize, buf: Vec<u8>, len: usize) -> Result<()> {
         if self.tx.as_ref().expect("writer finished").send((f, buf, len)).is_err() {
             return Err(self.stop());

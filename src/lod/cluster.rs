@@ -247,7 +247,7 @@ impl<'a> Splits<'a> {
         let mut moments: Vec<[f64; 6]> = Vec::with_capacity(2 * nf);
         moments.push([0.0; 6]);
         for i in 0..nf {
-            rows.add_to(i, &mut sp.cq[..cl], &mut moments[0]);
+            rows.add_to(i, cl, &mut sp.cq[..cl], &mut moments[0]);
         }
         let mut split = vec![false];
         // The error at the members' mean: measured better than the error
@@ -680,8 +680,10 @@ struct Rows {
 impl Rows {
     /// Adds row `i` to a cell's quadric and moments.
     #[inline]
-    fn add_to(&self, i: usize, q: &mut [f64], m: &mut [f64; 6]) {
-        add(q, &self.q[i * self.cl..(i + 1) * self.cl]);
+    /// `cl`: the row length (`self.cl`; a constant where the caller's is,
+    /// so the sum unrolls once inlined).
+    fn add_to(&self, i: usize, cl: usize, q: &mut [f64], m: &mut [f64; 6]) {
+        add(q, &self.q[i * cl..(i + 1) * cl]);
         add_moments(m, self.pts[i]);
     }
 
@@ -704,26 +706,22 @@ impl Rows {
     ) -> usize {
         let cl = if CL > 0 { CL } else { self.cl };
         let (q0, q1) = (&mut q0[..cl], &mut q1[..cl]);
-        let add_row = |rows: &Rows, i: usize, q: &mut [f64], m: &mut [f64; 6]| {
-            add(q, &rows.q[i * cl..(i + 1) * cl]);
-            add_moments(m, rows.pts[i]);
-        };
         let (mut i, mut j) = (start, end);
         loop {
             while i < j && self.pts[i][axis] < mid {
-                add_row(self, i, q0, &mut mo[0]);
+                self.add_to(i, cl, q0, &mut mo[0]);
                 i += 1;
             }
             while i < j && self.pts[j - 1][axis] >= mid {
-                add_row(self, j - 1, q1, &mut mo[1]);
+                self.add_to(j - 1, cl, q1, &mut mo[1]);
                 j -= 1;
             }
             if i >= j {
                 return i;
             }
             self.swap_rows(i, j - 1, cl);
-            add_row(self, i, q0, &mut mo[0]);
-            add_row(self, j - 1, q1, &mut mo[1]);
+            self.add_to(i, cl, q0, &mut mo[0]);
+            self.add_to(j - 1, cl, q1, &mut mo[1]);
             i += 1;
             j -= 1;
         }

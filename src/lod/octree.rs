@@ -185,14 +185,18 @@ impl SoupTap for FirstCount {
     fn triangles(&mut self, records: &[u8]) {
         let Some(c) = self.counted.as_mut() else { return };
         let rec = 3 * c.layout.size;
-        // Batches as the counting pass's: within an eighth of the budget.
-        let batch = ((self.opts.mem / 8) as usize / rec).clamp(16, BATCH);
-        for part in records.chunks(batch * rec) {
+        for part in records.chunks(batch_tris(self.opts.mem, rec) * rec) {
             let (cube, layout) = (&c.cube, &c.layout);
             part.par_chunks_exact(rec).map(|t| cube.key(centroid(layout, t))).collect_into_vec(&mut c.keys);
             count_keys(&mut c.hist, &c.keys, |_| true);
         }
     }
+}
+
+/// Triangles per batch of the soup (records of `rec` bytes): within an
+/// eighth of budget `mem`.
+fn batch_tris(mem: u64, rec: usize) -> usize {
+    ((mem / 8) as usize / rec).clamp(16, BATCH)
 }
 
 /// Cells a counting histogram may hold under budget `mem`.
@@ -220,8 +224,7 @@ pub fn build_octree(
     let sh = SoupReader::open(soup)?.header;
     let layout = sh.layout();
     let rec = sh.record_size();
-    // Batches within an eighth of the budget.
-    let batch = ((opts.mem / 8) as usize / rec).clamp(16, BATCH);
+    let batch = batch_tris(opts.mem, rec);
 
     // Pass 1 (and more where needed): count, cut.
     let mut found: Vec<(u64, u8, u64)> = Vec::new();

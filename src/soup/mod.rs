@@ -621,6 +621,8 @@ struct SlotBuckets {
     n_slots: u64,
     /// Slots per bucket (a multiple of 3, so no triangle straddles two buckets).
     per: u64,
+    /// Buckets placed at once (one per thread), each in its share of the placing memory.
+    group: usize,
     /// Records (slot within the bucket: u32, vertex bytes), when spilling.
     files: Option<BucketFiles>,
     /// The single in-memory bucket, when everything fits.
@@ -633,14 +635,13 @@ impl SlotBuckets {
         let total = n_slots * vsize as u64;
         if total <= write_mem as u64 {
             let mem = Some(vec![0u8; total as usize]);
-            return Ok(SlotBuckets { vsize, n_slots, per: n_slots.max(3), files: None, mem, placed: 0 });
+            return Ok(SlotBuckets { vsize, n_slots, per: n_slots.max(3), group: 1, files: None, mem, placed: 0 });
         }
-        // One range per thread is placed at a time: each in its share.
-        let threads = rayon::current_num_threads().max(1);
-        let per = ((place_mem / threads / vsize) as u64 / 3 * 3).clamp(3, u32::MAX as u64 / 3 * 3);
+        let group = rayon::current_num_threads().max(1);
+        let per = ((place_mem / group / vsize) as u64 / 3 * 3).clamp(3, u32::MAX as u64 / 3 * 3);
         let n = n_slots.div_ceil(per) as usize;
         let files = Some(BucketFiles::create(dir, "slots", n, 4 + vsize, write_mem)?);
-        Ok(SlotBuckets { vsize, n_slots, per, files, mem: None, placed: 0 })
+        Ok(SlotBuckets { vsize, n_slots, per, group, files, mem: None, placed: 0 })
     }
 
     /// Bucket files (0: placed in memory).
@@ -677,11 +678,10 @@ impl SlotBuckets {
         // Flush every bucket first: the write buffers must not sit in
         // memory beside the buckets being placed.
         let buckets = self.files.expect("slot buckets spill or place in memory").finish()?;
-        // As many buckets as threads are placed at once (each read and
-        // placed by its own thread), then written out in order.
-        let threads = rayon::current_num_threads().max(1);
+        // `group` buckets are placed at once (each read and placed by its
+        // own thread), then written out in order.
         let numbered: Vec<(usize, (PathBuf, u64))> = buckets.into_iter().enumerate().collect();
-        for group in numbered.chunks(threads) {
+        for group in numbered.chunks(self.group) {
             let placed: Vec<Result<Vec<u8>>> = group
                 .par_iter()
                 .map(|(b, (path, records))| {
