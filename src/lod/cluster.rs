@@ -288,10 +288,15 @@ impl<'a> Splits<'a> {
             sp.cq.resize(at + 2 * cl, 0.0);
             let (q0, q1) = sp.cq[at..].split_at_mut(cl);
             let mut mo = [[0.0; 6]; 2];
+            // Row lengths of dimensions 3, 5 and 6 (positions; +uv;
+            // +normal or colour).
+            const CL3: usize = Quadric::coeff_len(3);
+            const CL5: usize = Quadric::coeff_len(5);
+            const CL6: usize = Quadric::coeff_len(6);
             let i = match cl {
-                10 => rows.partition::<10>(start, end, axis, mid, q0, q1, &mut mo),
-                21 => rows.partition::<21>(start, end, axis, mid, q0, q1, &mut mo),
-                28 => rows.partition::<28>(start, end, axis, mid, q0, q1, &mut mo),
+                CL3 => rows.partition::<CL3>(start, end, axis, mid, q0, q1, &mut mo),
+                CL5 => rows.partition::<CL5>(start, end, axis, mid, q0, q1, &mut mo),
+                CL6 => rows.partition::<CL6>(start, end, axis, mid, q0, q1, &mut mo),
                 _ => rows.partition::<0>(start, end, axis, mid, q0, q1, &mut mo),
             };
             if i == start || i == end {
@@ -455,17 +460,34 @@ impl<'a> Splits<'a> {
                 if rep_of_cell[c] == u32::MAX {
                     rep_cell.push(c as u32);
                     let cell = &self.cells[c];
-                    let q = Quadric::from_coeffs(dim, &self.cq[c * cl..(c + 1) * cl]);
-                    let sol = q.solve(rel_tol, Some((cell.lo, cell.hi)));
-                    st.clamped += sol.clamped as u64;
+                    let k = &self.cq[c * cl..(c + 1) * cl];
+                    let bounds = (cell.lo, cell.hi);
+                    // The common dimensions on arrays of their size
+                    // (`solve_sized`); the general path where the box clamps.
+                    let mut x = [0.0; MAX_DIM];
+                    let mut ge = [0.0; MAX_DIM + 1];
+                    let sized = match dim {
+                        3 => sized_solve::<3>(k, rel_tol, bounds, &mut x, &mut ge),
+                        5 => sized_solve::<5>(k, rel_tol, bounds, &mut x, &mut ge),
+                        6 => sized_solve::<6>(k, rel_tol, bounds, &mut x, &mut ge),
+                        _ => false,
+                    };
+                    if !sized {
+                        let q = Quadric::from_coeffs(dim, k);
+                        let sol = q.solve(rel_tol, Some(bounds));
+                        st.clamped += sol.clamped as u64;
+                        x = sol.x;
+                        ge[..dim].copy_from_slice(&q.half_gradient(&sol.x)[..dim]);
+                        ge[dim] = sol.error;
+                    }
                     rep_of_cell[c] = reps.len() as u32;
-                    let mut r = self.space.unembed(&sol.x[..dim], &self.mesh.vertices[v as usize]);
+                    let mut r = self.space.unembed(&x[..dim], &self.mesh.vertices[v as usize]);
                     if let Some((lo, hi)) = uv_range {
                         r.uv = [r.uv[0].clamp(lo[0], hi[0]), r.uv[1].clamp(lo[1], hi[1])];
                     }
                     reps.push(r);
-                    rep_ge.extend_from_slice(&q.half_gradient(&sol.x)[..dim]);
-                    rep_ge.push(sol.error.max(0.0));
+                    rep_ge.extend_from_slice(&ge[..dim]);
+                    rep_ge.push(ge[dim].max(0.0));
                 }
                 rep_ge[rep_of_cell[c] as usize * (dim + 1) + dim] += self.va[v as usize * cs + al + dim];
                 remap[v as usize] = rep_of_cell[c];
@@ -754,6 +776,20 @@ fn diag_at(dim: usize, k: usize) -> usize {
 fn add(acc: &mut [f64], x: &[f64]) {
     for (a, b) in acc.iter_mut().zip(x) {
         *a += b;
+    }
+}
+
+/// [`crate::quadric::solve_sized`] into `x` and `ge` (half-gradient, then
+/// the error); false when the box clamps.
+fn sized_solve<const N: usize>(k: &[f64], rel_tol: f64, bounds: ([f64; 3], [f64; 3]), x: &mut [f64], ge: &mut [f64]) -> bool {
+    match crate::quadric::solve_sized::<N>(k, rel_tol, bounds) {
+        Some((sx, g, e)) => {
+            x[..N].copy_from_slice(&sx);
+            ge[..N].copy_from_slice(&g);
+            ge[N] = e;
+            true
+        }
+        None => false,
     }
 }
 

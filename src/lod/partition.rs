@@ -57,7 +57,10 @@ impl LevelCube {
         let q = |k: usize| {
             let t = (p[k] - self.origin[k]) / self.size * n;
             if t >= 1.0 {
-                (t as u64).min((1 << KEY_DEPTH) - 1)
+                // Through i64: one instruction (f64 → u64 is several
+                // without AVX-512); same value, as t ≥ 1 and the result
+                // is capped far below 2^63.
+                ((t as i64) as u64).min((1 << KEY_DEPTH) - 1)
             } else {
                 0
             }

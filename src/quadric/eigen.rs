@@ -1,6 +1,8 @@
-//! Symmetric eigen-decomposition (cyclic Jacobi) for the quadric solve.
+//! Symmetric eigen-decomposition for the quadric solve: cyclic Jacobi for
+//! any size, a closed form for 3×3 ([`eigen3`]).
 
 use super::{Mat, MAX_DIM};
+use crate::geom::{cross, dot};
 
 /// Symmetric eigen-decomposition of an n×n (n ≤ MAX_DIM) matrix by cyclic
 /// Jacobi rotations: `A = V diag(vals) Vᵀ`, eigenvectors in V's columns.
@@ -69,6 +71,53 @@ impl Eigen {
     }
 }
 
+/// [`Eigen::pinv_apply`] of an N×N matrix, on arrays of that size. N = 3
+/// (positions only, most of a build's solves) uses the closed-form
+/// decomposition [`eigen3`]; other sizes the same Jacobi rotations as
+/// [`Eigen::new`] (same results).
+pub(super) fn pinv_apply_sized<const N: usize>(a: &[[f64; N]; N], rel_tol: f64, r: &[f64; N], out: &mut [f64; N]) -> usize {
+    let mut m = *a;
+    let mut v = [[0.0; N]; N];
+    for (i, row) in v.iter_mut().enumerate() {
+        row[i] = 1.0;
+    }
+    if N == 3 {
+        let mut a3 = [[0.0; 3]; 3];
+        for i in 0..3 {
+            for j in 0..3 {
+                a3[i][j] = a[i][j];
+            }
+        }
+        let (vals, vecs) = eigen3(&a3);
+        for i in 0..3 {
+            m[i][i] = vals[i];
+            for j in 0..3 {
+                v[i][j] = vecs[i][j];
+            }
+        }
+    } else {
+        jacobi(&mut m, &mut v, N);
+    }
+    out.fill(0.0);
+    let lmax = (0..N).fold(0.0f64, |x, i| x.max(m[i][i]));
+    if !(lmax > 0.0 && lmax.is_finite()) {
+        return 0;
+    }
+    let thr = rel_tol * lmax;
+    let mut rank = 0;
+    for i in 0..N {
+        let l = m[i][i];
+        if l > thr {
+            let coef = (0..N).map(|k| v[k][i] * r[k]).sum::<f64>() / l;
+            for k in 0..N {
+                out[k] += coef * v[k][i];
+            }
+            rank += 1;
+        }
+    }
+    rank
+}
+
 /// Cyclic Jacobi on the leading n×n block (n ≤ N) of `a`, accumulating the
 /// rotations in `v`; returns the sweeps used.
 fn jacobi<const N: usize>(a: &mut [[f64; N]; N], v: &mut [[f64; N]; N], n: usize) -> usize {
@@ -128,4 +177,96 @@ fn jacobi<const N: usize>(a: &mut [[f64; N]; N], v: &mut [[f64; N]; N], n: usize
         }
     }
     sweeps
+}
+
+/// Eigenvalues and eigenvectors (V's columns) of a symmetric 3×3 matrix,
+/// without iterating. The eigenvalue farthest from the other two comes from
+/// the trigonometric solution of the characteristic cubic (D. Eberly, "A
+/// Robust Eigensolver for 3×3 Symmetric Matrices", Geometric Tools 2014;
+/// that root is well conditioned, unlike the other two when they nearly
+/// coincide) and its eigenvector from the largest cross product of rows of
+/// A − λI; the other two are one Jacobi rotation of A restricted to that
+/// vector's orthogonal complement. V is orthonormal to roundoff and each
+/// eigenvalue is its vector's Rayleigh quotient, accurate to a few ulps of
+/// the largest entry, however the eigenvalues cluster (flat: two zeros;
+/// cylinder: two equal). About a quarter of the Jacobi sweeps' cost.
+pub(super) fn eigen3(a: &[[f64; 3]; 3]) -> ([f64; 3], [[f64; 3]; 3]) {
+    let (a00, a01, a02, a11, a12, a22) = (a[0][0], a[0][1], a[0][2], a[1][1], a[1][2], a[2][2]);
+    let max_abs = a00.abs().max(a01.abs()).max(a02.abs()).max(a11.abs()).max(a12.abs()).max(a22.abs());
+    let identity = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+    if !a.iter().flatten().all(|v| v.is_finite()) {
+        return ([f64::NAN; 3], identity); // the solve then keeps nothing
+    }
+    if max_abs == 0.0 {
+        return ([0.0; 3], identity);
+    }
+    let s = 1.0 / max_abs;
+    let (a00, a01, a02, a11, a12, a22) = (a00 * s, a01 * s, a02 * s, a11 * s, a12 * s, a22 * s);
+    let norm = a01 * a01 + a02 * a02 + a12 * a12;
+    if norm == 0.0 {
+        return ([a[0][0], a[1][1], a[2][2]], identity);
+    }
+    let m = [[a00, a01, a02], [a01, a11, a12], [a02, a12, a22]];
+    let q = (a00 + a11 + a22) / 3.0;
+    let (b00, b11, b22) = (a00 - q, a11 - q, a22 - q);
+    let p = ((b00 * b00 + b11 * b11 + b22 * b22 + 2.0 * norm) / 6.0).sqrt();
+    let c00 = b11 * b22 - a12 * a12;
+    let c01 = a01 * b22 - a12 * a02;
+    let c02 = a01 * a12 - b11 * a02;
+    let half_det = ((b00 * c00 - a01 * c01 + a02 * c02) / (p * p * p) * 0.5).clamp(-1.0, 1.0);
+    let angle = half_det.acos() / 3.0;
+    // The largest root when the cubic leans that way, else the smallest:
+    // the one apart from the other two.
+    const TWO_THIRDS_PI: f64 = 2.094_395_102_393_195_5;
+    let beta = if half_det >= 0.0 { angle.cos() * 2.0 } else { (angle + TWO_THIRDS_PI).cos() * 2.0 };
+    let w = vector_of(&m, q + p * beta);
+    // The complement's basis (u, v) and A there: [[puu, puv], [puv, pvv]].
+    let u = if w[0].abs() > w[1].abs() {
+        let l = 1.0 / (w[0] * w[0] + w[2] * w[2]).sqrt();
+        [-w[2] * l, 0.0, w[0] * l]
+    } else {
+        let l = 1.0 / (w[1] * w[1] + w[2] * w[2]).sqrt();
+        [0.0, w[2] * l, -w[1] * l]
+    };
+    let v = cross(w, u);
+    let mul = |x: [f64; 3]| [dot(m[0], x), dot(m[1], x), dot(m[2], x)];
+    let (aw, au, av) = (mul(w), mul(u), mul(v));
+    let (puu, puv, pvv) = (dot(u, au), dot(u, av), dot(v, av));
+    // One Jacobi rotation diagonalises the 2×2 block.
+    let (e1, e2, l1, l2) = if puv == 0.0 {
+        (u, v, puu, pvv)
+    } else {
+        let theta = (pvv - puu) / (2.0 * puv);
+        let t = if theta.abs() > 1e150 { 0.5 / theta } else { theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt()) };
+        let c = 1.0 / (t * t + 1.0).sqrt();
+        let sn = t * c;
+        let e1 = [0, 1, 2].map(|k| c * u[k] - sn * v[k]);
+        let e2 = [0, 1, 2].map(|k| sn * u[k] + c * v[k]);
+        (e1, e2, puu - t * puv, pvv + t * puv)
+    };
+    let vals = [dot(w, aw), l1, l2].map(|x| x * max_abs);
+    let vecs = [[w[0], e1[0], e2[0]], [w[1], e1[1], e2[1]], [w[2], e1[2], e2[2]]];
+    (vals, vecs)
+}
+
+/// Unit eigenvector of a simple eigenvalue: the largest cross product of
+/// two rows of A − λI.
+fn vector_of(m: &[[f64; 3]; 3], val: f64) -> [f64; 3] {
+    let r0 = [m[0][0] - val, m[0][1], m[0][2]];
+    let r1 = [m[0][1], m[1][1] - val, m[1][2]];
+    let r2 = [m[0][2], m[1][2], m[2][2] - val];
+    let c = [cross(r0, r1), cross(r0, r2), cross(r1, r2)];
+    let d = c.map(|x| dot(x, x));
+    let k = if d[0] >= d[1] && d[0] >= d[2] {
+        0
+    } else if d[1] >= d[2] {
+        1
+    } else {
+        2
+    };
+    if !(d[k] > 0.0) {
+        return [1.0, 0.0, 0.0];
+    }
+    let l = 1.0 / d[k].sqrt();
+    c[k].map(|x| x * l)
 }

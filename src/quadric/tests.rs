@@ -785,3 +785,197 @@ fn eigen_decomposition_reconstructs() {
         assert!(vals[2..].iter().all(|v| (v - q.area()).abs() < 1e-13 * q.area()));
     }
 }
+
+fn unit3(v: [f64; 3]) -> [f64; 3] {
+    let l = crate::geom::dot(v, v).sqrt();
+    scale(v, 1.0 / l)
+}
+
+/// Symmetric 3×3 matrices that stress a closed-form solver: random ranks
+/// 1–3, repeated eigenvalues (flat: one plane; cylinder: planes around an
+/// axis; isotropic), two parallel sheets, tiny next to huge entries.
+fn hard_3x3(rng: &mut Rng, trial: usize) -> [[f64; 3]; 3] {
+    let mut a = [[0.0; 3]; 3];
+    let mut add_dir = |a: &mut [[f64; 3]; 3], v: [f64; 3], w: f64| {
+        for i in 0..3 {
+            for j in 0..3 {
+                a[i][j] += w * v[i] * v[j];
+            }
+        }
+    };
+    let axis = unit3(rng.vec3(-1.0, 1.0));
+    match trial % 6 {
+        // Random rank 1..3.
+        0 | 1 => {
+            for _ in 0..1 + trial % 3 {
+                add_dir(&mut a, rng.vec3(-1.0, 1.0), rng.range(0.0, 10.0));
+            }
+        }
+        // Flat: one plane normal, several times (rank 1, two zero eigenvalues).
+        2 => {
+            for _ in 0..4 {
+                add_dir(&mut a, axis, rng.range(0.5, 2.0));
+            }
+        }
+        // Cylinder: normals perpendicular to an axis (two equal eigenvalues
+        // up to sampling, one zero).
+        3 => {
+            let u = unit3(crate::geom::cross(axis, [0.3, 0.5, 0.7]));
+            let v = crate::geom::cross(axis, u);
+            for k in 0..12 {
+                let t = k as f64 * std::f64::consts::PI / 6.0;
+                add_dir(&mut a, add(scale(u, t.cos()), scale(v, t.sin())), 1.0);
+            }
+        }
+        // Isotropic (three equal eigenvalues) plus a nudge.
+        4 => {
+            for k in 0..3 {
+                let mut e = [0.0; 3];
+                e[k] = 1.0;
+                add_dir(&mut a, e, 3.0);
+            }
+            add_dir(&mut a, axis, 1e-9 * (trial % 5) as f64);
+        }
+        // Near rank 1 at a huge scale with a tiny second direction (two
+        // near-parallel sheets' planes).
+        _ => {
+            add_dir(&mut a, axis, 1e12);
+            let tilt = unit3(add(axis, scale(rng.vec3(-1.0, 1.0), 1e-7)));
+            add_dir(&mut a, tilt, 1e12);
+        }
+    }
+    a
+}
+
+#[test]
+fn closed_form_3x3_eigen_is_orthonormal_and_reconstructs() {
+    let mut rng = Rng::at(31);
+    for trial in 0..3000 {
+        let a = hard_3x3(&mut rng, trial);
+        let (vals, vecs) = eigen::eigen3(&a);
+        let scale = a.iter().flatten().fold(0.0f64, |m, v| m.max(v.abs())).max(1e-300);
+        for i in 0..3 {
+            for j in 0..3 {
+                let r: f64 = (0..3).map(|k| vecs[i][k] * vals[k] * vecs[j][k]).sum();
+                assert!((r - a[i][j]).abs() < 1e-12 * scale, "trial {trial} reconstruction: {r} vs {}", a[i][j]);
+                let o: f64 = (0..3).map(|k| vecs[k][i] * vecs[k][j]).sum();
+                assert!((o - (i == j) as u8 as f64).abs() < 1e-12, "trial {trial} orthogonality");
+            }
+        }
+        // Same eigenvalues as the Jacobi sweeps.
+        let mut big = [[0.0; MAX_DIM]; MAX_DIM];
+        for i in 0..3 {
+            big[i][..3].copy_from_slice(&a[i]);
+        }
+        let e = Eigen::new(&big, 3);
+        let mut jv = [e.vals[0], e.vals[1], e.vals[2]];
+        jv.sort_by(f64::total_cmp);
+        let mut vals = vals;
+        vals.sort_by(f64::total_cmp);
+        for k in 0..3 {
+            assert!((jv[k] - vals[k]).abs() < 1e-12 * scale, "trial {trial}: {jv:?} vs {vals:?}");
+        }
+    }
+    // Zero and diagonal matrices, and one that is not finite.
+    assert_eq!(eigen::eigen3(&[[0.0; 3]; 3]).0, [0.0; 3]);
+    assert_eq!(eigen::eigen3(&[[2.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 5.0]]).0, [2.0, -1.0, 5.0]);
+    // A rotation of diag(0, 0, 7) and of diag(1e-30, 1, 1): exact ranks survive.
+    let (vals, _) = eigen::eigen3(&[[7.0 / 3.0; 3]; 3]);
+    let mut vals = vals;
+    vals.sort_by(f64::total_cmp);
+    assert!(vals[0].abs() < 1e-14 && vals[1].abs() < 1e-14 && (vals[2] - 7.0).abs() < 1e-14, "{vals:?}");
+    assert!(eigen::eigen3(&[[f64::NAN, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]).0.iter().all(|v| v.is_nan()));
+}
+
+/// The sized solve (closed-form eigen at dimension 3) minimises like the
+/// general one on rank-deficient, far-off-origin and attribute quadrics,
+/// and leaves clamping to it.
+#[test]
+fn sized_solve_matches_the_general_solve() {
+    let mut rng = Rng::at(77);
+    let check = |q: &Quadric, lo: [f64; 3], hi: [f64; 3], what: &str| {
+        let k = q.coeffs();
+        let general = q.solve(DEFAULT_REL_TOL, Some((lo, hi)));
+        let sized = match q.dim() {
+            3 => solve_sized::<3>(k, DEFAULT_REL_TOL, (lo, hi)).map(|(x, g, e)| (x.to_vec(), g.to_vec(), e)),
+            5 => solve_sized::<5>(k, DEFAULT_REL_TOL, (lo, hi)).map(|(x, g, e)| (x.to_vec(), g.to_vec(), e)),
+            6 => solve_sized::<6>(k, DEFAULT_REL_TOL, (lo, hi)).map(|(x, g, e)| (x.to_vec(), g.to_vec(), e)),
+            _ => unreachable!(),
+        };
+        match sized {
+            None => assert!(general.clamped, "{what}: sized gave up on an unclamped solve"),
+            Some((x, g, e)) => {
+                assert!(!general.clamped, "{what}: sized kept a clamped solve");
+                let n = q.dim();
+                let size = (0..3).map(|k| hi[k] - lo[k]).fold(0.0, f64::max);
+                for i in 0..n {
+                    assert!((x[i] - general.x[i]).abs() <= 1e-9 * size.max(1.0), "{what}: x {x:?} vs {:?}", &general.x[..n]);
+                }
+                let hg = q.half_gradient(&general.x);
+                // Both are ~0 at a minimiser: compared at the scale of their terms.
+                let big = |s: &[f64]| s.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+                let al = n * (n + 1) / 2;
+                let gs = big(&k[al..al + n]) + big(&k[..al]) * big(&general.x[..n]);
+                for i in 0..n {
+                    assert!((g[i] - hg[i]).abs() <= 1e-9 * gs, "{what}: gradient {g:?} vs {:?}", &hg[..n]);
+                }
+                let es = k[al + n].abs() + gs * big(&general.x[..n]);
+                assert!((e - general.error).abs() <= 1e-9 * general.error + 1e-12 * es, "{what}: error {e} vs {}", general.error);
+            }
+        }
+    };
+    let s3 = QuadricSpace::new(AttrSet(0), AttrWeights::uniform(1.0), [0.0; 3]);
+    for trial in 0..600 {
+        // Triangles of a flat patch, a cylinder, two parallel sheets, or random,
+        // around a centre far from the origin or not.
+        let far = if trial % 2 == 0 { 0.0 } else { 1e6 };
+        let c = rng.vec3(-1.0, 1.0);
+        let mut q = Quadric::zero(3);
+        let pt = |rng: &mut Rng, kind: usize| -> [f64; 3] {
+            let p = rng.vec3(-0.1, 0.1);
+            let p = match kind {
+                0 => [p[0], p[1], 0.0],
+                1 => {
+                    let t = p[0] * 10.0;
+                    [t.cos() * 0.1, t.sin() * 0.1, p[2]]
+                }
+                2 => [p[0], p[1], if rng.next() < 0.5 { 0.0 } else { 1e-4 }],
+                _ => p,
+            };
+            add(add(p, c), [far; 3])
+        };
+        for _ in 0..1 + trial % 7 {
+            let kind = trial % 4;
+            let v = [pt(&mut rng, kind), pt(&mut rng, kind), pt(&mut rng, kind)];
+            let e = v.map(|p| s3.embed(&Vertex { pos: [p[0] - far, p[1] - far, p[2] - far], ..Default::default() }));
+            q.add_triangle(&e[0], &e[1], &e[2]);
+            for p in &e {
+                q.add_point(p);
+            }
+        }
+        let m = q.mean();
+        let half = if trial % 5 == 0 { 1e-3 } else { 1.0 };
+        check(&q, [m[0] - half, m[1] - half, m[2] - half], [m[0] + half, m[1] + half, m[2] + half], &format!("dim 3 trial {trial}"));
+    }
+    for (attrs, trials) in [(AttrSet(AttrSet::UV), 200), (AttrSet(AttrSet::NORMAL), 200)] {
+        let s = QuadricSpace::new(attrs, AttrWeights::uniform(0.5), [0.0; 3]);
+        for trial in 0..trials {
+            let mut q = Quadric::zero(s.dim);
+            for _ in 0..1 + trial % 5 {
+                let v = [0; 3].map(|_| {
+                    s.embed(&Vertex {
+                        pos: rng.vec3(-1.0, 1.0),
+                        normal: unit3(rng.vec3(-1.0, 1.0)).map(|c| c as f32),
+                        uv: [rng.next() as f32, rng.next() as f32],
+                        ..Default::default()
+                    })
+                });
+                q.add_triangle(&v[0], &v[1], &v[2]);
+                for p in &v {
+                    q.add_point(p);
+                }
+            }
+            check(&q, [-2.0; 3], [2.0; 3], &format!("dim {} trial {trial}", s.dim));
+        }
+    }
+}
