@@ -573,23 +573,50 @@ const BORDER_WEIGHT: f64 = 1.0;
 /// quadrics alone let a cluster slide along a flat border, so borders would
 /// retreat by a cluster; with these, moving off the border line costs.
 fn add_border_planes(mesh: &IndexedMesh, locked: &[bool], dim: usize, stride: usize, va: &mut [f64]) {
-    let mut edges: rustc_hash::FxHashMap<(u32, u32), (u32, usize)> = rustc_hash::FxHashMap::with_capacity_and_hasher(mesh.triangles.len() * 2, Default::default());
-    for (ti, t) in mesh.triangles.iter().enumerate() {
-        for c in 0..3 {
-            let (a, b) = (t[c], t[(c + 1) % 3]);
-            let e = edges.entry((a.min(b), a.max(b))).or_insert((0, ti));
-            e.0 += 1;
+    // Open edges (used by one triangle), found per smaller end from the
+    // triangles around it: a few entries sorted per vertex instead of a
+    // hash map of every edge (which cost ~100 ns a triangle at level 0).
+    let nv = mesh.vertices.len();
+    let (first, around) = super::vertex_triangles(nv, &mesh.triangles);
+    let mut open: Vec<(u32, u32, u32)> = Vec::new();
+    let mut ends: Vec<(u32, u32)> = Vec::new();
+    for a in 0..nv as u32 {
+        ends.clear();
+        let mut last = u32::MAX;
+        for &ti in &around[first[a as usize] as usize..first[a as usize + 1] as usize] {
+            if ti == last {
+                continue; // listed once per corner at a
+            }
+            last = ti;
+            let t = mesh.triangles[ti as usize];
+            for c in 0..3 {
+                let (x, y) = (t[c], t[(c + 1) % 3]);
+                if x == a && y > a {
+                    ends.push((y, ti));
+                } else if y == a && x > a {
+                    ends.push((x, ti));
+                }
+            }
+        }
+        ends.sort_unstable();
+        let mut i = 0;
+        while i < ends.len() {
+            let j = i + ends[i..].iter().take_while(|e| e.0 == ends[i].0).count();
+            if j - i == 1 {
+                open.push((a, ends[i].0, ends[i].1));
+            }
+            i = j;
         }
     }
-    for (&(a, b), &(n, ti)) in &edges {
+    for (a, b, ti) in open {
         // An open edge between two locked vertices is a seam with another
         // node (or an attribute seam), not the mesh's border: a plane
         // there would be carried up with the vertices' quadrics and pull
         // the next level's clusters towards a line that is no border.
-        if n != 1 || (locked[a as usize] && locked[b as usize]) {
+        if locked[a as usize] && locked[b as usize] {
             continue;
         }
-        let t = mesh.triangles[ti];
+        let t = mesh.triangles[ti as usize];
         let p = t.map(|v| mesh.vertices[v as usize].pos);
         let (pa, pb) = (mesh.vertices[a as usize].pos, mesh.vertices[b as usize].pos);
         let e = [0, 1, 2].map(|k| pb[k] - pa[k]);
@@ -835,23 +862,51 @@ pub(crate) fn unfold(images: &[[usize; 3]]) -> Vec<bool> {
         s.sort_unstable();
         s
     };
-    // Triangles sharing their corners with another are rare: counted by
-    // hashing, only those are sorted into groups.
-    let mut count: rustc_hash::FxHashMap<[usize; 3], u32> = rustc_hash::FxHashMap::with_capacity_and_hasher(images.len(), Default::default());
+    // Triangles sharing their corners with another are rare. Two such
+    // share their smallest corner: triangles are bucketed by it (a
+    // counting sort, no hashing), and only buckets of two or more are
+    // compared; the repeated ones are then sorted into groups.
+    let ids = images.iter().map(|k| k[0].max(k[1]).max(k[2]) + 1).max().unwrap_or(0);
+    let mut first = vec![0u32; ids + 1];
     for k in images {
-        *count.entry(sorted(k)).or_insert(0) += 1;
+        first[k[0].min(k[1]).min(k[2]) + 1] += 1;
     }
-    // (sorted corners, odd orientation, index), grouped by sorting.
-    let mut keyed: Vec<([usize; 3], bool, u32)> = images
-        .iter()
-        .enumerate()
-        .filter_map(|(i, k)| {
-            let s = sorted(k);
-            // Orientation: rotations of the sorted triple are even.
-            let even = *k == s || *k == [s[1], s[2], s[0]] || *k == [s[2], s[0], s[1]];
-            (count[&s] > 1).then_some((s, !even, i as u32))
-        })
-        .collect();
+    for v in 0..ids {
+        first[v + 1] += first[v];
+    }
+    let mut next = first.clone();
+    let mut by_min = vec![0u32; images.len()];
+    for (i, k) in images.iter().enumerate() {
+        let m = k[0].min(k[1]).min(k[2]);
+        by_min[next[m] as usize] = i as u32;
+        next[m] += 1;
+    }
+    // (sorted corners, odd orientation, index) of every triangle whose
+    // corners repeat.
+    let mut keyed: Vec<([usize; 3], bool, u32)> = Vec::new();
+    let mut bucket: Vec<([usize; 3], u32)> = Vec::new();
+    for v in 0..ids {
+        let b = &by_min[first[v] as usize..first[v + 1] as usize];
+        if b.len() < 2 {
+            continue;
+        }
+        bucket.clear();
+        bucket.extend(b.iter().map(|&i| (sorted(&images[i as usize]), i)));
+        bucket.sort_unstable();
+        let mut i = 0;
+        while i < bucket.len() {
+            let j = i + bucket[i..].iter().take_while(|e| e.0 == bucket[i].0).count();
+            if j - i > 1 {
+                for &(s, t) in &bucket[i..j] {
+                    let k = images[t as usize];
+                    // Orientation: rotations of the sorted triple are even.
+                    let even = k == s || k == [s[1], s[2], s[0]] || k == [s[2], s[0], s[1]];
+                    keyed.push((s, !even, t));
+                }
+            }
+            i = j;
+        }
+    }
     keyed.sort_unstable();
     let mut i = 0;
     while i < keyed.len() {

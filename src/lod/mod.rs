@@ -1121,7 +1121,7 @@ pub struct NodeError {
 }
 
 /// Triangles around each vertex: `around[first[v]..first[v + 1]]`.
-fn vertex_triangles(nv: usize, tris: &[[u32; 3]]) -> (Vec<u32>, Vec<u32>) {
+pub(crate) fn vertex_triangles(nv: usize, tris: &[[u32; 3]]) -> (Vec<u32>, Vec<u32>) {
     let mut first = vec![0u32; nv + 1];
     for t in tris {
         for &v in t {
