@@ -118,6 +118,17 @@ pub(super) fn pinv_apply_sized<const N: usize>(a: &[[f64; N]; N], rel_tol: f64, 
     rank
 }
 
+/// The Jacobi rotation (cosine, sine, tangent) that zeroes `apq` of the
+/// symmetric 2×2 block [[app, apq], [apq, aqq]] (apq ≠ 0), the smaller of
+/// the two angles (Golub & Van Loan, 8.5.2).
+#[inline]
+fn rotation(app: f64, aqq: f64, apq: f64) -> (f64, f64, f64) {
+    let theta = (aqq - app) / (2.0 * apq);
+    let t = if theta.abs() > 1e150 { 0.5 / theta } else { theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt()) };
+    let c = 1.0 / (t * t + 1.0).sqrt();
+    (c, t * c, t)
+}
+
 /// Cyclic Jacobi on the leading n×n block (n ≤ N) of `a`, accumulating the
 /// rotations in `v`; returns the sweeps used.
 fn jacobi<const N: usize>(a: &mut [[f64; N]; N], v: &mut [[f64; N]; N], n: usize) -> usize {
@@ -152,10 +163,7 @@ fn jacobi<const N: usize>(a: &mut [[f64; N]; N], v: &mut [[f64; N]; N], n: usize
                     a[q][p] = 0.0;
                     continue;
                 }
-                let theta = (a[q][q] - a[p][p]) / (2.0 * apq);
-                let t = if theta.abs() > 1e150 { 0.5 / theta } else { theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt()) };
-                let c = 1.0 / (t * t + 1.0).sqrt();
-                let s = t * c;
+                let (c, s, _) = rotation(a[p][p], a[q][q], apq);
                 for k in 0..n {
                     let (akp, akq) = (a[k][p], a[k][q]);
                     a[k][p] = c * akp - s * akq;
@@ -236,10 +244,7 @@ pub(super) fn eigen3(a: &[[f64; 3]; 3]) -> ([f64; 3], [[f64; 3]; 3]) {
     let (e1, e2, l1, l2) = if puv == 0.0 {
         (u, v, puu, pvv)
     } else {
-        let theta = (pvv - puu) / (2.0 * puv);
-        let t = if theta.abs() > 1e150 { 0.5 / theta } else { theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt()) };
-        let c = 1.0 / (t * t + 1.0).sqrt();
-        let sn = t * c;
+        let (c, sn, t) = rotation(puu, pvv, puv);
         let e1 = [0, 1, 2].map(|k| c * u[k] - sn * v[k]);
         let e2 = [0, 1, 2].map(|k| sn * u[k] + c * v[k]);
         (e1, e2, puu - t * puv, pvv + t * puv)
