@@ -796,7 +796,7 @@ fn unit3(v: [f64; 3]) -> [f64; 3] {
 /// axis; isotropic), two parallel sheets, tiny next to huge entries.
 fn hard_3x3(rng: &mut Rng, trial: usize) -> [[f64; 3]; 3] {
     let mut a = [[0.0; 3]; 3];
-    let mut add_dir = |a: &mut [[f64; 3]; 3], v: [f64; 3], w: f64| {
+    let add_dir = |a: &mut [[f64; 3]; 3], v: [f64; 3], w: f64| {
         for i in 0..3 {
             for j in 0..3 {
                 a[i][j] += w * v[i] * v[j];
