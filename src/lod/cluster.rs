@@ -599,13 +599,10 @@ fn add_border_planes(mesh: &IndexedMesh, locked: &[bool], dim: usize, stride: us
             }
         }
         ends.sort_unstable();
-        let mut i = 0;
-        while i < ends.len() {
-            let j = i + ends[i..].iter().take_while(|e| e.0 == ends[i].0).count();
-            if j - i == 1 {
-                open.push((a, ends[i].0, ends[i].1));
+        for run in ends.chunk_by(|x, y| x.0 == y.0) {
+            if let [(b, ti)] = run {
+                open.push((a, *b, *ti));
             }
-            i = j;
         }
     }
     for (a, b, ti) in open {
@@ -893,18 +890,13 @@ pub(crate) fn unfold(images: &[[usize; 3]]) -> Vec<bool> {
         bucket.clear();
         bucket.extend(b.iter().map(|&i| (sorted(&images[i as usize]), i)));
         bucket.sort_unstable();
-        let mut i = 0;
-        while i < bucket.len() {
-            let j = i + bucket[i..].iter().take_while(|e| e.0 == bucket[i].0).count();
-            if j - i > 1 {
-                for &(s, t) in &bucket[i..j] {
-                    let k = images[t as usize];
-                    // Orientation: rotations of the sorted triple are even.
-                    let even = k == s || k == [s[1], s[2], s[0]] || k == [s[2], s[0], s[1]];
-                    keyed.push((s, !even, t));
-                }
+        for run in bucket.chunk_by(|x, y| x.0 == y.0).filter(|r| r.len() > 1) {
+            for &(s, t) in run {
+                let k = images[t as usize];
+                // Orientation: rotations of the sorted triple are even.
+                let even = k == s || k == [s[1], s[2], s[0]] || k == [s[2], s[0], s[1]];
+                keyed.push((s, !even, t));
             }
-            i = j;
         }
     }
     keyed.sort_unstable();
