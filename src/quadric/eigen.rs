@@ -49,26 +49,33 @@ impl Eigen {
     /// `out = A⁺ r`, keeping eigenvalues > rel_tol · λmax; returns the rank
     /// kept (0, and out = 0, when λmax ≤ 0 or not finite).
     pub(super) fn pinv_apply(&self, rel_tol: f64, r: &[f64], out: &mut [f64]) -> usize {
-        let n = self.n;
-        out[..n].fill(0.0);
-        let lmax = self.vals[..n].iter().fold(0.0f64, |m, &v| m.max(v));
-        if !(lmax > 0.0 && lmax.is_finite()) {
-            return 0;
-        }
-        let thr = rel_tol * lmax;
-        let mut rank = 0;
-        for i in 0..n {
-            let l = self.vals[i];
-            if l > thr {
-                let coef = (0..n).map(|k| self.vecs[k][i] * r[k]).sum::<f64>() / l;
-                for k in 0..n {
-                    out[k] += coef * self.vecs[k][i];
-                }
-                rank += 1;
-            }
-        }
-        rank
+        apply_pinv(&self.vals[..self.n], &self.vecs, rel_tol, r, out)
     }
+}
+
+/// `out = V diag(1/λ) Vᵀ r` over the eigenpairs with λ > rel_tol · λmax
+/// (`vals[i]`, column i of `vecs`; `n = vals.len()`); returns how many (0,
+/// and out = 0, when λmax ≤ 0 or not finite).
+fn apply_pinv<const M: usize>(vals: &[f64], vecs: &[[f64; M]], rel_tol: f64, r: &[f64], out: &mut [f64]) -> usize {
+    let n = vals.len();
+    out[..n].fill(0.0);
+    let lmax = vals.iter().fold(0.0f64, |m, &v| m.max(v));
+    if !(lmax > 0.0 && lmax.is_finite()) {
+        return 0;
+    }
+    let thr = rel_tol * lmax;
+    let mut rank = 0;
+    for i in 0..n {
+        let l = vals[i];
+        if l > thr {
+            let coef = (0..n).map(|k| vecs[k][i] * r[k]).sum::<f64>() / l;
+            for k in 0..n {
+                out[k] += coef * vecs[k][i];
+            }
+            rank += 1;
+        }
+    }
+    rank
 }
 
 /// [`Eigen::pinv_apply`] of an N×N matrix, on arrays of that size. N = 3
@@ -76,46 +83,29 @@ impl Eigen {
 /// decomposition [`eigen3`]; other sizes the same Jacobi rotations as
 /// [`Eigen::new`] (same results).
 pub(super) fn pinv_apply_sized<const N: usize>(a: &[[f64; N]; N], rel_tol: f64, r: &[f64; N], out: &mut [f64; N]) -> usize {
-    let mut m = *a;
+    let mut vals = [0.0; N];
     let mut v = [[0.0; N]; N];
-    for (i, row) in v.iter_mut().enumerate() {
-        row[i] = 1.0;
-    }
     if N == 3 {
         let mut a3 = [[0.0; 3]; 3];
         for i in 0..3 {
-            for j in 0..3 {
-                a3[i][j] = a[i][j];
-            }
+            a3[i].copy_from_slice(&a[i][..3]);
         }
-        let (vals, vecs) = eigen3(&a3);
+        let (l, vecs) = eigen3(&a3);
+        vals[..3].copy_from_slice(&l);
         for i in 0..3 {
-            m[i][i] = vals[i];
-            for j in 0..3 {
-                v[i][j] = vecs[i][j];
-            }
+            v[i][..3].copy_from_slice(&vecs[i]);
         }
     } else {
+        let mut m = *a;
+        for (i, row) in v.iter_mut().enumerate() {
+            row[i] = 1.0;
+        }
         jacobi(&mut m, &mut v, N);
-    }
-    out.fill(0.0);
-    let lmax = (0..N).fold(0.0f64, |x, i| x.max(m[i][i]));
-    if !(lmax > 0.0 && lmax.is_finite()) {
-        return 0;
-    }
-    let thr = rel_tol * lmax;
-    let mut rank = 0;
-    for i in 0..N {
-        let l = m[i][i];
-        if l > thr {
-            let coef = (0..N).map(|k| v[k][i] * r[k]).sum::<f64>() / l;
-            for k in 0..N {
-                out[k] += coef * v[k][i];
-            }
-            rank += 1;
+        for i in 0..N {
+            vals[i] = m[i][i];
         }
     }
-    rank
+    apply_pinv(&vals, &v, rel_tol, r, out)
 }
 
 /// The Jacobi rotation (cosine, sine, tangent) that zeroes `apq` of the

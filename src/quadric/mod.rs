@@ -283,21 +283,7 @@ pub fn packed_error_at_mean(dim: usize, k: &[f64]) -> f64 {
     for i in 0..dim {
         x[i] = k[s + i] / cnt;
     }
-    let mut e = 0.0;
-    let mut at = 0;
-    for i in 0..dim {
-        let mut row = 0.5 * k[at] * x[i];
-        at += 1;
-        for j in i + 1..dim {
-            row += k[at] * x[j];
-            at += 1;
-        }
-        e += 2.0 * x[i] * row;
-    }
-    for i in 0..dim {
-        e += 2.0 * k[al + i] * x[i];
-    }
-    e += k[al + dim];
+    let e = packed_value(k, dim, &x);
     if e > 0.0 && e.is_finite() {
         e
     } else {
@@ -348,9 +334,9 @@ pub const fn carry_len(dim: usize) -> usize {
 
 type Mat = [[f64; MAX_DIM]; MAX_DIM];
 
-/// `Q(x)` of stored coefficients `k` (see [`Quadric::coeff_len`]), floored at 0.
+/// `Q(x)` of stored coefficients `k` (see [`Quadric::coeff_len`]).
 #[inline]
-fn packed_error(k: &[f64], n: usize, x: &[f64]) -> f64 {
+fn packed_value(k: &[f64], n: usize, x: &[f64]) -> f64 {
     let x = &x[..n];
     let mut s = 0.0;
     let mut at = 0;
@@ -366,7 +352,13 @@ fn packed_error(k: &[f64], n: usize, x: &[f64]) -> f64 {
     for i in 0..n {
         s += 2.0 * k[at + i] * x[i];
     }
-    s += k[at + n];
+    s + k[at + n]
+}
+
+/// [`packed_value`] floored at 0 (as [`Quadric::error`]).
+#[inline]
+fn packed_error(k: &[f64], n: usize, x: &[f64]) -> f64 {
+    let s = packed_value(k, n, x);
     if s < 0.0 {
         0.0
     } else {
