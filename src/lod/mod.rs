@@ -122,7 +122,7 @@ use chunks::{split_by_target, ChunkFile, Gathered};
 use ordered::ordered;
 use cluster::{Prio, Splits};
 use std::collections::BinaryHeap;
-use partition::{Histogram, LevelCube, Tiling, KEY_DEPTH};
+use partition::{Histogram, LevelCube, Tiling};
 use rayon::prelude::*;
 use shared::{pos_bits, Band, SharedSort, WAS_LOCKED};
 use rustc_hash::FxHashMap;
@@ -281,18 +281,8 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions, first: Option<FirstCoun
                         records.push((*p, w.normal[pi].map(|x| x as f32), flags));
                     }
                 }
-                // Centroid counts at the histogram's depth, as sorted runs
-                // (counted by hashing: a node's triangles fall in far fewer
-                // cells than they are, so only the cells are sorted).
-                let mut h: Vec<(u64, u64)> = Vec::new();
-                if !is_final {
-                    let mut counts: FxHashMap<u64, u64> = FxHashMap::default();
-                    for t in &g.mesh.triangles {
-                        *counts.entry(nc.key(tri_centroid(&g.mesh, t)) >> (3 * (KEY_DEPTH - HIST_DEPTH) as u32)).or_insert(0) += 1;
-                    }
-                    h.extend(counts);
-                    h.sort_unstable();
-                }
+                // Centroid counts at the histogram's depth, as sorted runs.
+                let h = if is_final { Vec::new() } else { nc.cell_counts(HIST_DEPTH, g.mesh.triangles.iter().map(|t| tri_centroid(&g.mesh, t))) };
                 Ok(Pass1 { records, hist: h, positions: w.pos.len() as u64 })
             },
             |k, r: Pass1| {
@@ -1075,12 +1065,21 @@ fn remeasure_far(levels: [(&ChunkFile, &[LeafStats]); 2], errors: &mut [f64], fa
             return Ok(0.0);
         }
         let near = |b: &Aabb, p: [f64; 3], r: f64| (0..3).all(|k| p[k] >= b.min[k] - r && p[k] <= b.max[k] + r);
+        // Only triangles within some point's bound can change its result
+        // (it is capped at the bound), so only those go in the BVH.
         let mut mesh = Mesh { positions: Vec::new(), triangles: Vec::new() };
         for l in (0..leaves.len()).filter(|&l| leaves[l].tris > 0 && pts.iter().any(|&(p, d)| near(&leaves[l].bounds, p, d))) {
-            let g = file.gather(l)?;
+            let g = file.gather_with(l, false)?;
+            let close: Vec<&(_, f64)> = pts.iter().filter(|&&(p, d)| near(&leaves[l].bounds, p, d)).collect();
             let off = mesh.positions.len() as u32;
             mesh.positions.extend(g.mesh.vertices.iter().map(|v| v.pos));
-            mesh.triangles.extend(g.mesh.triangles.iter().map(|t| t.map(|x| x + off)));
+            mesh.triangles.extend(g.mesh.triangles.iter().filter(|t| {
+                let mut b = Aabb::EMPTY;
+                for &x in t.iter() {
+                    b.add(g.mesh.vertices[x as usize].pos);
+                }
+                close.iter().any(|&&(p, d)| near(&b, p, d))
+            }).map(|t| t.map(|x| x + off)));
         }
         let bvh = Bvh::new(&mesh);
         Ok(pts.iter().map(|&(p, d)| bvh.closest(p).map_or(d, |c| c.dist2.sqrt().min(d))).fold(0.0, f64::max))

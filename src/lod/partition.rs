@@ -51,10 +51,18 @@ impl LevelCube {
     /// Morton key of a point at [`KEY_DEPTH`] bits per axis (clamped into the cube).
     #[inline]
     pub fn key(&self, p: [f64; 3]) -> u64 {
+        let [x, y, z] = self.coords(p);
+        morton3(x, y, z)
+    }
+
+    /// The cell coordinates per axis at [`KEY_DEPTH`] of a point, as
+    /// [`LevelCube::key`] interleaves them.
+    #[inline]
+    pub fn coords(&self, p: [f64; 3]) -> [u64; 3] {
         let n = (1u64 << KEY_DEPTH) as f64;
         // Truncation is the floor from 1 up; below 1 (NaN too) the cell is 0.
         // (No `floor`: without SSE4.1 it is a libm call per coordinate.)
-        let q = |k: usize| {
+        [0, 1, 2].map(|k| {
             let t = (p[k] - self.origin[k]) / self.size * n;
             if t >= 1.0 {
                 // Through i64: one instruction (f64 → u64 is several
@@ -64,8 +72,50 @@ impl LevelCube {
             } else {
                 0
             }
-        };
-        morton3(q(0), q(1), q(2))
+        })
+    }
+
+    /// How many of `points` fall in each cell at `depth`, as sorted
+    /// (cell path, count) runs: the same as counting `key(p) >> 3·(KEY_DEPTH
+    /// − depth)`. A node's points span few cells per axis, so they are
+    /// counted in a dense box of those cells when it is small (no Morton
+    /// key or hashing per point), else hashed.
+    pub fn cell_counts(&self, depth: u8, points: impl Iterator<Item = [f64; 3]>) -> Vec<(u64, u64)> {
+        let sh = (KEY_DEPTH - depth.min(KEY_DEPTH)) as u32;
+        let cells: Vec<[u32; 3]> = points.map(|p| self.coords(p).map(|c| (c >> sh) as u32)).collect();
+        let (mut lo, mut hi) = ([u32::MAX; 3], [0u32; 3]);
+        for c in &cells {
+            for k in 0..3 {
+                lo[k] = lo[k].min(c[k]);
+                hi[k] = hi[k].max(c[k]);
+            }
+        }
+        let mut runs: Vec<(u64, u64)> = Vec::new();
+        if cells.is_empty() {
+            return runs;
+        }
+        let ext = [0, 1, 2].map(|k| (hi[k] - lo[k]) as usize + 1);
+        let boxed = ext[0].saturating_mul(ext[1]).saturating_mul(ext[2]);
+        let path = |c: [u32; 3]| morton3(c[0] as u64, c[1] as u64, c[2] as u64);
+        if boxed <= (4 * cells.len()).max(4096) {
+            let mut count = vec![0u32; boxed];
+            let at = |c: &[u32; 3]| ((c[2] - lo[2]) as usize * ext[1] + (c[1] - lo[1]) as usize) * ext[0] + (c[0] - lo[0]) as usize;
+            for c in &cells {
+                count[at(c)] += 1;
+            }
+            for (i, &n) in count.iter().enumerate().filter(|x| *x.1 > 0) {
+                let c = [i % ext[0], (i / ext[0]) % ext[1], i / (ext[0] * ext[1])];
+                runs.push((path([0, 1, 2].map(|k| lo[k] + c[k] as u32)), n as u64));
+            }
+        } else {
+            let mut counts: HashMap<u64, u64> = HashMap::default();
+            for c in &cells {
+                *counts.entry(path(*c)).or_insert(0) += 1;
+            }
+            runs.extend(counts);
+        }
+        runs.sort_unstable();
+        runs
     }
 
     /// The box of cell `path` at `depth`.
@@ -346,6 +396,30 @@ mod tests {
                         assert!(d >= fine / 3.0 - 1e-9 * a.size, "level {level} depths {da}/{dc}: faces {d} apart, cell {fine}");
                     }
                 }
+            }
+        }
+    }
+
+    #[test]
+    fn cell_counts_are_the_shifted_keys_counted() {
+        let cube = LevelCube { origin: [-1.0, 2.0, 0.5], size: 3.0 };
+        let mut seed = 7u64;
+        let mut rnd = || {
+            seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        // A small patch (dense box), a spread cloud (hashed), points outside the cube and NaN.
+        let patch: Vec<[f64; 3]> = (0..3000).map(|_| [0.1 + 0.01 * rnd(), 2.5 + 0.02 * rnd(), 1.0 + 0.003 * rnd()]).collect();
+        let cloud: Vec<[f64; 3]> = (0..3000).map(|_| [-1.0 + 3.0 * rnd(), 2.0 + 3.0 * rnd(), 0.5 + 3.0 * rnd()]).collect();
+        let odd = vec![[-5.0, 2.1, 0.6], [9.0, 9.0, 9.0], [f64::NAN, 3.0, 1.0], [0.2, 2.5, 1.0]];
+        for pts in [patch, cloud, odd, Vec::new()] {
+            for depth in [0u8, 4, 10, KEY_DEPTH] {
+                let mut want: std::collections::BTreeMap<u64, u64> = Default::default();
+                for p in &pts {
+                    *want.entry(cube.key(*p) >> (3 * (KEY_DEPTH - depth) as u32)).or_insert(0) += 1;
+                }
+                let got = cube.cell_counts(depth, pts.iter().copied());
+                assert_eq!(got, want.into_iter().collect::<Vec<_>>(), "depth {depth}");
             }
         }
     }
