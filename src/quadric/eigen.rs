@@ -31,16 +31,14 @@ impl Eigen {
 
     fn sized<const N: usize>(a: &Mat, n: usize) -> Eigen {
         let mut m = [[0.0; N]; N];
-        let mut v = [[0.0; N]; N];
         for i in 0..n {
             m[i][..n].copy_from_slice(&a[i][..n]);
-            v[i][i] = 1.0;
         }
-        let sweeps = jacobi(&mut m, &mut v, n);
+        let (l, v, sweeps) = decompose(m, n);
         let mut vals = [0.0; MAX_DIM];
         let mut vecs = [[0.0; MAX_DIM]; MAX_DIM];
         for i in 0..n {
-            vals[i] = m[i][i];
+            vals[i] = l[i];
             vecs[i][..n].copy_from_slice(&v[i][..n]);
         }
         Eigen { n, vals, vecs, sweeps }
@@ -83,9 +81,9 @@ fn apply_pinv<const M: usize>(vals: &[f64], vecs: &[[f64; M]], rel_tol: f64, r: 
 /// decomposition [`eigen3`]; other sizes the same Jacobi rotations as
 /// [`Eigen::new`] (same results).
 pub(super) fn pinv_apply_sized<const N: usize>(a: &[[f64; N]; N], rel_tol: f64, r: &[f64; N], out: &mut [f64; N]) -> usize {
-    let mut vals = [0.0; N];
-    let mut v = [[0.0; N]; N];
-    if N == 3 {
+    let (vals, v) = if N == 3 {
+        let mut vals = [0.0; N];
+        let mut v = [[0.0; N]; N];
         let mut a3 = [[0.0; 3]; 3];
         for i in 0..3 {
             a3[i].copy_from_slice(&a[i][..3]);
@@ -95,17 +93,27 @@ pub(super) fn pinv_apply_sized<const N: usize>(a: &[[f64; N]; N], rel_tol: f64, 
         for i in 0..3 {
             v[i][..3].copy_from_slice(&vecs[i]);
         }
+        (vals, v)
     } else {
-        let mut m = *a;
-        for (i, row) in v.iter_mut().enumerate() {
-            row[i] = 1.0;
-        }
-        jacobi(&mut m, &mut v, N);
-        for i in 0..N {
-            vals[i] = m[i][i];
-        }
-    }
+        let (vals, v, _) = decompose(*a, N);
+        (vals, v)
+    };
     apply_pinv(&vals, &v, rel_tol, r, out)
+}
+
+/// Jacobi eigen-decomposition of the leading n×n block of `m`: its
+/// eigenvalues, eigenvectors (V's columns) and the sweeps used.
+fn decompose<const N: usize>(mut m: [[f64; N]; N], n: usize) -> ([f64; N], [[f64; N]; N], usize) {
+    let mut v = [[0.0; N]; N];
+    for (i, row) in v.iter_mut().enumerate().take(n) {
+        row[i] = 1.0;
+    }
+    let sweeps = jacobi(&mut m, &mut v, n);
+    let mut vals = [0.0; N];
+    for i in 0..n {
+        vals[i] = m[i][i];
+    }
+    (vals, v, sweeps)
 }
 
 /// The Jacobi rotation (cosine, sine, tangent) that zeroes `apq` of the

@@ -366,6 +366,66 @@ fn packed_error(k: &[f64], n: usize, x: &[f64]) -> f64 {
     }
 }
 
+/// The mean of the points added to stored coefficients `k` of dimension
+/// `n` (0 without points, or when not finite), in `M`-sized storage.
+fn packed_mean<const M: usize>(k: &[f64], n: usize) -> [f64; M] {
+    let mut m = [0.0; M];
+    let cnt = k[Quadric::coeff_len(n) - 1];
+    if cnt > 0.0 {
+        let s = a_len(n) + n + 2;
+        for i in 0..n {
+            m[i] = k[s + i] / cnt;
+        }
+        if !m.iter().all(|v| v.is_finite()) {
+            m = [0.0; M];
+        }
+    }
+    m
+}
+
+/// The symmetric matrix A of stored coefficients `k` of dimension `n`, in
+/// the leading n×n block of `M`-sized storage.
+fn packed_matrix<const M: usize>(k: &[f64], n: usize) -> [[f64; M]; M] {
+    let mut a = [[0.0; M]; M];
+    let mut at = 0;
+    for i in 0..n {
+        for j in i..n {
+            a[i][j] = k[at];
+            a[j][i] = k[at];
+            at += 1;
+        }
+    }
+    a
+}
+
+/// `b + A x` (the half-gradient of Q at x) in the first `n` entries.
+fn half_gradient_at<const M: usize>(a: &[[f64; M]; M], b: &[f64], x: &[f64], n: usize) -> [f64; M] {
+    let mut g = [0.0; M];
+    for i in 0..n {
+        g[i] = b[i] + (0..n).map(|j| a[i][j] * x[j]).sum::<f64>();
+    }
+    g
+}
+
+/// The eigenvalue cut-off a solve uses for `rel_tol`.
+fn solve_rel_tol(rel_tol: f64) -> f64 {
+    if rel_tol.is_finite() {
+        rel_tol.max(MIN_REL_TOL)
+    } else {
+        DEFAULT_REL_TOL
+    }
+}
+
+/// A solve's position box with each axis's ends in order.
+fn ordered_box((lo, hi): ([f64; 3], [f64; 3])) -> ([f64; 3], [f64; 3]) {
+    ([0, 1, 2].map(|k| lo[k].min(hi[k])), [0, 1, 2].map(|k| lo[k].max(hi[k])))
+}
+
+/// Whether the position part of `x` lies in the box.
+fn in_box(x: &[f64], lo: [f64; 3], hi: [f64; 3]) -> bool {
+    (0..3).all(|k| x[k] >= lo[k] && x[k] <= hi[k])
+}
+
 /// [`Quadric::solve`] of stored coefficients of dimension `N`, when its
 /// unconstrained minimiser lies in `bounds`: the minimiser, the half-gradient
 /// there ([`Quadric::half_gradient`]) and `Q` there, on arrays of the
@@ -378,35 +438,14 @@ fn packed_error(k: &[f64], n: usize, x: &[f64]) -> f64 {
 /// path, which minimises over the box).
 pub fn solve_sized<const N: usize>(k: &[f64], rel_tol: f64, bounds: ([f64; 3], [f64; 3])) -> Option<([f64; N], [f64; N], f64)> {
     let al = a_len(N);
-    let rel_tol = if rel_tol.is_finite() { rel_tol.max(MIN_REL_TOL) } else { DEFAULT_REL_TOL };
-    // The mean, as `Quadric::mean`.
-    let mut mean = [0.0; N];
-    let cnt = k[Quadric::coeff_len(N) - 1];
-    if cnt > 0.0 {
-        let s = al + N + 2;
-        for i in 0..N {
-            mean[i] = k[s + i] / cnt;
-        }
-        if !mean.iter().all(|v| v.is_finite()) {
-            mean = [0.0; N];
-        }
-    }
-    let mut a = [[0.0; N]; N];
-    let mut at = 0;
-    for i in 0..N {
-        for j in i..N {
-            a[i][j] = k[at];
-            a[j][i] = k[at];
-            at += 1;
-        }
-    }
+    let rel_tol = solve_rel_tol(rel_tol);
+    let mean = packed_mean::<N>(k, N);
+    let a = packed_matrix::<N>(k, N);
     let b = &k[al..al + N];
     let mut x = mean;
     if k[al + N + 1] > 0.0 {
-        let mut rhs = [0.0; N];
-        for i in 0..N {
-            rhs[i] = -b[i] - (0..N).map(|j| a[i][j] * mean[j]).sum::<f64>();
-        }
+        // A dx = −(b + A mean).
+        let rhs = half_gradient_at(&a, b, &mean, N).map(|g| -g);
         let mut dx = [0.0; N];
         eigen::pinv_apply_sized::<N>(&a, rel_tol, &rhs, &mut dx);
         for i in 0..N {
@@ -416,16 +455,11 @@ pub fn solve_sized<const N: usize>(k: &[f64], rel_tol: f64, bounds: ([f64; 3], [
             x = mean;
         }
     }
-    let (lo, hi) = bounds;
-    let (lo, hi) = ([0, 1, 2].map(|k| lo[k].min(hi[k])), [0, 1, 2].map(|k| lo[k].max(hi[k])));
-    if !(0..3).all(|k| x[k] >= lo[k] && x[k] <= hi[k]) {
+    let (lo, hi) = ordered_box(bounds);
+    if !in_box(&x, lo, hi) {
         return None;
     }
-    let mut g = [0.0; N];
-    for i in 0..N {
-        g[i] = b[i] + (0..N).map(|j| a[i][j] * x[j]).sum::<f64>();
-    }
-    Some((x, g, packed_error(k, N, &x)))
+    Some((x, half_gradient_at(&a, b, &x, N), packed_error(k, N, &x)))
 }
 
 impl Quadric {
@@ -491,34 +525,12 @@ impl Quadric {
     }
     /// Mean of the added points (all zero, i.e. the local origin, if none).
     pub fn mean(&self) -> [f64; MAX_DIM] {
-        let n = self.dim;
-        let mut m = [0.0; MAX_DIM];
-        let cnt = self.count();
-        if cnt > 0.0 {
-            let s = a_len(n) + n + 2;
-            for i in 0..n {
-                m[i] = self.k[s + i] / cnt;
-            }
-            if !m.iter().all(|v| v.is_finite()) {
-                m = [0.0; MAX_DIM];
-            }
-        }
-        m
+        packed_mean(&self.k, self.dim)
     }
 
     /// A, expanded to a full symmetric matrix.
     fn matrix(&self) -> Mat {
-        let n = self.dim;
-        let mut a = [[0.0; MAX_DIM]; MAX_DIM];
-        let mut k = 0;
-        for i in 0..n {
-            for j in i..n {
-                a[i][j] = self.k[k];
-                a[j][i] = self.k[k];
-                k += 1;
-            }
-        }
-        a
+        packed_matrix(&self.k, self.dim)
     }
     fn b(&self) -> &[f64] {
         let s = a_len(self.dim);
@@ -782,13 +794,7 @@ impl Quadric {
     /// to ≥ 0 (negative values are roundoff).
     /// Half the gradient at `x`: `A x + b`.
     pub fn half_gradient(&self, x: &[f64]) -> [f64; MAX_DIM] {
-        let a = self.matrix();
-        let b = self.b();
-        let mut g = [0.0; MAX_DIM];
-        for i in 0..self.dim {
-            g[i] = b[i] + (0..self.dim).map(|j| a[i][j] * x[j]).sum::<f64>();
-        }
-        g
+        half_gradient_at(&self.matrix(), self.b(), x, self.dim)
     }
 
     pub fn error(&self, x: &[f64]) -> f64 {
@@ -806,17 +812,14 @@ impl Quadric {
     /// The result is always finite and, with bounds, within them.
     pub fn solve(&self, rel_tol: f64, bounds: Option<([f64; 3], [f64; 3])>) -> Solution {
         let n = self.dim;
-        let rel_tol = if rel_tol.is_finite() { rel_tol.max(MIN_REL_TOL) } else { DEFAULT_REL_TOL };
+        let rel_tol = solve_rel_tol(rel_tol);
         let mean = self.mean();
         let a = self.matrix();
-        let b = self.b();
         let mut x = mean;
         let mut rank = 0;
         if !self.is_empty() {
-            let mut rhs = [0.0; MAX_DIM];
-            for i in 0..n {
-                rhs[i] = -b[i] - (0..n).map(|j| a[i][j] * mean[j]).sum::<f64>();
-            }
+            // A dx = −(b + A mean).
+            let rhs = half_gradient_at(&a, self.b(), &mean, n).map(|g| -g);
             let eig = Eigen::new(&a, n);
             let mut dx = [0.0; MAX_DIM];
             rank = eig.pinv_apply(rel_tol, &rhs, &mut dx);
@@ -831,8 +834,8 @@ impl Quadric {
         let Some((lo, hi)) = bounds else {
             return Solution { x, rank, clamped: false, error: self.error(&x) };
         };
-        let (lo, hi) = ([0, 1, 2].map(|k| lo[k].min(hi[k])), [0, 1, 2].map(|k| lo[k].max(hi[k])));
-        if (0..3).all(|k| x[k] >= lo[k] && x[k] <= hi[k]) {
+        let (lo, hi) = ordered_box((lo, hi));
+        if in_box(&x, lo, hi) {
             return Solution { x, rank, clamped: false, error: self.error(&x) };
         }
         if rank > 0 {
