@@ -57,7 +57,7 @@ pub fn build_store(input: &Path, output: &Path, opts: &BuildOptions) -> Result<B
     let lo = LodOptions { params: opts.params.clone(), quiet: opts.quiet, ..Default::default() };
     // Level 0's cells are counted as the soup is written (external path).
     let mut first = FirstCount::new(&lo.octree());
-    let soup_opts = SoupOptions { mem: opts.params.mem, quiet: opts.quiet, ..Default::default() };
+    let soup_opts = SoupOptions { mem: opts.params.mem, quiet: opts.quiet, scratch: true, ..Default::default() };
     let soup = build_soup_tapped(input, &soup_path, &soup_opts, Some(&mut first))?;
     let t1 = Instant::now();
     let built = crate::lod::build(&soup_path, out.path(), &lo, Some(first))?;

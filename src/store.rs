@@ -242,11 +242,25 @@ impl PackWriter {
         self.pos += payload.len() as u64;
         Ok((off, len))
     }
+    /// Flushes the pack (not synced: see [`sync_packs`]); returns its size.
     pub fn finish(self) -> Result<u64> {
-        let f = self.w.into_inner().map_err(|e| e.into_error()).ctx(&self.path, "write pack file")?;
-        f.sync_all().ctx(&self.path, "sync")?;
+        self.w.into_inner().map_err(|e| e.into_error()).ctx(&self.path, "write pack file")?;
         Ok(self.pos)
     }
+}
+
+/// Syncs the pack files of levels `0..levels` in `dir` to disk: once, when
+/// every level is written, so no level waits for its own pack's writeback
+/// (the kernel writes each back while the next levels are built). Done
+/// before the index that makes the store readable, so a store that opens
+/// has its payload on disk. (At 120 M triangles this measured the same wall
+/// time as syncing each pack when complete, within run-to-run noise.)
+pub fn sync_packs(dir: &Path, levels: usize) -> Result<()> {
+    for level in 0..levels {
+        let path = pack_file(dir, level);
+        File::open(&path).ctx(&path, "open pack file")?.sync_all().ctx(&path, "sync")?;
+    }
+    Ok(())
 }
 
 /// The pack file of `level` in store directory `dir`.

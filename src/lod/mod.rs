@@ -556,6 +556,7 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions, first: Option<FirstCoun
         nodes[i].parent_count = ps.len() as u32;
         parents.extend_from_slice(ps);
     }
+    crate::store::sync_packs(dir, reports.len())?;
     let header = StoreHeader {
         attrs,
         derived_normals: derived,

@@ -104,8 +104,12 @@ pub struct SoupWriter {
 
 impl SoupWriter {
     /// An existing soup is replaced only when `force` is set (see `io::check_output`).
-    pub fn create(path: &Path, attrs: AttrSet, force: bool) -> Result<SoupWriter> {
+    /// `scratch`: not synced to disk on commit ([`AtomicFile::scratch`]).
+    pub fn create(path: &Path, attrs: AttrSet, force: bool, scratch: bool) -> Result<SoupWriter> {
         let mut out = AtomicFile::create(path, crate::io::OutputKind::Soup, force)?;
+        if scratch {
+            out = out.scratch();
+        }
         let header = SoupHeader { attrs, triangles: 0, input_vertices: 0, input_faces: 0, degenerate: 0, bbox: Aabb::EMPTY };
         out.write_all(&[0u8; HEADER_SIZE]).ctx(path, "write")?;
         Ok(SoupWriter { out, header, layout: VertexLayout::new(attrs) })

@@ -67,11 +67,14 @@ pub struct SoupOptions {
     /// while slots stay below this (default 2³²); an input with more slots
     /// starts phase 1 again with 8-byte slots. Lowered only by tests.
     pub narrow_slots: u64,
+    /// The soup is the caller's scratch (`build`'s, removed once the levels
+    /// are built): not synced to disk when it is complete.
+    pub scratch: bool,
 }
 
 impl Default for SoupOptions {
     fn default() -> Self {
-        SoupOptions { mem: crate::mem::DEFAULT_BUDGET, quiet: true, force_external: false, replace: false, narrow_slots: 1 << 32 }
+        SoupOptions { mem: crate::mem::DEFAULT_BUDGET, quiet: true, force_external: false, replace: false, narrow_slots: 1 << 32, scratch: false }
     }
 }
 
@@ -284,7 +287,7 @@ impl BodySink for InMemorySink<'_> {
 
 fn build_in_memory(input: &Path, output: &Path, header: &PlyHeader, opts: &SoupOptions, progress: &Progress) -> Result<SoupReport> {
     let layout = VertexLayout::new(header.attrs);
-    let mut soup = SoupWriter::create(output, header.attrs, opts.replace)?;
+    let mut soup = SoupWriter::create(output, header.attrs, opts.replace, opts.scratch)?;
     let mut sink = InMemorySink {
         table: Vec::with_capacity(header.vertex_count() as usize * layout.size),
         layout,
@@ -473,7 +476,7 @@ fn build_external(
     let t2 = Instant::now();
     // Phase 3: each slot range placed in memory, written as triangles in order.
     let write_progress = Progress::items(body.triangles, "writing", opts.quiet);
-    let mut soup = SoupWriter::create(output, header.attrs, opts.replace)?;
+    let mut soup = SoupWriter::create(output, header.attrs, opts.replace, opts.scratch)?;
     let mut written = 0u64;
     let slot_buckets = buckets.len();
     if let Some(t) = tap.as_mut() {
