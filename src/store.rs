@@ -137,8 +137,8 @@ pub struct NodeMesh {
 /// Encodes a payload (see the module doc). `patches` are (child, count) in order.
 pub fn encode_payload(layout: &VertexLayout, m: &IndexedMesh, patches: &[(u32, u32)], out: &mut Vec<u8>) {
     out.clear();
-    let wide = m.vertices.len() > u16::MAX as usize;
-    for x in [m.vertices.len() as u32, m.triangles.len() as u32, if wide { 4 } else { 2 }, patches.len() as u32] {
+    let nv = m.vertices.len();
+    for x in [nv as u32, m.triangles.len() as u32, index_width(nv) as u32, patches.len() as u32] {
         out.extend_from_slice(&x.to_le_bytes());
     }
     for &(c, n) in patches {
@@ -150,14 +150,41 @@ pub fn encode_payload(layout: &VertexLayout, m: &IndexedMesh, patches: &[(u32, u
     for (k, v) in m.vertices.iter().enumerate() {
         layout.encode(v, &mut out[at + k * layout.size..]);
     }
-    for t in &m.triangles {
-        for &i in t {
-            if wide {
-                out.extend_from_slice(&i.to_le_bytes());
-            } else {
-                out.extend_from_slice(&(i as u16).to_le_bytes());
-            }
+    push_indices(out, nv, m.triangles.iter().flatten().copied());
+}
+
+/// Bytes of a vertex index in a mesh of `nv` vertices, as payloads and the
+/// LOD builder's chunks store them: 2 while every index fits a `u16`, else 4.
+pub fn index_width(nv: usize) -> usize {
+    if nv > u16::MAX as usize {
+        4
+    } else {
+        2
+    }
+}
+
+/// Appends vertex indices of a mesh of `nv` vertices, [`index_width`]
+/// bytes each, little-endian.
+pub fn push_indices(out: &mut Vec<u8>, nv: usize, ids: impl Iterator<Item = u32>) {
+    if index_width(nv) == 2 {
+        for i in ids {
+            out.extend_from_slice(&(i as u16).to_le_bytes());
         }
+    } else {
+        for i in ids {
+            out.extend_from_slice(&i.to_le_bytes());
+        }
+    }
+}
+
+/// Index `k` of indices written `width` bytes each ([`push_indices`]).
+#[inline]
+pub fn index_at(b: &[u8], width: usize, k: usize) -> u32 {
+    let o = k * width;
+    if width == 4 {
+        u32::from_le_bytes(b[o..o + 4].try_into().unwrap())
+    } else {
+        u16::from_le_bytes(b[o..o + 2].try_into().unwrap()) as u32
     }
 }
 
@@ -201,12 +228,7 @@ pub fn decode_payload(layout: &VertexLayout, b: &[u8], file: &Path, offset: u64)
     for t in 0..nt {
         let mut tri = [0u32; 3];
         for c in 0..3 {
-            let o = (3 * t + c) * isz;
-            tri[c] = if isz == 4 {
-                u32::from_le_bytes(ib[o..o + 4].try_into().unwrap())
-            } else {
-                u16::from_le_bytes(ib[o..o + 2].try_into().unwrap()) as u32
-            };
+            tri[c] = index_at(ib, isz, 3 * t + c);
             if tri[c] as usize >= nv {
                 return Err(bad(format!("triangle {t} index {} out of range ({nv} vertices)", tri[c])));
             }

@@ -14,8 +14,9 @@
 //! position (packed upper-triangle matrix, half-gradient, residual:
 //! [`crate::quadric::carry_len`]; attribute dimensions unweighted) and one flag
 //! byte (bit 0: locked at the source's level), then 3 indices per triangle,
-//! `u16` when the chunk has at most 65,536 vertices (nearly always: a chunk
-//! is part of one leaf), else `u32` ([`index_width`]). The narrow indices
+//! `u16` when the chunk has at most 65,535 vertices (nearly always: a chunk
+//! is part of one leaf), else `u32` — the store payload's rule
+//! ([`crate::store::index_width`]). The narrow indices
 //! cut level 0's chunks by a third and later levels' by a sixth: bytes that
 //! are copied into fresh page cache and back, at 2.4 s of CPU a GB written
 //! on the README's 2-core VM.
@@ -32,7 +33,7 @@
 
 use crate::error::{Error, IoContext, Location, Result};
 use crate::mesh::VertexLayout;
-use crate::store::IndexedMesh;
+use crate::store::{index_at, index_width, push_indices, IndexedMesh};
 use rustc_hash::FxHashMap;
 use std::fs::File;
 use std::path::PathBuf;
@@ -233,11 +234,7 @@ impl ChunkFile {
             }
             let tb = &b[16 + nv * rec..];
             for tri in tb.chunks_exact(3 * iw) {
-                let c = |j: usize| match iw {
-                    2 => u16::from_le_bytes(tri[2 * j..2 * j + 2].try_into().unwrap()) as usize,
-                    _ => u32::from_le_bytes(tri[4 * j..4 * j + 4].try_into().unwrap()) as usize,
-                };
-                let tri = [c(0), c(1), c(2)];
+                let tri = [0, 1, 2].map(|j| index_at(tri, iw, j) as usize);
                 if tri.iter().any(|&i| i >= nv) {
                     return Err(bad());
                 }
@@ -280,28 +277,6 @@ impl ChunkEncoder {
             out.push(locked[k] as u8);
         }
         push_indices(out, m.vertices.len(), m.triangles.iter().flatten().copied());
-    }
-}
-
-/// Bytes of a vertex index in a chunk of `nv` vertices.
-pub fn index_width(nv: usize) -> usize {
-    if nv <= 1 << 16 {
-        2
-    } else {
-        4
-    }
-}
-
-/// Appends vertex indices of a chunk of `nv` vertices, [`index_width`] bytes each.
-fn push_indices(out: &mut Vec<u8>, nv: usize, ids: impl Iterator<Item = u32>) {
-    if index_width(nv) == 2 {
-        for i in ids {
-            out.extend_from_slice(&(i as u16).to_le_bytes());
-        }
-    } else {
-        for i in ids {
-            out.extend_from_slice(&i.to_le_bytes());
-        }
     }
 }
 
@@ -418,7 +393,7 @@ mod tests {
         assert_eq!(a.len(), 16 + mesh.vertices.len() * (layout.size + 1) + 100 * 3 * 2);
     }
 
-    /// Chunks of up to 65,536 vertices carry u16 indices, larger ones u32;
+    /// Chunks of up to 65,535 vertices carry u16 indices, larger ones u32;
     /// both read back as written.
     #[test]
     fn narrow_and_wide_chunks_read_back() {
@@ -431,13 +406,13 @@ mod tests {
             m.triangles = (0..nv - 2).map(|i| if i % 2 == 0 { [i, i + 1, i + 2] } else { [i + 1, i, i + 2] }).collect();
             m
         };
-        let meshes = [strip(1 << 16), strip((1 << 16) + 1), strip(5)];
+        let meshes = [strip(u16::MAX as u32), strip(u16::MAX as u32 + 1), strip(5)];
         let mut bytes = Vec::new();
         for (t, m) in meshes.iter().enumerate() {
             let a: Vec<f32> = (0..m.vertices.len()).map(|i| i as f32).collect();
             let locked: Vec<bool> = (0..m.vertices.len()).map(|i| i % 3 == 0).collect();
             file.encode(t as u32, 9, m, &a, &locked, &mut bytes);
-            let iw = if m.vertices.len() <= 1 << 16 { 2 } else { 4 };
+            let iw = if m.vertices.len() <= u16::MAX as usize { 2 } else { 4 };
             assert_eq!(bytes.len(), 16 + m.vertices.len() * (12 + 4 + 1) + m.triangles.len() * 3 * iw);
             file.append(t as u32, &bytes).unwrap();
         }
