@@ -94,9 +94,10 @@ enum Cmd {
         /// cluster (generalized-quadric vertex clustering, fast).
         #[arg(long, default_value = "collapse")]
         simplifier: octolod::reduce::Simplifier,
-        /// Metro samples per direction when checking --target-error.
-        #[arg(long, default_value_t = 1_000_000)]
-        verify_samples: u64,
+        /// Metro samples per direction when checking --target-error
+        /// [default: metro's own, 10 × the larger face count].
+        #[arg(long)]
+        verify_samples: Option<u64>,
         /// Print the report as JSON.
         #[arg(long)]
         json: bool,

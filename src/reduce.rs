@@ -130,8 +130,10 @@ pub struct ReduceOptions {
     pub target: Target,
     pub simplifier: Simplifier,
     pub mem: u64,
-    /// Metro samples per direction when an error target is verified.
-    pub verify_samples: u64,
+    /// Metro samples per direction when an error target is verified; None:
+    /// metro's own default (10 × the larger face count), the budget of a
+    /// plain `octolod metro` run, so its check agrees with the result's.
+    pub verify_samples: Option<u64>,
     pub force: bool,
 }
 
@@ -158,6 +160,8 @@ pub struct ReduceReport {
     pub hausdorff: Option<f64>,
     /// Meshes built and measured (error targets).
     pub tries: u32,
+    /// Metro samples per direction of the last measurement (error targets).
+    pub verify_samples: Option<u64>,
 }
 
 /// A reduction's result: in memory, or already spooled into the output
@@ -286,7 +290,7 @@ fn reduce_to_error(store: &Store, e: f64, o: &ReduceOptions) -> Result<(IndexedM
         };
         rep.start_triangles = cut.triangles(store);
         write_mesh_ply(&candidate, store.header.attrs, "octolod simplify candidate", &mesh, true)?;
-        let mopts = metro::Options { samples: Some(o.verify_samples), seed: 1, quiet: true };
+        let mopts = metro::Options { samples: o.verify_samples, seed: 1, quiet: true };
         let r = metro::compare_sources(
             &Source::Store(store.dir.clone(), 0),
             &Source::Ply(candidate.clone()),
@@ -295,6 +299,7 @@ fn reduce_to_error(store: &Store, e: f64, o: &ReduceOptions) -> Result<(IndexedM
         )?;
         let h = r.combined.max;
         rep.hausdorff = Some(h);
+        rep.verify_samples = Some(r.samples_target);
         // A 5 % margin: metro's face samples are random, and another run
         // with more samples may find a slightly larger maximum.
         if h <= 0.95 * e || last {
