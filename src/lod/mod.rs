@@ -52,14 +52,15 @@
 //!    itself. Taking only the largest, as Nexus and meshoptimizer's
 //!    clusterlod do by default, measured up to 2.2× below metro's
 //!    distance to the input (a 2 M scan's level 7); the sum measured
-//!    1.1–2.3× above it from level 2 on (README "Cuts everywhere"). Its
-//!    bounds hold its triangles and its children's bounds. Projected error
-//!    therefore never grows from a node to its parent, along any path. A node whose error is set by a
-//!    few points (input vertices far from its own output: a flap folded
-//!    over a neighbour's surface, dropped as a fold; representatives far
-//!    from its own input) has them measured again against the whole next
-//!    level, or the whole level ([`remeasure_far`]): the neighbour's
-//!    surface there is what a cut draws.
+//!    1.1–2.3× above it from level 2 on (the README's "What E bounds").
+//!    Its bounds hold its triangles and its children's bounds. Projected
+//!    error therefore never grows from a node to its parent, along any
+//!    path. A node whose error is set by a few points (input vertices far
+//!    from its own output: a flap folded over a neighbour's surface,
+//!    dropped as a fold; representatives far from its own input) has them
+//!    measured again against the whole next level, or the whole level
+//!    ([`remeasure_far`]): the neighbour's surface there is what a cut
+//!    draws.
 //! 6. **Patches.** Node N of level L+1 stores its triangles grouped by the
 //!    level-L node (child) each came from; a cut draws, per selected node,
 //!    the patches whose child is not selected ([`crate::store`]).
