@@ -393,7 +393,6 @@ fn attributes_are_carried() {
 /// measured (metro, both directions) distance to the input.
 #[test]
 fn node_errors_are_not_inflated_by_flaps() {
-    use octolod::metro::{self, MemOptions, Source};
     use octolod::store::Simplifier;
     let d = tempfile::tempdir().unwrap();
     let (ply, _) = common::gen_ply_seeded(d.path(), Shape::Sphere, 200_000, 0, 1);
@@ -404,20 +403,11 @@ fn node_errors_are_not_inflated_by_flaps() {
         let sub = d.path().join(format!("{simplifier:?}"));
         std::fs::create_dir(&sub).unwrap();
         let dir = common::build_store_at(&sub, &ply, &common::build_options(params));
-        let s = Store::open(&dir).unwrap();
-        let mut checked = 0;
-        for l in 1..=s.top_level() {
-            if s.level_triangles(l) < 5000 {
-                break;
-            }
-            let err = s.level_nodes(l).into_iter().map(|i| s.nodes[i].error as f64).fold(0.0, f64::max);
-            let opts = metro::Options { samples: Some(100_000), seed: 1, quiet: true };
-            let r = metro::compare_sources(&Source::Ply(ply.clone()), &Source::Store(dir.clone(), l), &opts, &MemOptions { budget: 256 << 20, explicit: false }).unwrap();
-            let h = r.combined.max;
+        let levels = level_errors_and_distances(&dir, &ply, 1, 5000, Some(100_000));
+        for &(l, err, h) in &levels {
             assert!(err <= 3.0 * h, "{simplifier:?} level {l}: largest node error {err:.3e} is {:.1}x the level's Hausdorff distance {h:.3e}", err / h);
-            checked += 1;
         }
-        assert!(checked >= 4, "{simplifier:?}: {checked} levels checked");
+        assert!(levels.len() >= 4, "{simplifier:?}: {} levels checked", levels.len());
     }
 }
 
@@ -429,7 +419,6 @@ fn node_errors_are_not_inflated_by_flaps() {
 /// up to 2.2× farther from the input than their errors said.
 #[test]
 fn node_errors_bound_the_distance_to_the_input() {
-    use octolod::metro::{self, MemOptions, Source};
     let d = tempfile::tempdir().unwrap();
     for shape in [Shape::Terrain, Shape::Scan] {
         let sub = d.path().join(format!("{shape:?}"));
@@ -437,19 +426,29 @@ fn node_errors_bound_the_distance_to_the_input() {
         let (ply, _) = common::gen_ply_seeded(&sub, shape, 200_000, 0, 1);
         let params = common::BuildParams { leaf_tris: 2000, ..Default::default() };
         let dir = common::build_store_at(&sub, &ply, &common::build_options(params));
-        let s = Store::open(&dir).unwrap();
-        let mut checked = 0;
-        for l in 2..=s.top_level() {
-            if s.level_triangles(l) < 2000 {
-                break;
-            }
-            let err = s.level_nodes(l).into_iter().map(|i| s.nodes[i].error as f64).fold(0.0, f64::max);
-            let opts = metro::Options { samples: None, seed: 1, quiet: true };
-            let r = metro::compare_sources(&Source::Ply(ply.clone()), &Source::Store(dir.clone(), l), &opts, &MemOptions { budget: 256 << 20, explicit: false }).unwrap();
-            let h = r.combined.max;
+        let levels = level_errors_and_distances(&dir, &ply, 2, 2000, None);
+        for &(l, err, h) in &levels {
             assert!(h <= err, "{shape:?} level {l}: metro puts it {h:.3e} from the input, {:.2}x its largest node error {err:.3e}", h / err);
-            checked += 1;
         }
-        assert!(checked >= 4, "{shape:?}: {checked} levels checked");
+        assert!(levels.len() >= 4, "{shape:?}: {} levels checked", levels.len());
     }
+}
+
+/// Per level from `from` on, while it holds at least `min_tris` triangles:
+/// (level, its largest node error, metro's two-sided Hausdorff distance
+/// between the input `ply` and the level, `samples` per direction).
+fn level_errors_and_distances(dir: &std::path::Path, ply: &std::path::Path, from: u8, min_tris: u64, samples: Option<u64>) -> Vec<(u8, f64, f64)> {
+    use octolod::metro::{self, MemOptions, Source};
+    let s = Store::open(dir).unwrap();
+    let mut out = Vec::new();
+    for l in from..=s.top_level() {
+        if s.level_triangles(l) < min_tris {
+            break;
+        }
+        let err = s.level_nodes(l).into_iter().map(|i| s.nodes[i].error as f64).fold(0.0, f64::max);
+        let opts = metro::Options { samples, seed: 1, quiet: true };
+        let r = metro::compare_sources(&Source::Ply(ply.to_path_buf()), &Source::Store(dir.to_path_buf(), l), &opts, &MemOptions { budget: 256 << 20, explicit: false }).unwrap();
+        out.push((l, err, r.combined.max));
+    }
+    out
 }
