@@ -11,7 +11,7 @@ pub mod bvh;
 pub mod tri;
 
 pub use bvh::{Bvh, Closest};
-pub use tri::{closest_point_segment, closest_point_triangle, TriKind};
+pub use tri::{closest_point_segment, closest_point_triangle, face_samples, TriKind};
 
 use crate::mesh::{Aabb, Vertex};
 

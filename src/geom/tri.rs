@@ -244,3 +244,13 @@ mod tests {
         }
     }
 }
+
+/// Samples of triangle `c`'s face besides its corners: the midpoints of its
+/// three edges and its centroid (where a triangle's corners alone would
+/// not do: a point over a hole the triangle spans, a face its neighbours'
+/// corners do not cover).
+#[inline]
+pub fn face_samples(c: [P3; 3]) -> [P3; 4] {
+    let mid = |a: P3, b: P3| [0, 1, 2].map(|k| 0.5 * (a[k] + b[k]));
+    [mid(c[0], c[1]), mid(c[1], c[2]), mid(c[2], c[0]), [0, 1, 2].map(|k| (c[0][k] + c[1][k] + c[2][k]) / 3.0)]
+}
