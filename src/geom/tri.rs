@@ -6,7 +6,8 @@
 //! the longest edge) use a plane projection with an edge-sign inside test
 //! and fall back to the edges, and degenerate ones (height at most 1e-8 of
 //! the longest edge: collinear or coincident corners) are the union of
-//! their three edges as segments, so no input produces NaN.
+//! their three edges as segments, so no input produces NaN. Also the
+//! points that sample a face besides its corners ([`face_samples`]).
 
 use super::{add, cross, dist2, dot, scale, sub, P3};
 
@@ -141,6 +142,16 @@ fn ericson(p: P3, a: P3, b: P3, c: P3) -> P3 {
     add(a, add(scale(ab, v), scale(ac, w)))
 }
 
+/// Samples of triangle `c`'s face besides its corners: the midpoints of its
+/// three edges and its centroid (where a triangle's corners alone would
+/// not do: a point over a hole the triangle spans, a face its neighbours'
+/// corners do not cover).
+#[inline]
+pub fn face_samples(c: [P3; 3]) -> [P3; 4] {
+    let mid = |a: P3, b: P3| [0, 1, 2].map(|k| 0.5 * (a[k] + b[k]));
+    [mid(c[0], c[1]), mid(c[1], c[2]), mid(c[2], c[0]), [0, 1, 2].map(|k| (c[0][k] + c[1][k] + c[2][k]) / 3.0)]
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -243,14 +254,4 @@ mod tests {
             assert!(back < 1e-9, "case {k}: returned point is {back} off the triangle");
         }
     }
-}
-
-/// Samples of triangle `c`'s face besides its corners: the midpoints of its
-/// three edges and its centroid (where a triangle's corners alone would
-/// not do: a point over a hole the triangle spans, a face its neighbours'
-/// corners do not cover).
-#[inline]
-pub fn face_samples(c: [P3; 3]) -> [P3; 4] {
-    let mid = |a: P3, b: P3| [0, 1, 2].map(|k| 0.5 * (a[k] + b[k]));
-    [mid(c[0], c[1]), mid(c[1], c[2]), mid(c[2], c[0]), [0, 1, 2].map(|k| (c[0][k] + c[1][k] + c[2][k]) / 3.0)]
 }

@@ -266,12 +266,13 @@ pub fn compact(vertices: &[Vertex], tris: &[[u32; 3]]) -> (IndexedMesh, Vec<u32>
 /// input vertex to the output surface and from an output vertex to the
 /// input surface, exact (closest points through a BVH of each side), and
 /// from the face samples next to the mesh's own open border
-/// ([`super::measure::BorderFaces`]: on a grid with one-cell holes the vertices
-/// alone put a level-1 cut at 1.27× its error by metro). Edge
+/// ([`super::measure::BorderFaces`]: on a grid with one-cell holes the
+/// vertices alone put a level-1 cut at 1.27× its error by metro). Edge
 /// collapse keeps no member lists, so the neighbourhood bound of
-/// [`super::measure::node_error`] does not apply. An empty output has the input's
-/// extent as its error. Also gives each side's farthest points, as
-/// [`super::measure::node_error`] does, for [`super::measure::remeasure_far`].
+/// [`super::measure::node_error`] does not apply. An empty output has the
+/// input's extent as its error. Also gives each side's farthest points, as
+/// [`super::measure::node_error`] does, for
+/// [`super::measure::remeasure_far`].
 pub fn collapse_error(input: &IndexedMesh, locked: &[bool], output: &IndexedMesh, from: &[u32]) -> super::NodeError {
     use crate::geom::{Bvh, Mesh};
     use super::measure::{Farthest, NodeError};
@@ -295,17 +296,17 @@ pub fn collapse_error(input: &IndexedMesh, locked: &[bool], output: &IndexedMesh
     for &f in from {
         on_output[f as usize] = is_locked(f as usize);
     }
-    // Each side's largest distances (squared) kept for `remeasure_far`,
-    // as node_error keeps them; `rest` is the largest of the others.
     // Faces next to the mesh's own open border too (as node_error samples
-    // them, [`super::measure::BorderFaces`]): the free input vertices whose fan
-    // does not close, and the output vertices that are one.
+    // them, [`super::measure::BorderFaces`]): the free input vertices whose
+    // fan does not close, and the output vertices that are one.
     let mut border = super::measure::open_fans(input.vertices.len(), &input.triangles);
     for (v, b) in border.iter_mut().enumerate() {
         *b &= !is_locked(v);
     }
     let touched: Vec<bool> = from.iter().map(|&f| border[f as usize]).collect();
     let samples = super::measure::BorderFaces::new(input, output, &border, &touched);
+    // Each side's largest distances (squared) kept for `remeasure_far`,
+    // as node_error keeps them; `rest` is the largest of the others.
     let mut top = Farthest::default();
     let out_bvh = Bvh::new(&Mesh::from_vertices(&output.vertices, output.triangles.clone()));
     let nv = input.vertices.len();
