@@ -273,6 +273,10 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions, first: Option<FirstCoun
         let progress = Progress::items(2 * ids.len() as u64, &format!("level {level}"), opts.quiet);
         let mut sorter = SharedSort::new((opts.params.mem / 4) as usize, scratch.path());
         let mut hist = Histogram::new(HIST_DEPTH, hist_cap);
+        // The histogram's depth so far: it only coarsens (when it outgrows
+        // its cells), so nodes count at it, not finer; the counts come out
+        // the same, with up to 8x fewer runs for the (serial) merge.
+        let hist_depth = std::sync::atomic::AtomicU8::new(hist.depth());
         let stride = (ids.len() / SAMPLED_NODES).max(1);
         let mut samples: Vec<Curve> = Vec::new();
         let mut error_samples: Vec<collapse::ErrorCurve> = Vec::new();
@@ -294,15 +298,17 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions, first: Option<FirstCoun
                     }
                 }
                 // Centroid counts at the histogram's depth, as sorted runs.
-                let h = if is_final { Vec::new() } else { nc.cell_counts(HIST_DEPTH, g.mesh.triangles.iter().map(|t| tri_centroid(&g.mesh, t))) };
-                Ok(Pass1 { records, hist: h, positions: w.pos.len() as u64 })
+                let d = hist_depth.load(std::sync::atomic::Ordering::Relaxed);
+                let h = if is_final { Vec::new() } else { nc.cell_counts(d, g.mesh.triangles.iter().map(|t| tri_centroid(&g.mesh, t))) };
+                Ok(Pass1 { records, hist: h, hist_depth: d, positions: w.pos.len() as u64 })
             },
             |k, r: Pass1| {
                 let node = (base + k) as u32;
                 for (p, n, f) in r.records {
                     sorter.push(node, p, n, f)?;
                 }
-                hist.add_runs(HIST_DEPTH, &r.hist);
+                hist.add_runs(r.hist_depth, &r.hist);
+                hist_depth.store(hist.depth(), std::sync::atomic::Ordering::Relaxed);
                 positions_total += r.positions;
                 progress.inc(1);
                 Ok(())
@@ -587,8 +593,9 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions, first: Option<FirstCoun
 /// Pass-1 result of one node.
 struct Pass1 {
     records: Vec<([f64; 3], [f32; 3], u32)>,
-    /// (key at HIST_DEPTH, count), sorted.
+    /// (key at `hist_depth`, count), sorted.
     hist: Vec<(u64, u64)>,
+    hist_depth: u8,
     positions: u64,
 }
 
