@@ -328,7 +328,7 @@ pub fn collapse_error(input: &IndexedMesh, locked: &[bool], output: &IndexedMesh
     }
     let error = top.max().max(top_r.max()).sqrt();
     let base = top.rest.max(top_r.rest).sqrt();
-    let far = top.points(|v| samples.point(&input.vertices, &samples.input, v));
-    let far_reps = top_r.points(|o| samples.point(&output.vertices, &samples.output, o));
+    let far = top.points(|v| samples.input_point(input, v));
+    let far_reps = top_r.points(|o| samples.output_point(output, o));
     NodeError { error, base, far, far_reps }
 }

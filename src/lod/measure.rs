@@ -39,9 +39,10 @@ use std::collections::BinaryHeap;
 /// ([`BorderFaces`]): there clustering can fill a small hole, or move its
 /// rim, while every vertex stays on the other surface.
 ///
-/// Also gives the input vertices that set the error (those farther than a
-/// quarter of it from the output), so the level can measure them again
-/// against the whole next level ([`NodeError`], [`remeasure_far`]).
+/// Also gives the input points (vertices or face samples) that set the
+/// error (those farther than a quarter of it from the output), so the
+/// level can measure them again against the whole next level
+/// ([`NodeError`], [`remeasure_far`]).
 pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> NodeError {
     use crate::geom::{Bvh, Mesh};
     let output = &out.mesh;
@@ -187,8 +188,8 @@ pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> NodeError {
     // The far points: those with the largest bounds; every other one is
     // within `rest` (input side) or `rest_r` (representatives).
     let base = top.rest.max(rest_r).sqrt();
-    let far = top.points(|v| border.point(&input.vertices, &border.input, v));
-    let far_reps = top_r.map_or_else(Vec::new, |t| t.points(|o| border.point(&output.vertices, &border.output, o)));
+    let far = top.points(|v| border.input_point(input, v));
+    let far_reps = top_r.map_or_else(Vec::new, |t| t.points(|o| border.output_point(output, o)));
     NodeError { error: in_d2.max(r2).sqrt(), base, far, far_reps }
 }
 
@@ -392,12 +393,24 @@ impl BorderFaces {
         f
     }
 
-    /// Point `id`: a vertex of `vertices`, or sample `id − vertices.len()`.
-    pub(crate) fn point(&self, vertices: &[crate::mesh::Vertex], samples: &[([f64; 3], u32)], id: u32) -> [f64; 3] {
-        match vertices.get(id as usize) {
-            Some(v) => v.pos,
-            None => samples[id as usize - vertices.len()].0,
-        }
+    /// Input point `id` (as numbered for [`Farthest`]): a vertex of
+    /// `input`, or input sample `id − input.vertices.len()`.
+    pub(crate) fn input_point(&self, input: &IndexedMesh, id: u32) -> [f64; 3] {
+        point(&input.vertices, &self.input, id)
+    }
+
+    /// Output point `id`: a vertex of `output`, or output sample
+    /// `id − output.vertices.len()`.
+    pub(crate) fn output_point(&self, output: &IndexedMesh, id: u32) -> [f64; 3] {
+        point(&output.vertices, &self.output, id)
+    }
+}
+
+/// Point `id` of a side: its vertex, or the sample numbered after them.
+fn point(vertices: &[crate::mesh::Vertex], samples: &[([f64; 3], u32)], id: u32) -> [f64; 3] {
+    match vertices.get(id as usize) {
+        Some(v) => v.pos,
+        None => samples[id as usize - vertices.len()].0,
     }
 }
 
