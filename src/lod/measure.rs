@@ -347,8 +347,8 @@ fn tri_dist2(p: [f64; 3], c: [[f64; 3]; 3]) -> f64 {
 /// Where: each such triangle's edge midpoints and centroid
 /// ([`crate::geom::face_samples`]); lattices of up to 8 steps a side on
 /// the output triangles found no more on that grid. Cost: about 5 % of a
-/// build's CPU on the generator's 2 M scan, 10 % on a grid with 600 small
-/// holes, nothing measurable on closed inputs.
+/// build's CPU on the generator's 2 M scan, nothing measurable on closed
+/// inputs (README, "What E bounds").
 pub(crate) struct BorderFaces {
     pub input: Vec<([f64; 3], u32)>,
     pub output: Vec<([f64; 3], u32)>,
