@@ -438,7 +438,7 @@ fn node_errors_bound_the_distance_to_the_input() {
 /// (level, its largest node error, metro's two-sided Hausdorff distance
 /// between the input `ply` and the level, `samples` per direction).
 fn level_errors_and_distances(dir: &std::path::Path, ply: &std::path::Path, from: u8, min_tris: u64, samples: Option<u64>) -> Vec<(u8, f64, f64)> {
-    use octolod::metro::{self, MemOptions, Source};
+    use octolod::metro::Source;
     let s = Store::open(dir).unwrap();
     let mut out = Vec::new();
     for l in from..=s.top_level() {
@@ -446,11 +446,17 @@ fn level_errors_and_distances(dir: &std::path::Path, ply: &std::path::Path, from
             break;
         }
         let err = s.level_nodes(l).into_iter().map(|i| s.nodes[i].error as f64).fold(0.0, f64::max);
-        let opts = metro::Options { samples, seed: 1, quiet: true };
-        let r = metro::compare_sources(&Source::Ply(ply.to_path_buf()), &Source::Store(dir.to_path_buf(), l), &opts, &MemOptions { budget: 256 << 20, explicit: false }).unwrap();
-        out.push((l, err, r.combined.max));
+        out.push((l, err, metro_max(Source::Ply(ply.to_path_buf()), Source::Store(dir.to_path_buf(), l), samples, 256 << 20)));
     }
     out
+}
+
+/// Metro's two-sided Hausdorff distance between `a` and `b` (`samples` per
+/// direction, metro's default when None), under a `budget` of bytes.
+fn metro_max(a: octolod::metro::Source, b: octolod::metro::Source, samples: Option<u64>, budget: u64) -> f64 {
+    use octolod::metro::{self, MemOptions};
+    let opts = metro::Options { samples, seed: 1, quiet: true };
+    metro::compare_sources(&a, &b, &opts, &MemOptions { budget, explicit: false }).unwrap().combined.max
 }
 
 /// One-cell holes, a range scan's dropouts: a coarser level can fill one
@@ -463,7 +469,7 @@ fn level_errors_and_distances(dir: &std::path::Path, ply: &std::path::Path, from
 /// that error of the input by metro, for both simplifiers.
 #[test]
 fn cuts_over_small_holes_stay_within_their_error() {
-    use octolod::metro::{self, MemOptions, Source};
+    use octolod::metro::Source;
     use octolod::ply::write::{write_ply, PlyWriteOptions};
     let d = tempfile::tempdir().unwrap();
     // A 120 x 120 grid of a smooth wave far from the origin (double
@@ -500,9 +506,7 @@ fn cuts_over_small_holes_stay_within_their_error() {
             let e = e as f64;
             let out = d.path().join(format!("cut-{}-{k}.ply", simp.name()));
             extract(&s, CutSpec::MaxError(e), &out, true, false).unwrap();
-            let opts = metro::Options { samples: None, seed: 1, quiet: true };
-            let r = metro::compare_sources(&Source::Ply(ply.clone()), &Source::Ply(out), &opts, &MemOptions { budget: 64 << 20, explicit: false }).unwrap();
-            let h = r.combined.max;
+            let h = metro_max(Source::Ply(ply.clone()), Source::Ply(out), None, 64 << 20);
             assert!(h <= e, "{}: the cut at error {e:.3e} is {h:.3e} from the input by metro ({:.2}x)", simp.name(), h / e);
         }
         assert!(errors.len() >= 5, "{}: {} cuts checked", simp.name(), errors.len());

@@ -305,27 +305,25 @@ pub fn collapse_error(input: &IndexedMesh, locked: &[bool], output: &IndexedMesh
     }
     let touched: Vec<bool> = from.iter().map(|&f| border[f as usize]).collect();
     let samples = super::measure::BorderFaces::new(input, output, &border, &touched);
-    // Each side's largest distances (squared) kept for `remeasure_far`,
-    // as node_error keeps them; `rest` is the largest of the others.
-    let mut top = Farthest::default();
-    let out_bvh = Bvh::new(&Mesh::from_vertices(&output.vertices, output.triangles.clone()));
-    let nv = input.vertices.len();
-    let points = input.vertices.iter().enumerate().filter(|&(v, _)| used[v] && !on_output[v]).map(|(v, x)| (v, x.pos));
-    for (id, p) in points.chain(samples.input.iter().enumerate().map(|(k, s)| (nv + k, s.0))) {
-        if let Some(c) = out_bvh.closest(p) {
-            top.push(c.dist2, id as u32);
+    // One side's measured points (the vertices `keep` selects, then its
+    // samples, numbered after them) against the other side's surface
+    // (its BVH dropped before the other is built): the largest distances
+    // (squared) kept for `remeasure_far`, as node_error keeps them, and
+    // `rest` the largest of the others.
+    let farthest = |side: &IndexedMesh, keep: &dyn Fn(usize) -> bool, samples: &[([f64; 3], u32)], other: &IndexedMesh| {
+        let bvh = Bvh::new(&Mesh::from_vertices(&other.vertices, other.triangles.clone()));
+        let n = side.vertices.len();
+        let points = side.vertices.iter().enumerate().filter(|&(v, _)| keep(v)).map(|(v, x)| (v, x.pos));
+        let mut top = Farthest::default();
+        for (id, p) in points.chain(samples.iter().enumerate().map(|(k, s)| (n + k, s.0))) {
+            if let Some(c) = bvh.closest(p) {
+                top.push(c.dist2, id as u32);
+            }
         }
-    }
-    drop(out_bvh);
-    let mut top_r = Farthest::default();
-    let in_bvh = Bvh::new(&Mesh::from_vertices(&input.vertices, input.triangles.clone()));
-    let no = output.vertices.len();
-    let points = output.vertices.iter().enumerate().filter(|&(o, _)| !is_locked(from[o] as usize)).map(|(o, x)| (o, x.pos));
-    for (id, p) in points.chain(samples.output.iter().enumerate().map(|(k, s)| (no + k, s.0))) {
-        if let Some(c) = in_bvh.closest(p) {
-            top_r.push(c.dist2, id as u32);
-        }
-    }
+        top
+    };
+    let top = farthest(input, &|v| used[v] && !on_output[v], &samples.input, output);
+    let top_r = farthest(output, &|o| !is_locked(from[o] as usize), &samples.output, input);
     let error = top.max().max(top_r.max()).sqrt();
     let base = top.rest.max(top_r.rest).sqrt();
     let far = top.points(|v| samples.input_point(input, v));
