@@ -13,6 +13,7 @@ use crate::lod::{LevelReport, LodOptions};
 use crate::octree::OctreeReport;
 use crate::ply::write::{PlyEncoder, PlyWriteOptions, PlyWriter};
 use crate::octree::FirstCount;
+use crate::lod::Level0Source;
 use crate::soup::{build_soup_tapped, SoupOptions, SoupReport};
 use crate::store::{write_index, BuildParams, Cut, IndexedMesh, Manifest, ManifestSeconds, Store};
 use crate::mesh::{AttrSet, Vertex, VertexLayout};
@@ -55,17 +56,31 @@ pub fn build_store(input: &Path, output: &Path, opts: &BuildOptions) -> Result<B
     let out = AtomicDir::create(output, OutputKind::Store, opts.force)?;
     let soup_path = out.path().join("input.soup");
     let lo = LodOptions { params: opts.params.clone(), quiet: opts.quiet, ..Default::default() };
-    // Level 0's cells are counted as the soup is written (external path).
-    let mut first = FirstCount::new(&lo.octree());
+    // On the soup's external path, level 0 is partitioned as the soup is
+    // made (its cells counted in phase 2, its triangles routed in phase 3),
+    // and the soup file is not written.
+    let mut first = FirstCount::routing(&lo.octree(), out.path().join("chunks-0.bin"), input);
     let soup_opts = SoupOptions { mem: opts.params.mem, quiet: opts.quiet, scratch: true, ..Default::default() };
     let soup = build_soup_tapped(input, &soup_path, &soup_opts, Some(&mut first))?;
+    let l0 = match soup.written {
+        true => None,
+        false => first.take_level0(&soup.header)?,
+    };
     let t1 = Instant::now();
-    let built = crate::lod::build(&soup_path, out.path(), &lo, Some(first))?;
-    std::fs::remove_file(&soup_path).ctx(&soup_path, "remove")?;
+    let source = match l0 {
+        Some(l0) => Level0Source::Routed(l0),
+        None => Level0Source::Soup(&soup_path, Some(first)),
+    };
+    let built = crate::lod::build(source, out.path(), &lo)?;
+    if soup.written {
+        std::fs::remove_file(&soup_path).ctx(&soup_path, "remove")?;
+    }
     write_index(out.path(), &built.header, &built.nodes, &built.children, &built.parents)?;
     let total = t0.elapsed().as_secs_f64();
-    let levels_s = (total - (t1 - t0).as_secs_f64() - built.octree.seconds).max(0.0);
-    let seconds = [(t1 - t0).as_secs_f64(), built.octree.seconds, levels_s, total];
+    // Routed in the soup stage: the routing's time is the partition's.
+    let soup_s = (t1 - t0).as_secs_f64() - if soup.written { 0.0 } else { built.octree.seconds };
+    let levels_s = (total - soup_s - built.octree.seconds).max(0.0);
+    let seconds = [soup_s, built.octree.seconds, levels_s, total];
     let disk_bytes = dir_bytes(out.path());
     let report = BuildReport { soup, octree: built.octree, levels: built.levels, nodes: built.nodes.len() as u64, seconds, disk_bytes };
     let manifest = Manifest {

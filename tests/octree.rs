@@ -88,18 +88,39 @@ fn check(shape: Shape, tris: u64, attrs: u32, limit: u64, max_depth: u8) {
         assert_eq!(leaves(&t0), leaves(&results[k]), "counting as the soup is written changed the leaves");
         assert_eq!(t0.report.counting_passes + 1, results[k].report.counting_passes, "{:?}", t0.report);
     }
+    // Routed as the soup is made (as `build` does): where one counting pass
+    // is enough no soup file is written, and the leaves read exactly as
+    // those of the partition that reads the soup.
+    for (k, mem) in [16u64 << 10, 64 << 20].into_iter().enumerate() {
+        let opts = OctreeOptions { leaf_tris: limit, max_depth, mem, quiet: true };
+        let mut first = FirstCount::routing(&opts, dir.path().join(format!("chunks-r{mem}")), &ply);
+        let routed = dir.path().join(format!("routed-{mem}.soup"));
+        let so = SoupOptions { mem: 1 << 20, force_external: true, ..Default::default() };
+        let rep = build_soup_tapped(&ply, &routed, &so, Some(&mut first)).unwrap();
+        let one_pass = results[k].report.counting_passes == 1;
+        assert_eq!(rep.written, !one_pass, "{:?}", results[k].report);
+        assert_eq!(routed.exists(), rep.written);
+        assert_eq!(rep.header, sh, "the routed soup's header differs from the written soup's");
+        let r0 = match first.take_level0(&rep.header).unwrap() {
+            Some(r0) => r0,
+            None => build_octree(&routed, dir.path().join(format!("chunks-rs{mem}")), &cube, &opts, Some(first)).unwrap(),
+        };
+        assert_eq!(leaves(&r0), leaves(&results[k]), "routing as the soup is made changed the leaves");
+        // Not routed: the partition still counts one pass fewer.
+        let passes = if one_pass { 0 } else { results[k].report.counting_passes - 1 };
+        assert_eq!(r0.report.counting_passes, passes, "{:?}", r0.report);
+        for i in 0..r0.leaves.len() {
+            let (a, b) = (r0.chunks.gather(i).unwrap().mesh, results[k].chunks.gather(i).unwrap().mesh);
+            assert!(a.triangles == b.triangles && a.vertices == b.vertices, "leaf {i} reads differently when routed as the soup is made");
+        }
+    }
     // The tiling covers every key once.
     for w in l0.tiling.leaves.windows(2) {
         assert_eq!(w[0].end, w[1].start);
     }
-    // Leaves equal the top-down reference partition.
-    let mut keys: Vec<u64> = all
-        .iter()
-        .map(|t| {
-            let c = [0, 1, 2].map(|a| t.iter().map(|v| v.pos[a] / 3.0).sum::<f64>());
-            cube.key(c) >> (3 * (KEY_DEPTH - max_depth) as u32)
-        })
-        .collect();
+    // Leaves equal the top-down reference partition of the triangles'
+    // first corners.
+    let mut keys: Vec<u64> = all.iter().map(|t| cube.key(t[0].pos) >> (3 * (KEY_DEPTH - max_depth) as u32)).collect();
     keys.sort();
     let mut want = Vec::new();
     reference(&keys, 0, 0, max_depth, limit as usize, &mut want);
@@ -107,7 +128,8 @@ fn check(shape: Shape, tris: u64, attrs: u32, limit: u64, max_depth: u8) {
     assert_eq!(got, want, "leaves differ from the top-down partition");
     assert_eq!(l0.report.leaves as usize, want.len());
     // Level 0 round trip: the union of the leaves' chunks is the soup, as a
-    // set; every centroid lies in its leaf's cell and every corner in its bounds.
+    // set; every first corner lies in its leaf's cell, every corner in its
+    // bounds and within its reach of the first.
     let mut got_tris = Vec::new();
     for (i, (t, st)) in l0.tiling.leaves.iter().zip(&l0.leaves).enumerate() {
         let g = l0.chunks.gather(i).unwrap();
@@ -115,10 +137,10 @@ fn check(shape: Shape, tris: u64, attrs: u32, limit: u64, max_depth: u8) {
         let cell = cube.cell(t.path, t.depth);
         for tri in &g.mesh.triangles {
             let tri = tri.map(|k| g.mesh.vertices[k as usize]);
-            let c = [0, 1, 2].map(|a| tri.iter().map(|v| v.pos[a] / 3.0).sum::<f64>());
+            let c = tri[0].pos;
             for a in 0..3 {
                 let slack = 1e-9 * cube.size;
-                assert!(c[a] >= cell.min[a] - slack && c[a] <= cell.max[a] + slack, "centroid outside its leaf cell");
+                assert!(c[a] >= cell.min[a] - slack && c[a] <= cell.max[a] + slack, "first corner outside its leaf cell");
                 assert!(tri.iter().all(|v| v.pos[a] >= st.bounds.min[a] && v.pos[a] <= st.bounds.max[a]));
                 assert!(tri.iter().all(|v| (v.pos[a] - c[a]).abs() <= st.reach));
             }
@@ -155,4 +177,44 @@ fn single_triangle_is_a_root_leaf() {
 #[test]
 fn duplicate_triangles_stay_duplicated() {
     check(Shape::Duplicates, 5_000, 0, 64, 21);
+}
+
+/// A vertex no face uses, outside the faces' box: the cells counted in the
+/// soup stage's phase 2 (in the box of every vertex) are for the wrong
+/// cube, so phase 3 counts again and the soup is written and routed from
+/// the file; the leaves and their triangles are those of a partition that
+/// never saw the stray vertex.
+#[test]
+fn a_stray_vertex_outside_the_faces_falls_back_to_the_written_soup() {
+    let dir = tempfile::tempdir().unwrap();
+    let g = Generator::new(&GenOptions { shape: Shape::Sphere, tris: 20_000, seed: 5, attrs: AttrSet(0) });
+    let (mut v, f) = g.mesh();
+    v.push(Vertex { pos: [40.0, -3.0, 7.0], ..Default::default() });
+    let ply = dir.path().join("stray.ply");
+    write_ply(&ply, &PlyWriteOptions::default(), &v, &f).unwrap();
+    let opts = OctreeOptions { leaf_tris: 500, max_depth: 12, mem: 64 << 20, quiet: true };
+    let so = SoupOptions { mem: 1 << 20, force_external: true, ..Default::default() };
+    let plain = dir.path().join("plain.soup");
+    build_soup(&ply, &plain, &so).unwrap();
+    let (sh, _) = SoupReader::read_all(&plain).unwrap();
+    let cube = LevelCube::for_level(&sh.bbox, 0);
+    let mut all_box = octolod::mesh::Aabb::EMPTY;
+    v.iter().for_each(|v| all_box.add(v.pos));
+    assert!(cube != LevelCube::for_level(&all_box, 0), "the stray vertex must move the cube");
+    let want = build_octree(&plain, dir.path().join("chunks-p"), &cube, &opts, None).unwrap();
+
+    let routed = dir.path().join("routed.soup");
+    let mut first = FirstCount::routing(&opts, dir.path().join("chunks-r"), &ply);
+    let rep = build_soup_tapped(&ply, &routed, &so, Some(&mut first)).unwrap();
+    assert!(rep.written && routed.exists(), "a tap counted in the wrong cube must not route");
+    assert_eq!(rep.header, sh);
+    assert!(first.take_level0(&rep.header).unwrap().is_none());
+    let got = build_octree(&routed, dir.path().join("chunks-g"), &cube, &opts, Some(first)).unwrap();
+    // Counted in phase 3 instead: no counting pass here.
+    assert_eq!((got.report.counting_passes, want.report.counting_passes), (0, 1));
+    assert_eq!(got.report.leaves, want.report.leaves);
+    for i in 0..want.leaves.len() {
+        let (a, b) = (got.chunks.gather(i).unwrap().mesh, want.chunks.gather(i).unwrap().mesh);
+        assert!(a.triangles == b.triangles && a.vertices == b.vertices, "leaf {i} differs");
+    }
 }

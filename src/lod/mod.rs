@@ -2,7 +2,8 @@
 //! partitioned afresh so the previous level's seams are simplified, every
 //! cut crack-free.
 //!
-//! Takes: the input's triangle soup (`.soup`), the memory budget and the
+//! Takes: the input's triangle soup (`.soup`), or level 0 already
+//! partitioned by the soup stage ([`Level0Source`]), the memory budget and the
 //! hierarchy's parameters ([`LodOptions`]). Gives: the store's payloads
 //! (`level-L.pack`), its node records and children/parents lists, and a
 //! report per level ([`LevelReport`]).
@@ -12,8 +13,9 @@
 //!    adaptive octree (`--leaf-tris`, `--max-depth`) over level L's cube,
 //!    which is shifted by a third of its size from level L−1's, so that no
 //!    face of level L lies on (or near) a face of level L−1
-//!    ([`partition`]'s doc proves the third). Level 0 is cut from the
-//!    soup's centroid counts, then routed in one pass ([`octree`]); level L+1's
+//!    ([`partition`]'s doc proves the third). Level 0 is cut from counts
+//!    of the triangles' first corners, then routed in one pass ([`octree`]:
+//!    in `build`, both inside the soup stage); level L+1's
 //!    leaves are decided *before* level L is simplified, from the
 //!    histogram of level L's centroids scaled by the predicted reduction,
 //!    so each simplified node can route its triangles straight to them as
@@ -125,7 +127,7 @@ pub mod shared;
 use crate::error::{Error, Result};
 use crate::geom::{cross, sub};
 use crate::mesh::{Aabb, AttrSet, VertexLayout};
-use octree::{build_octree, FirstCount, OctreeOptions, OctreeReport};
+use octree::{build_octree, FirstCount, Level0, OctreeOptions, OctreeReport};
 use crate::progress::Progress;
 use crate::store::Simplifier;
 pub use crate::store::{BuildParams, LevelReport};
@@ -162,19 +164,20 @@ impl Default for LodOptions {
 pub struct LeafStats {
     pub tris: u64,
     pub bounds: Aabb,
-    /// Largest distance per axis from a triangle's centroid to its corners.
+    /// Largest distance per axis from the point a triangle's leaf was
+    /// chosen by (its centroid; level 0: its first corner) to its corners.
     pub reach: f64,
 }
 
 impl LeafStats {
-    /// Counts a triangle (corners `c`, centroid `centroid`, as its leaf was chosen by).
+    /// Counts a triangle (corners `c`; `chosen_by`: the point its leaf was chosen by).
     #[inline]
-    pub fn add_triangle(&mut self, c: [[f64; 3]; 3], centroid: [f64; 3]) {
+    pub fn add_triangle(&mut self, c: [[f64; 3]; 3], chosen_by: [f64; 3]) {
         self.tris += 1;
         for p in c {
             self.bounds.add(p);
             for a in 0..3 {
-                self.reach = self.reach.max((p[a] - centroid[a]).abs());
+                self.reach = self.reach.max((p[a] - chosen_by[a]).abs());
             }
         }
     }
@@ -213,9 +216,17 @@ impl LodOptions {
     }
 }
 
-/// Builds every level from `soup` into store directory `dir`. `first`:
-/// level 0's first counting pass, when it was done as the soup was written.
-pub fn build(soup: &Path, dir: &Path, opts: &LodOptions, first: Option<FirstCount>) -> Result<Built> {
+/// Where level 0 comes from.
+pub enum Level0Source<'a> {
+    /// A soup file, partitioned here; with level 0's first counting pass
+    /// when it was done as the soup was made.
+    Soup(&'a Path, Option<FirstCount>),
+    /// Partitioned as the soup stage placed the triangles (no soup file).
+    Routed(Level0),
+}
+
+/// Builds every level from `input` into store directory `dir`.
+pub fn build(input: Level0Source, dir: &Path, opts: &LodOptions) -> Result<Built> {
     if !(opts.params.level_ratio > 1.0 && opts.params.level_ratio.is_finite()) {
         return Err(Error::Usage("--level-ratio must be above 1".into()));
     }
@@ -223,7 +234,14 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions, first: Option<FirstCoun
         return Err(Error::Usage("--root-tris must be at least 1".into()));
     }
     let scratch = crate::io::scratch_dir(dir)?;
-    let sh = crate::soup::format::SoupReader::open(soup)?.header;
+    let l0 = match input {
+        Level0Source::Soup(soup, first) => {
+            let bbox = crate::soup::format::SoupReader::open(soup)?.header.bbox;
+            build_octree(soup, scratch.path().join("chunks-0.bin"), &LevelCube::for_level(&bbox, 0), &opts.octree(), first)?
+        }
+        Level0Source::Routed(l0) => l0,
+    };
+    let sh = l0.header;
     let attrs = sh.attrs;
     let bbox = sh.bbox;
     let layout = VertexLayout::new(attrs);
@@ -241,7 +259,6 @@ pub fn build(soup: &Path, dir: &Path, opts: &LodOptions, first: Option<FirstCoun
     };
     let hist_cap = (opts.params.mem / 256).max(1 << 16) as usize;
     let cube = |l: u32| LevelCube::for_level(&bbox, l);
-    let l0 = build_octree(soup, scratch.path().join("chunks-0.bin"), &cube(0), &opts.octree(), first)?;
     let octree = l0.report.clone();
     let mut tiling = l0.tiling;
     let mut leaves = l0.leaves;

@@ -1,15 +1,27 @@
 //! Octree stage: triangle soup → the level-0 partition (the adaptive octree
 //! of the input), each leaf's triangles as indexed chunks for the LOD builder.
 //!
-//! Takes: a `.soup`, `--leaf-tris`, `--max-depth`, the memory budget, and
-//! the level-0 cube ([`crate::lod::partition::LevelCube`]).
+//! Takes: a `.soup` (or the soup stage's corners and triangles as it makes
+//! them: [`FirstCount`]), `--leaf-tris`, `--max-depth`, the memory budget,
+//! and the level-0 cube ([`crate::lod::partition::LevelCube`]).
 //! Gives: the leaves (a [`Tiling`] of the level-0 cube with, per leaf, its
 //! triangle count, bounds and reach), their triangles in a
 //! [`ChunkFile`] (indexed, exactly equal corners welded). Every triangle
-//! lives in exactly one leaf, chosen by its centroid; nothing is replicated.
+//! lives in exactly one leaf, chosen by its first corner; nothing is
+//! replicated.
+//!
+//! Why the first corner and not the centroid: the soup stage joins each
+//! corner with its vertex one at a time (phase 2), in slab order, so a
+//! triangle's three corners first meet when phase 3 writes it; its first
+//! corner is known in phase 2, on its own. Counting first corners there
+//! lets phase 3 route each triangle to its leaf as it is placed, so
+//! `build` never writes the soup nor reads it back: 4.3 GB written and read
+//! less at 120 M triangles. Any point of the triangle partitions as well;
+//! the first corner only makes the reach (how far a leaf's triangles stick
+//! out of its cell, [`crate::lod::shared`]) a little larger.
 //!
 //! Out of core, in sequential passes over the soup and no sort:
-//! 1. **Counting.** The centroids' Morton keys in the level-0 cube are
+//! 1. **Counting.** The first corners' Morton keys in the level-0 cube are
 //!    counted in a [`Histogram`] ten levels below the cells being cut (at
 //!    most `max_depth`), which coarsens itself to fit its memory share
 //!    (`--mem` / 128 bytes' worth of cells); the
@@ -22,9 +34,10 @@
 //!    input is dense beyond the histogram's depth (the 120 M-triangle sphere under
 //!    `--mem 512M`: one). The leaves are exactly the top-down rule's on the
 //!    exact counts, whatever the budget. In `build`, the first pass is
-//!    done by the soup stage as it writes the soup's triangles on its
-//!    external path ([`FirstCount`], a [`SoupTap`]), so large inputs read
-//!    the soup once here, to route it (5–6 s less at 120 M triangles).
+//!    done by the soup stage on its external path, in phase 2
+//!    ([`FirstCount`], a [`SoupTap`]; in the cube of the input's vertices,
+//!    which is the soup's unless a vertex no face uses lies outside the
+//!    faces' box — then phase 3 counts again).
 //! 2. **Routing.** One pass sends each triangle to its leaf's buffer (the
 //!    tiling's binary search); a buffer becomes a chunk when its leaf is
 //!    complete (its count is known; complete leaves are encoded a few at a
@@ -33,7 +46,10 @@
 //!    hold an eighth. A leaf is read back by [`ChunkFile::gather`], which
 //!    welds its chunks; triangles keep the soup's order within a leaf, and
 //!    vertices their first appearance, so a leaf reads the same whatever
-//!    the budget.
+//!    the budget. In `build`, when the first pass was enough, this pass
+//!    too is done by the soup stage (phase 3, as each slot range is
+//!    placed, in soup order) and no soup file is written; otherwise the
+//!    soup is written and read back here.
 //!
 //! Why not a sort: the external Morton sort this stage used before wrote
 //! and read the soup twice more (runs, merge) and compared every key:
@@ -41,16 +57,19 @@
 //! read of the soup and a hash map the size of the cells.
 //!
 //! Memory: the histogram's share, the buffers' quarter (and as much again
-//! while a batch of them is encoded), one batch of the soup.
+//! while a batch of them is encoded), one batch of the soup. In the soup
+//! stage, the larger of the histogram's and the routing's share is taken
+//! from phases 2 and 3 ([`SoupTap::reserve`]).
 
 use crate::error::{Error, Location, Result};
 use super::chunks::ChunkFile;
 use super::partition::{Histogram, LevelCube, Tiling, KEY_DEPTH};
 use super::LeafStats;
 use crate::mesh::{Aabb, VertexLayout};
-use crate::soup::SoupTap;
+use crate::soup::{SoupTap, TapMode};
 use crate::progress::Progress;
 use crate::soup::format::{SoupHeader, SoupReader};
+use std::path::PathBuf;
 use crate::store::NO_NODE;
 use rayon::prelude::*;
 use std::path::Path;
@@ -122,7 +141,7 @@ fn scan(soup: &Path, cube: &LevelCube, batch: usize, progress: &Progress, mut f:
         let mut keys = Vec::new();
         for buf in rx {
             let buf = buf?;
-            buf.par_chunks_exact(rec).map(|t| cube.key(centroid(&layout, t))).collect_into_vec(&mut keys);
+            buf.par_chunks_exact(rec).map(|t| cube.key(anchor(&layout, t))).collect_into_vec(&mut keys);
             f(&buf, &keys)?;
             progress.inc((buf.len() / rec) as u64);
         }
@@ -146,14 +165,38 @@ fn count_keys(hist: &mut Histogram, keys: &[u64], keep: impl Fn(u64) -> bool + S
     hist.add_runs(hist.depth(), &runs);
 }
 
-/// The first counting pass, fed with the soup's triangles by whoever
-/// writes them (the soup stage's last phase, once the soup's bounding box
-/// is known: a [`SoupTap`]), so the partition does not read the soup once
-/// more to count. The counts are the pass's own: a histogram's cells do
-/// not depend on the order or batching of its keys.
+/// The first counting pass, done by the soup stage as it makes the soup
+/// (a [`SoupTap`]), so the partition does not read the soup once more to
+/// count; and, when it is made with [`FirstCount::routing`] and one
+/// counting pass is enough, the routing pass too, so `build` never writes
+/// the soup at all.
+///
+/// The cells are counted in phase 2, from each triangle's first corner as
+/// it is joined with its vertex, in the cube of the input's vertices; that
+/// is the soup's cube unless some vertex no triangle uses lies outside the
+/// triangles' box (then phase 3 counts again, in the soup's cube, as it
+/// writes the triangles). The counts are the pass's own: a histogram's
+/// cells do not depend on the order or batching of its keys.
 pub struct FirstCount {
     opts: OctreeOptions,
-    counted: Option<Counted>,
+    /// Where level 0's chunks go when the tap routes the triangles, and
+    /// the input, named in errors.
+    route: Option<(PathBuf, PathBuf)>,
+    state: TapState,
+    /// Time spent routing (in phase 3, and finishing).
+    busy: std::time::Duration,
+}
+
+enum TapState {
+    Idle,
+    /// Phase 2: first corners counted in the cube of the input's vertices.
+    Corners(Counted),
+    /// Phase 3: triangles counted as they are written (another cube).
+    Triangles(Counted),
+    /// Counted for the soup's cube; the partition reads the soup to route.
+    Counted(Counted),
+    /// Phase 3: triangles routed to their leaves as they are placed.
+    Routing { cube: LevelCube, layout: VertexLayout, routing: Box<Routing>, keys: Vec<u64> },
 }
 
 struct Counted {
@@ -163,33 +206,120 @@ struct Counted {
     keys: Vec<u64>,
 }
 
+impl Counted {
+    fn new(cube: LevelCube, layout: VertexLayout, opts: &OctreeOptions) -> Counted {
+        Counted { cube, layout, hist: Histogram::new(opts.max_depth.min(COUNT_DEPTHS), count_cap(opts.mem)), keys: Vec::new() }
+    }
+}
+
 impl FirstCount {
-    /// For a partition with `opts`; counts nothing until begun.
+    /// For a partition with `opts` that reads the soup to route; counts
+    /// nothing until begun.
     pub fn new(opts: &OctreeOptions) -> FirstCount {
-        FirstCount { opts: opts.clone(), counted: None }
+        FirstCount { opts: opts.clone(), route: None, state: TapState::Idle, busy: Default::default() }
+    }
+
+    /// For a partition done entirely in the soup stage where it can be:
+    /// chunks are written to `chunk_path`; `input` is named in errors.
+    pub fn routing(opts: &OctreeOptions, chunk_path: PathBuf, input: &Path) -> FirstCount {
+        FirstCount { route: Some((chunk_path, input.to_path_buf())), ..FirstCount::new(opts) }
+    }
+
+    /// The level-0 partition, when the tap routed the soup's triangles
+    /// (`header`: the soup's, as the soup stage reports it); None when the
+    /// partition is still to be made from the soup file.
+    pub fn take_level0(&mut self, header: &SoupHeader) -> Result<Option<Level0>> {
+        if !matches!(self.state, TapState::Routing { .. }) {
+            return Ok(None);
+        }
+        let TapState::Routing { routing, .. } = std::mem::replace(&mut self.state, TapState::Idle) else { unreachable!() };
+        let t0 = std::time::Instant::now();
+        let source = self.route.as_ref().map(|r| r.1.clone()).unwrap_or_default();
+        let mut l0 = routing.finish(*header, &source)?;
+        l0.report.seconds = (self.busy + t0.elapsed()).as_secs_f64();
+        Ok(Some(l0))
+    }
+
+    /// The counts, if they are for `cube` and `layout`.
+    fn counted(self, cube: &LevelCube, layout: &VertexLayout) -> Option<Counted> {
+        match self.state {
+            TapState::Counted(c) | TapState::Triangles(c) if c.cube == *cube && c.layout.size == layout.size => Some(c),
+            _ => None,
+        }
     }
 }
 
 impl SoupTap for FirstCount {
     fn reserve(&self) -> u64 {
-        // The histogram, and a batch's keys and cells (8 bytes a triangle).
-        Histogram::max_bytes(count_cap(self.opts.mem)) + 16 * BATCH as u64
+        // The histogram, and a batch's keys and cells (8 bytes a triangle);
+        // or the routing's buffers.
+        let count = Histogram::max_bytes(count_cap(self.opts.mem)) + 16 * BATCH as u64;
+        match self.route {
+            Some(_) => count.max(Routing::reserve(self.opts.mem)),
+            None => count,
+        }
     }
 
-    fn begin(&mut self, bbox: &Aabb, layout: VertexLayout) {
-        let hist = Histogram::new(self.opts.max_depth.min(COUNT_DEPTHS), count_cap(self.opts.mem));
-        self.counted = Some(Counted { cube: LevelCube::for_level(bbox, 0), layout, hist, keys: Vec::new() });
+    fn begin_corners(&mut self, vertices: &Aabb, layout: VertexLayout) {
+        self.state = TapState::Corners(Counted::new(LevelCube::for_level(vertices, 0), layout, &self.opts));
     }
 
-    /// Counts soup records (whole triangles), a bounded batch at a time.
-    fn triangles(&mut self, records: &[u8]) {
-        let Some(c) = self.counted.as_mut() else { return };
-        let rec = 3 * c.layout.size;
-        for part in records.chunks(batch_tris(self.opts.mem, rec) * rec) {
-            let (cube, layout) = (&c.cube, &c.layout);
-            part.par_chunks_exact(rec).map(|t| cube.key(centroid(layout, t))).collect_into_vec(&mut c.keys);
+    fn first_corners(&mut self, positions: &[[f64; 3]]) {
+        if let TapState::Corners(c) = &mut self.state {
+            let cube = &c.cube;
+            positions.par_iter().map(|&p| cube.key(p)).collect_into_vec(&mut c.keys);
             count_keys(&mut c.hist, &c.keys, |_| true);
         }
+    }
+
+    fn begin(&mut self, bbox: &Aabb, layout: VertexLayout) -> Result<TapMode> {
+        let t0 = std::time::Instant::now();
+        let cube = LevelCube::for_level(bbox, 0);
+        let state = std::mem::replace(&mut self.state, TapState::Idle);
+        let (state, mode) = match state {
+            TapState::Corners(c) if c.cube == cube && c.layout.size == layout.size => {
+                let mut found = Vec::new();
+                let deeper = cut_pass(&c.hist, &[0], 0, &self.opts, &mut found);
+                match &self.route {
+                    Some((chunk_path, _)) if deeper.is_empty() && check_options(&self.opts).is_ok() => {
+                        drop(c);
+                        let routing = Routing::new(found, chunk_path.clone(), layout, &self.opts, 0)?;
+                        (TapState::Routing { cube, layout, routing: Box::new(routing), keys: Vec::new() }, TapMode::Takes)
+                    }
+                    _ => (TapState::Counted(c), TapMode::Sees),
+                }
+            }
+            _ => (TapState::Triangles(Counted::new(cube, layout, &self.opts)), TapMode::Sees),
+        };
+        self.state = state;
+        self.busy += t0.elapsed();
+        Ok(mode)
+    }
+
+    /// Counts or routes soup records (whole triangles), a bounded batch at a time.
+    fn triangles(&mut self, records: &[u8]) -> Result<()> {
+        let t0 = std::time::Instant::now();
+        let batch = |layout: &VertexLayout| (batch_tris(self.opts.mem, 3 * layout.size), 3 * layout.size);
+        match &mut self.state {
+            TapState::Triangles(c) => {
+                let (n, rec) = batch(&c.layout);
+                for part in records.chunks(n * rec) {
+                    let (cube, layout) = (&c.cube, &c.layout);
+                    part.par_chunks_exact(rec).map(|t| cube.key(anchor(layout, t))).collect_into_vec(&mut c.keys);
+                    count_keys(&mut c.hist, &c.keys, |_| true);
+                }
+            }
+            TapState::Routing { cube, layout, routing, keys } => {
+                let (n, rec) = batch(layout);
+                for part in records.chunks(n * rec) {
+                    part.par_chunks_exact(rec).map(|t| cube.key(anchor(layout, t))).collect_into_vec(keys);
+                    routing.push(part, keys)?;
+                }
+                self.busy += t0.elapsed();
+            }
+            _ => {}
+        }
+        Ok(())
     }
 }
 
@@ -204,6 +334,32 @@ fn count_cap(mem: u64) -> usize {
     ((mem / 128) as usize).max(64)
 }
 
+fn check_options(opts: &OctreeOptions) -> Result<()> {
+    if opts.leaf_tris == 0 {
+        return Err(Error::Usage("--leaf-tris must be at least 1".into()));
+    }
+    if opts.max_depth > KEY_DEPTH {
+        return Err(Error::Usage(format!("--max-depth must be at most {KEY_DEPTH}")));
+    }
+    Ok(())
+}
+
+/// Applies the top-down rule to a counting pass over cells `open` (at
+/// `open_depth`): leaves go to `found`; gives the cells left at the
+/// histogram's depth still holding too many, to count again deeper.
+fn cut_pass(hist: &Histogram, open: &[u64], open_depth: u8, opts: &OctreeOptions, found: &mut Vec<(u64, u8, u64)>) -> Vec<u64> {
+    let hd = hist.depth();
+    let mut deeper = Vec::new();
+    for (path, depth, n) in hist.cut(open, open_depth, opts.leaf_tris, opts.max_depth) {
+        if depth == hd && depth < opts.max_depth && n > opts.leaf_tris {
+            deeper.push(path);
+        } else {
+            found.push((path, depth, n));
+        }
+    }
+    deeper
+}
+
 /// Cuts `soup` into the level-0 leaves; chunks are written to `chunk_path`.
 /// `first`: the first counting pass, done as the soup was written (for
 /// this cube and these options), or None to read the soup for it.
@@ -215,12 +371,7 @@ pub fn build_octree(
     first: Option<FirstCount>,
 ) -> Result<Level0> {
     let t0 = std::time::Instant::now();
-    if opts.leaf_tris == 0 {
-        return Err(Error::Usage("--leaf-tris must be at least 1".into()));
-    }
-    if opts.max_depth > KEY_DEPTH {
-        return Err(Error::Usage(format!("--max-depth must be at most {KEY_DEPTH}")));
-    }
+    check_options(opts)?;
     let sh = SoupReader::open(soup)?.header;
     let layout = sh.layout();
     let rec = sh.record_size();
@@ -232,7 +383,7 @@ pub fn build_octree(
     // small enough that its cells' children fit the histogram's share.
     let cap = count_cap(opts.mem);
     // Counted as the soup was written (for this cube and layout), or not.
-    let mut first = first.and_then(|f| f.counted).filter(|c| c.cube == *cube && c.layout.size == layout.size);
+    let mut first = first.and_then(|f| f.counted(cube, &layout));
     let mut todo: Vec<(u8, Vec<u64>)> = vec![(0, vec![0])];
     let mut passes = 0u32;
     while let Some((open_depth, mut open)) = todo.pop() {
@@ -258,63 +409,104 @@ pub fn build_octree(
             }
         }
         progress.finish();
-        let hd = hist.depth();
-        let mut next = Vec::new();
-        for (path, depth, n) in hist.cut(&open, open_depth, opts.leaf_tris, opts.max_depth) {
-            if depth == hd && depth < opts.max_depth && n > opts.leaf_tris {
-                next.push(path);
-            } else {
-                found.push((path, depth, n));
-            }
+        let deeper = cut_pass(&hist, &open, open_depth, opts, &mut found);
+        if !deeper.is_empty() {
+            todo.push((hist.depth(), deeper));
         }
-        if !next.is_empty() {
-            todo.push((hd, next));
-        }
-    }
-    let leaf_start = |&(path, depth, _): &(u64, u8, u64)| path << (3 * (KEY_DEPTH - depth) as u32);
-    found.sort_unstable_by_key(leaf_start);
-    let tiling = Tiling::from_leaves(&found.iter().map(|l| (l.0, l.1)).collect::<Vec<_>>());
-    // Triangles per tiling leaf.
-    let mut want = vec![0u64; tiling.leaves.len()];
-    for l in &found {
-        want[tiling.locate(leaf_start(l))] = l.2;
     }
 
     // Pass 2: route each triangle to its leaf's buffer, write chunks.
     let progress = Progress::items(sh.triangles, "partitioning", opts.quiet);
-    let mut router = Router {
-        bufs: vec![Vec::new(); tiling.leaves.len()],
-        got: vec![0; tiling.leaves.len()],
-        stats: vec![LeafStats::default(); tiling.leaves.len()],
-        buffered: 0,
-        chunks: ChunkFile::create(chunk_path, layout, 0)?,
-        count: 0,
-        layout,
-    };
-    let budget = (opts.mem / 4) as usize;
-    // Complete leaves wait for a few more, to be encoded in parallel.
-    let mut pending: Vec<usize> = Vec::new();
-    let group = 4 * rayon::current_num_threads().max(1);
-    scan(soup, cube, batch, &progress, |buf, keys| {
-        let mut targets = vec![0u32; keys.len()];
-        targets.par_chunks_mut(4096).zip(keys.par_chunks(4096)).for_each(|(t, k)| {
+    let mut routing = Routing::new(found, chunk_path, layout, opts, passes)?;
+    scan(soup, cube, batch, &progress, |buf, keys| routing.push(buf, keys))?;
+    progress.finish();
+    let mut l0 = routing.finish(sh, soup)?;
+    l0.report.seconds = t0.elapsed().as_secs_f64();
+    Ok(l0)
+}
+
+/// The routing pass: batches of soup records, with their keys, go to
+/// their leaves' buffers; a buffer becomes a chunk when its leaf is
+/// complete, or when the buffers outgrow their share (see the module doc).
+struct Routing {
+    /// The leaves (path, depth, triangles), in key order.
+    found: Vec<(u64, u8, u64)>,
+    tiling: Tiling,
+    /// Triangles per tiling leaf.
+    want: Vec<u64>,
+    router: Router,
+    /// Complete leaves waiting for a few more, to be encoded in parallel.
+    pending: Vec<usize>,
+    group: usize,
+    /// Bytes the buffers may hold.
+    budget: usize,
+    targets: Vec<u32>,
+    counting_passes: u32,
+    leaf_tris: u64,
+}
+
+impl Routing {
+    fn new(mut found: Vec<(u64, u8, u64)>, chunk_path: PathBuf, layout: VertexLayout, opts: &OctreeOptions, counting_passes: u32) -> Result<Routing> {
+        let leaf_start = |&(path, depth, _): &(u64, u8, u64)| path << (3 * (KEY_DEPTH - depth) as u32);
+        found.sort_unstable_by_key(leaf_start);
+        let tiling = Tiling::from_leaves(&found.iter().map(|l| (l.0, l.1)).collect::<Vec<_>>());
+        let mut want = vec![0u64; tiling.leaves.len()];
+        for l in &found {
+            want[tiling.locate(leaf_start(l))] = l.2;
+        }
+        let n = tiling.leaves.len();
+        Ok(Routing {
+            found,
+            tiling,
+            want,
+            router: Router {
+                bufs: vec![Vec::new(); n],
+                got: vec![0; n],
+                stats: vec![LeafStats::default(); n],
+                buffered: 0,
+                chunks: ChunkFile::create(chunk_path, layout, 0)?,
+                count: 0,
+                layout,
+            },
+            pending: Vec::new(),
+            group: 4 * rayon::current_num_threads().max(1),
+            budget: (opts.mem / 4) as usize,
+            targets: Vec::new(),
+            counting_passes,
+            leaf_tris: opts.leaf_tris,
+        })
+    }
+
+    /// Most bytes it holds under budget `mem`: the buffers' quarter, as
+    /// much again while a batch of them is encoded, a batch's targets.
+    fn reserve(mem: u64) -> u64 {
+        mem / 2 + 4 * BATCH as u64
+    }
+
+    /// Routes a batch of records (`keys`: their anchors' keys).
+    fn push(&mut self, buf: &[u8], keys: &[u64]) -> Result<()> {
+        let rec = 3 * self.router.layout.size;
+        let (tiling, router) = (&self.tiling, &mut self.router);
+        self.targets.resize(keys.len(), 0);
+        self.targets.par_chunks_mut(4096).zip(keys.par_chunks(4096)).for_each(|(t, k)| {
             let mut last = 0;
             for (t, &k) in t.iter_mut().zip(k) {
                 *t = tiling.locate_near(k, &mut last) as u32;
             }
         });
-        for (&t, tri) in targets.iter().zip(buf.chunks_exact(rec)) {
+        for (&t, tri) in self.targets.iter().zip(buf.chunks_exact(rec)) {
             let t = t as usize;
             router.bufs[t].extend_from_slice(tri);
             router.got[t] += 1;
-            if router.got[t] == want[t] {
-                pending.push(t);
+            if router.got[t] == self.want[t] {
+                self.pending.push(t);
             }
         }
         router.buffered += buf.len();
-        if pending.len() >= group {
-            router.flush(std::mem::take(&mut pending))?;
+        if self.pending.len() >= self.group {
+            router.flush(std::mem::take(&mut self.pending))?;
         }
+        let budget = self.budget;
         if router.buffered > budget {
             let mut by_size: Vec<(usize, usize)> = router.bufs.iter().enumerate().filter(|b| !b.1.is_empty()).map(|(t, b)| (b.len(), t)).collect();
             by_size.sort_unstable_by(|a, b| b.cmp(a));
@@ -330,27 +522,32 @@ pub fn build_octree(
                 .collect();
             router.flush(picked)?;
             // Pending leaves written by the spill are done.
-            pending.retain(|&t| !router.bufs[t].is_empty());
+            self.pending.retain(|&t| !router.bufs[t].is_empty());
         }
         Ok(())
-    })?;
-    router.flush(pending)?;
-    progress.finish();
-    if router.got != want {
-        return Err(Error::input(Location { file: soup.to_path_buf(), ..Default::default() }, "the soup changed while it was read"));
     }
-    let Router { mut chunks, stats, count, .. } = router;
-    chunks.finish(tiling.leaves.len())?;
-    let report = OctreeReport {
-        leaves: found.len() as u64,
-        deepest: found.iter().map(|l| l.1).max().unwrap_or(0),
-        overfull_leaves: found.iter().filter(|l| l.2 > opts.leaf_tris).count() as u64,
-        counting_passes: passes,
-        chunks: count,
-        chunk_bytes: chunks.bytes(),
-        seconds: t0.elapsed().as_secs_f64(),
-    };
-    Ok(Level0 { header: sh, tiling, leaves: stats, chunks, report })
+
+    /// Writes the last chunks; the partition of the soup with `header`
+    /// (`source`: the file named if a leaf missed triangles).
+    fn finish(self, header: SoupHeader, source: &Path) -> Result<Level0> {
+        let Routing { found, tiling, want, mut router, pending, counting_passes, leaf_tris, .. } = self;
+        router.flush(pending)?;
+        if router.got != want {
+            return Err(Error::input(Location { file: source.to_path_buf(), ..Default::default() }, "the soup changed while it was read"));
+        }
+        let Router { mut chunks, stats, count, .. } = router;
+        chunks.finish(tiling.leaves.len())?;
+        let report = OctreeReport {
+            leaves: found.len() as u64,
+            deepest: found.iter().map(|l| l.1).max().unwrap_or(0),
+            overfull_leaves: found.iter().filter(|l| l.2 > leaf_tris).count() as u64,
+            counting_passes,
+            chunks: count,
+            chunk_bytes: chunks.bytes(),
+            seconds: 0.0,
+        };
+        Ok(Level0 { header, tiling, leaves: stats, chunks, report })
+    }
 }
 
 /// Per-leaf buffers of the routing pass.
@@ -395,19 +592,14 @@ impl Router {
 fn part_stats(layout: &VertexLayout, data: &[u8]) -> LeafStats {
     let mut st = LeafStats::default();
     for t in data.chunks_exact(3 * layout.size) {
-        st.add_triangle([0, 1, 2].map(|k| layout.position(&t[k * layout.size..])), centroid(layout, t));
+        st.add_triangle([0, 1, 2].map(|k| layout.position(&t[k * layout.size..])), anchor(layout, t));
     }
     st
 }
 
-fn centroid(layout: &VertexLayout, t: &[u8]) -> [f64; 3] {
-    let mut c = [0.0; 3];
-    for k in 0..3 {
-        let p = layout.position(&t[k * layout.size..]);
-        for a in 0..3 {
-            c[a] += p[a] / 3.0;
-        }
-    }
-    c
+/// The point a triangle's leaf is chosen by: its first corner (see the
+/// module doc for why not the centroid).
+#[inline]
+fn anchor(layout: &VertexLayout, t: &[u8]) -> [f64; 3] {
+    layout.position(t)
 }
-

@@ -2,13 +2,15 @@
 //! and the normals of shared vertices summed over every node that holds them.
 //!
 //! Takes: each node's mesh, its partition cell and its *reach* (the largest
-//! distance, per axis, from a triangle's centroid to one of its corners).
+//! distance, per axis, from the point a triangle's node was chosen by —
+//! its centroid, or at level 0 its first corner — to one of its corners).
 //! Gives: per node, the positions it shares with another node of the level
 //! (those are locked when it is simplified) with their full area-weighted
 //! normal (so both sides of a seam shade alike).
 //!
 //! Why it finds all of them. A triangle belongs to the node whose cell
-//! holds its centroid. If position p is a corner of a triangle of node N',
+//! holds its centroid (level 0: its first corner). If position p is a
+//! corner of a triangle of node N',
 //! p is within N''s reach of N''s cell. So a position of node N that lies
 //! in no other node's cell grown by that node's reach is in no other node:
 //! only the *band* — positions inside another node's grown cell — can be

@@ -30,13 +30,17 @@
 //!
 //! Budget split: phase 1 holds only write buffers (the slab buckets', at
 //! most about the budget less I/O buffers, together); in phase 2 one slab
-//! (at most half the budget) and the slot buckets' write buffers (half)
-//! share it; phase 3 places one slot bucket, at most the whole budget less
-//! what a [`SoupTap`] reserves, at a time.
+//! and the slot buckets' write buffers share it, half each of the budget
+//! less what a [`SoupTap`] reserves; phase 3 places slot buckets (one per
+//! thread) in the budget less that reserve.
 //!
-//! A [`SoupTap`] sees phase 3's triangles as they are written, with the
-//! soup's bounding box (gathered in phase 2) beforehand: `build` counts
-//! level 0's octree cells there instead of reading the soup again.
+//! A [`SoupTap`] sees each triangle's first corner in phase 2 (with the
+//! input's vertex box beforehand) and phase 3's triangles as they are
+//! placed (with the soup's bounding box, gathered in phase 2, beforehand),
+//! and holds its [`SoupTap::reserve`] out of both phases' budget: `build`
+//! counts level 0's octree cells in phase 2 and routes the triangles to
+//! them in phase 3, and then no soup file is written at all
+//! ([`TapMode::Takes`], [`SoupReport::written`]).
 
 pub mod format;
 
@@ -97,6 +101,9 @@ pub struct SoupReport {
     /// distribute by slot, place + write soup).
     pub phase_seconds: [f64; 3],
     pub seconds: f64,
+    /// False when a [`SoupTap`] took phase 3's triangles and no soup file
+    /// was written (the header is still the soup's).
+    pub written: bool,
 }
 
 impl SoupReport {
@@ -182,19 +189,40 @@ impl SoupReport {
     }
 }
 
-/// Sees the soup's triangles as they are written, on the external path
-/// (where the soup's bounding box is known before its first triangle): the
-/// build counts level 0's octree cells with it instead of reading the
-/// soup once more ([`crate::octree::FirstCount`]).
+/// Sees the soup's corners and triangles on the external path, so `build`
+/// partitions level 0 without reading the soup back
+/// ([`crate::octree::FirstCount`]): phase 2 shows it each triangle's first
+/// corner (with the bounding box of the input's vertices beforehand), phase
+/// 3 the triangles in soup order (with the soup's own bounding box
+/// beforehand). A tap that takes the triangles ([`TapMode::Takes`]) is
+/// the only consumer of phase 3: the soup file is not written at all.
 pub trait SoupTap {
-    /// Most bytes the tap holds while it sees triangles (taken from the
-    /// budget of the phase that shows them).
+    /// Most bytes the tap holds while it sees corners or triangles (taken
+    /// from the budget of phases 2 and 3).
     fn reserve(&self) -> u64;
-    /// Before the first triangle: the soup's bounding box (its header's) and vertex layout.
-    fn begin(&mut self, bbox: &Aabb, layout: VertexLayout);
+    /// Before phase 2: the bounding box of every vertex the input declares
+    /// (referenced or not) and the vertex layout.
+    fn begin_corners(&mut self, _vertices: &Aabb, _layout: VertexLayout) {}
+    /// Phase 2: the positions of triangles' first corners, in no order.
+    fn first_corners(&mut self, _positions: &[[f64; 3]]) {}
+    /// Before phase 3's first triangle: the soup's bounding box (its
+    /// header's) and vertex layout; says whether the tap takes the triangles.
+    fn begin(&mut self, bbox: &Aabb, layout: VertexLayout) -> Result<TapMode>;
     /// Soup records (whole triangles), in soup order.
-    fn triangles(&mut self, records: &[u8]);
+    fn triangles(&mut self, records: &[u8]) -> Result<()>;
 }
+
+/// What a [`SoupTap`] does with phase 3's triangles.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TapMode {
+    /// It looks at them; the soup is written as usual.
+    Sees,
+    /// It consumes them: no soup file is written ([`SoupReport::written`] false).
+    Takes,
+}
+
+/// First corners per batch shown to a [`SoupTap`] in phase 2.
+const CORNER_BATCH: usize = 1 << 16;
 
 /// I/O buffers held besides the budgeted memory.
 const IO_RESERVE: u64 = 6 * SEQ_BUF as u64;
@@ -311,6 +339,7 @@ fn build_in_memory(input: &Path, output: &Path, header: &PlyHeader, opts: &SoupO
         slot_bucket_bytes: 0,
         phase_seconds: [0.0; 3],
         seconds: 0.0,
+        written: true,
     })
 }
 
@@ -339,6 +368,8 @@ struct ExternalSink<'a> {
     narrow_slots: u64,
     /// Set when a slot outgrew 4 bytes (phase 1 stops; it starts again wide).
     overflow: bool,
+    /// The bounding box of every vertex (as encoded), for a tap.
+    bbox: Aabb,
 }
 
 impl BodySink for ExternalSink<'_> {
@@ -347,6 +378,7 @@ impl BodySink for ExternalSink<'_> {
         self.vbuf.resize(batch.len() * s, 0);
         for (k, v) in batch.iter().enumerate() {
             self.layout.encode(v, &mut self.vbuf[k * s..]);
+            self.bbox.add(self.layout.position(&self.vbuf[k * s..]));
         }
         self.vfile.write_all(&self.vbuf).ctx(self.vpath, "write vertex file")
     }
@@ -383,9 +415,11 @@ fn build_external(
     let s = layout.size;
     let scratch = crate::io::scratch_dir(output)?;
     let budget = opts.mem.saturating_sub(IO_RESERVE).max(opts.mem / 2) as usize;
-    // Vertex slabs: consecutive index ranges whose vertex bytes fit half the budget.
+    // What phases 2 and 3 hold: the budget less what the tap holds beside them.
+    let held = budget.saturating_sub(tap.as_ref().map_or(0, |t| t.reserve()) as usize).max(budget / 4);
+    // Vertex slabs: consecutive index ranges whose vertex bytes fit half of that.
     let n_vertices = header.vertex_count();
-    let per_slab = ((budget / 2 / s) as u64).clamp(1, u32::MAX as u64);
+    let per_slab = ((held / 2 / s) as u64).clamp(1, u32::MAX as u64);
     let n_slabs = n_vertices.div_ceil(per_slab).max(1) as usize;
 
     let t0 = Instant::now();
@@ -394,7 +428,7 @@ fn build_external(
     // Narrow slots unless the faces alone (one triangle each) outgrow them;
     // polygons can still do so, and then phase 1 starts again wide.
     let mut slot_bytes = if header.face_count().saturating_mul(3) <= opts.narrow_slots { 4 } else { 8 };
-    let (body, corner_buckets) = loop {
+    let (body, corner_buckets, vertex_bbox) = loop {
         let vfile = File::create(&vpath).ctx(&vpath, "create vertex file")?;
         let mut sink = ExternalSink {
             layout,
@@ -407,6 +441,7 @@ fn build_external(
             slot_bytes,
             narrow_slots: opts.narrow_slots,
             overflow: false,
+            bbox: Aabb::EMPTY,
         };
         let body = match read_body(input, header, &mut sink, progress) {
             Err(_) if sink.overflow => {
@@ -421,9 +456,9 @@ fn build_external(
         if body.triangles == 0 {
             return Err(no_triangles_error(input, header, &body));
         }
-        let ExternalSink { vfile, corners, .. } = sink;
+        let ExternalSink { vfile, corners, bbox, .. } = sink;
         vfile.into_inner().map_err(|e| e.into_error()).ctx(&vpath, "write vertex file")?;
-        break (body, corners.finish()?);
+        break (body, corners.finish()?, bbox);
     };
     progress.finish();
     let crec = corner_rec(slot_bytes);
@@ -434,8 +469,7 @@ fn build_external(
     let n_corners = body.triangles * 3;
     let join_progress = Progress::items(n_corners, "joining", opts.quiet);
     // Phase 3 places a slot range beside what the tap holds.
-    let place_mem = budget.saturating_sub(tap.as_ref().map_or(0, |t| t.reserve()) as usize).max(budget / 4);
-    let mut buckets = SlotBuckets::new(scratch.path(), n_corners, s, place_mem, budget / 2)?;
+    let mut buckets = SlotBuckets::new(scratch.path(), n_corners, s, held, held / 2)?;
     let mut vfile = File::open(&vpath).ctx(&vpath, "open vertex file")?;
     let mut slab = vec![0u8; per_slab.min(n_vertices) as usize * s];
     let mut chunk = vec![0u8; SEQ_BUF / crec * crec];
@@ -444,6 +478,11 @@ fn build_external(
     // The soup's bounding box (its corners'), for the tap.
     let mut bbox = Aabb::EMPTY;
     let with_bbox = tap.is_some();
+    if let Some(t) = tap.as_mut() {
+        t.begin_corners(&vertex_bbox, layout);
+    }
+    // First corners waiting to be shown to the tap.
+    let mut firsts: Vec<[f64; 3]> = Vec::with_capacity(if with_bbox { CORNER_BATCH } else { 0 });
     for (k, (path, records)) in corner_buckets.into_iter().enumerate() {
         let n = (n_vertices - k as u64 * per_slab).min(per_slab) as usize;
         let slab = &mut slab[..n * s];
@@ -455,8 +494,16 @@ fn build_external(
                 _ => u64::from_le_bytes(r[4..12].try_into().unwrap()),
             };
             let v = &slab[local * s..(local + 1) * s];
-            if with_bbox {
-                bbox.add(layout.position(v));
+            if let Some(t) = tap.as_mut() {
+                let p = layout.position(v);
+                bbox.add(p);
+                if slot % 3 == 0 {
+                    firsts.push(p);
+                    if firsts.len() == CORNER_BATCH {
+                        t.first_corners(&firsts);
+                        firsts.clear();
+                    }
+                }
             }
             buckets.push(slot, v)?;
             done += 1;
@@ -469,35 +516,54 @@ fn build_external(
         corner_bucket_bytes += records * crec as u64;
     }
     debug_assert_eq!(done, n_corners);
-    drop((vfile, slab, chunk));
+    if let Some(t) = tap.as_mut() {
+        t.first_corners(&firsts);
+    }
+    drop((vfile, slab, chunk, firsts));
     let _ = std::fs::remove_file(&vpath);
     join_progress.finish();
 
     let t2 = Instant::now();
     // Phase 3: each slot range placed in memory, written as triangles in order.
     let write_progress = Progress::items(body.triangles, "writing", opts.quiet);
-    let mut soup = SoupWriter::create(output, header.attrs, opts.replace, opts.scratch)?;
+    let mode = match tap.as_mut() {
+        Some(t) => t.begin(&bbox, layout)?,
+        None => TapMode::Sees,
+    };
+    // No soup file when the tap takes the triangles.
+    let mut soup = match mode {
+        TapMode::Sees => Some(SoupWriter::create(output, header.attrs, opts.replace, opts.scratch)?),
+        TapMode::Takes => None,
+    };
     let mut written = 0u64;
     let slot_buckets = buckets.len();
-    if let Some(t) = tap.as_mut() {
-        t.begin(&bbox, layout);
-    }
     let slot_bucket_bytes = buckets.finish(|tris| {
-        for tri in tris.chunks_exact(3 * s) {
-            soup.push_encoded(tri)?;
-            written += 1;
-            if written % 65536 == 0 {
-                write_progress.set(written);
+        if let Some(soup) = soup.as_mut() {
+            for tri in tris.chunks_exact(3 * s) {
+                soup.push_encoded(tri)?;
             }
         }
         if let Some(t) = tap.as_mut() {
-            t.triangles(tris);
+            t.triangles(tris)?;
         }
+        written += (tris.len() / (3 * s)) as u64;
+        write_progress.set(written);
         Ok(())
     })?;
     write_progress.finish();
     debug_assert_eq!(written, body.triangles);
-    let h = soup.commit(body.vertices, body.faces, body.degenerate)?;
+    let h = match soup {
+        Some(soup) => soup.commit(body.vertices, body.faces, body.degenerate)?,
+        // The header the soup would have had: the same corners' box.
+        None => SoupHeader {
+            attrs: header.attrs,
+            triangles: written,
+            input_vertices: body.vertices,
+            input_faces: body.faces,
+            degenerate: body.degenerate,
+            bbox,
+        },
+    };
     let phase_seconds = [(t1 - t0).as_secs_f64(), (t2 - t1).as_secs_f64(), t2.elapsed().as_secs_f64()];
     Ok(SoupReport {
         header: h,
@@ -510,6 +576,7 @@ fn build_external(
         slot_bucket_bytes,
         phase_seconds,
         seconds: 0.0,
+        written: mode == TapMode::Sees,
     })
 }
 
