@@ -10,6 +10,8 @@ use octolod::view::overlay::{overlay_text, OverlayImage};
 use octolod::view::{DrawMesh, GpuBytes, GpuVertex};
 
 fn renderer_with(w: u32, h: u32, opts: RendererOptions) -> Option<Renderer> {
+    // As `view` and `render` do: no libwayland "XDG_RUNTIME_DIR" noise in the logs.
+    octolod::view::quiet::quiet_wayland_probes();
     match Renderer::headless_with(w, h, opts) {
         Ok(r) => Some(r),
         Err(e) if std::env::var("OCTOLOD_SKIP_GPU_TESTS").as_deref() == Ok("1") => {
@@ -260,4 +262,66 @@ fn overlay_is_blended_at_the_top_left_and_identical_renders_compare_equal() {
 /// Draw items for whole meshes.
 fn whole<'a>(ms: &[&'a GpuMesh]) -> Vec<octolod::view::DrawItem<'a, GpuMesh>> {
     ms.iter().map(|m| octolod::view::DrawItem::whole(*m, m.triangles())).collect()
+}
+
+/// Set in the child process of
+/// [`renderer_prints_no_wayland_error_line_without_a_desktop_session`].
+const WAYLAND_CHILD: &str = "OCTOLOD_TEST_WAYLAND_CHILD";
+
+/// Reliability v2, item 14: `view` (which keeps Mesa's device-select layer
+/// on) and any run on the GL backend printed "error: XDG_RUNTIME_DIR is
+/// invalid or not set in the environment." from libwayland's display
+/// probes on a headless session. `view` needs a display, so this drives
+/// the same renderer set-up as `view` and `render` do — the quieting call
+/// `main` makes, then a renderer and a frame — in a child process (the
+/// line goes straight to its stderr) without XDG_RUNTIME_DIR,
+/// WAYLAND_DISPLAY or NODEVICE_SELECT, on the default backends and on GL.
+#[test]
+fn renderer_prints_no_wayland_error_line_without_a_desktop_session() {
+    if let Some(backend) = std::env::var_os(WAYLAND_CHILD) {
+        octolod::view::quiet::quiet_wayland_probes();
+        let mut r = match Renderer::headless(16, 16) {
+            Ok(r) => r,
+            Err(e) if backend == "gl" => {
+                println!("NO-GL-ADAPTER: {e}");
+                return;
+            }
+            Err(e) if std::env::var("OCTOLOD_SKIP_GPU_TESTS").as_deref() == Ok("1") => {
+                println!("SKIPPED: {e}");
+                return;
+            }
+            Err(e) => panic!("{e} (set OCTOLOD_SKIP_GPU_TESTS=1 to skip GPU tests)"),
+        };
+        let m = r.upload(&grid(2, 1.0, 0.0, [0.0, 0.0, 1.0], COLOR));
+        let img = r.render_offscreen(&params(16, 16, 3.0), &whole(&[&m])).unwrap();
+        assert!(background_fraction(&img, 16, 16, clear_rgba8(clear())) < 1.0);
+        println!("CHILD-RENDERED on {:?}", r.adapter_info().backend);
+        return;
+    }
+    let exe = std::env::current_exe().unwrap();
+    for backend in ["default", "gl"] {
+        let mut cmd = std::process::Command::new(&exe);
+        cmd.args(["--exact", "renderer_prints_no_wayland_error_line_without_a_desktop_session", "--nocapture", "--test-threads=1"]);
+        cmd.env(WAYLAND_CHILD, backend);
+        for v in ["XDG_RUNTIME_DIR", "WAYLAND_DISPLAY", "WAYLAND_SOCKET", "NODEVICE_SELECT", "MESA_VK_DEVICE_SELECT", "WGPU_BACKEND"] {
+            cmd.env_remove(v);
+        }
+        if backend == "gl" {
+            cmd.env("WGPU_BACKEND", "gl");
+        }
+        let o = cmd.output().unwrap();
+        let (out, err) = (String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr));
+        assert!(o.status.success(), "{backend}: {out}\n{err}");
+        if out.contains("SKIPPED") {
+            eprintln!("skipping GPU test (OCTOLOD_SKIP_GPU_TESTS=1): {out}");
+            return;
+        }
+        if out.contains("NO-GL-ADAPTER") {
+            eprintln!("no GL adapter here: GL case skipped ({out})");
+            continue;
+        }
+        assert!(out.contains("CHILD-RENDERED"), "{backend}: the child did not render: {out}\n{err}");
+        let bad: Vec<&str> = err.lines().chain(out.lines()).filter(|l| l.trim_start().starts_with("error")).collect();
+        assert!(bad.is_empty(), "{backend}: error lines on a successful run: {bad:?}\n{err}");
+    }
 }

@@ -275,3 +275,44 @@ fn failed_loads_show_in_the_frame_statistics_and_the_overlay() {
     // The roots still draw: a failure leaves a coarser, valid picture.
     assert!(last.triangles > 0 && !v.draw_list().is_empty());
 }
+
+/// Reliability v2, item 15: close to the surface, looking at one part,
+/// the overlay reported thousands of pixels of error for a refined view:
+/// nodes whose bounds hold the eye draw their coarse patches for the
+/// children behind the camera, and their whole-node error counted. The
+/// figure is now the error on screen (drawn patches inside the frustum).
+#[test]
+fn max_error_counts_only_what_is_on_screen() {
+    let dir = tempfile::tempdir().unwrap();
+    let (s, input) = store_and_input(dir.path(), Shape::Sphere, 60_000, 1024);
+    let mut v: Viewer<DrawMesh> = Viewer::open(&s, opts(256 << 20)).unwrap();
+    let b = v.bounds();
+    let c = DVec3::from(b.center());
+    // Just outside the bumpy unit sphere, inside every node's bounds that
+    // reach this corner, looking at the nearest part of the surface.
+    let eye = c + DVec3::new(0.62, -0.62, 0.62);
+    let mut cam = Camera::look_at(eye, c, DVec3::Z, 50.0);
+    cam.fit_clip(&b);
+    let vp = (1280, 720);
+    let st = run_until_settled(&mut v, &cam, vp);
+    check_cut(&v, &input, "close-up", true);
+    // The scenario: drawn nodes whose own bounds project far above the
+    // threshold (they reach the eye), refined where they are in view.
+    let whole = v
+        .cut()
+        .iter()
+        .filter(|&&u| !v.hierarchy.children(u).is_empty())
+        .map(|&u| v.selector.priority(&v.hierarchy, u, &cam, cam.eye, vp.1 as f64))
+        .fold(0.0, f64::max);
+    assert!(whole > 10.0, "the close-up should draw nodes reaching the eye: {whole} px");
+    assert_eq!(v.selection().budget_limited, 0);
+    assert!(st.max_error_px <= 1.0 + 1e-9, "settled close-up reports {} px (whole nodes: {whole} px)", st.max_error_px);
+    assert!(st.max_error_px > 0.0, "coarse patches are on screen: some error is left");
+    assert!(st.overlay_lines(60.0)[3].contains(&format!("max error {:.2} px", st.max_error_px)));
+    // A genuinely budget-limited cut still reports its error on screen
+    // (what `render` warns about).
+    v.selector.opts.tri_budget = 1;
+    let st = run_until_settled(&mut v, &cam, vp);
+    assert!(v.selection().budget_limited > 0);
+    assert!(st.max_error_px > 1.0, "a budget-limited close-up reports {} px", st.max_error_px);
+}

@@ -13,7 +13,8 @@
 //! * [`gpu`] — the wgpu renderer (offscreen and window surface);
 //! * [`image`] — PNG output and image comparison (PSNR, differing pixels);
 //! * [`headless`] — `octolod render`: camera paths, statistics, reference renders;
-//! * [`window`] — `octolod view`: the interactive window.
+//! * [`window`] — `octolod view`: the interactive window;
+//! * [`quiet`] — keeps libwayland's "no desktop session" line out of successful runs.
 
 pub mod cache;
 pub mod camera;
@@ -21,6 +22,7 @@ pub mod gpu;
 pub mod headless;
 pub mod image;
 pub mod overlay;
+pub mod quiet;
 pub mod select;
 pub mod viewer;
 pub mod window;

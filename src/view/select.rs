@@ -180,7 +180,12 @@ pub struct Selection {
     pub prefetch: Vec<(Unit, f64)>,
     /// Triangles the cut draws (all selected nodes' patches, visible or not).
     pub triangles: u64,
-    /// Largest projected error left in the cut (pixels; distance mode: 0/1).
+    /// Largest projected error on screen (pixels; distance mode: the
+    /// largest distance ratio): over the drawn patches inside the frustum,
+    /// each patch's node error projected at its child's bounds (the region
+    /// it covers, by which the selection culls it). Patches a node draws
+    /// for children outside the view do not count, although the node's own
+    /// bounds may reach the eye: that error is off screen.
     pub max_error_px: f64,
     /// Expansions stopped by the triangle budget.
     pub budget_limited: u32,
@@ -222,8 +227,14 @@ impl Selector {
     /// The refinement priority of `u` seen from `eye` (pixels of projected
     /// error, or in distance mode the ratio cell size·F / distance).
     pub fn priority(&self, h: &Hierarchy, u: Unit, cam: &Camera, eye: DVec3, height_px: f64) -> f64 {
+        self.priority_over(h, u, &h.info(u).bounds, cam, eye, height_px)
+    }
+
+    /// [`Selector::priority`] of node `u`'s triangles inside `region` (a
+    /// patch: its child's bounds), seen from `eye`.
+    pub fn priority_over(&self, h: &Hierarchy, u: Unit, region: &Aabb, cam: &Camera, eye: DVec3, height_px: f64) -> f64 {
         let i = h.info(u);
-        let d = box_distance(&i.bounds, eye);
+        let d = box_distance(region, eye);
         match self.opts.distance_lod {
             Some(f) => {
                 if i.level == 0 {
@@ -334,10 +345,17 @@ impl Selector {
                 sel.cut.push(u);
             }
             if !kids.is_empty() {
-                let p = self.priority(h, u, cam, cam.eye, height);
+                // The error on screen: the drawn patches in view only (see
+                // `Selection::max_error_px`).
                 if visible(u) {
-                    sel.max_error_px = sel.max_error_px.max(p);
+                    for &c in kids {
+                        if !sel.selected[c as usize] && visible(c) {
+                            let pc = self.priority_over(h, u, &h.info(c).bounds, cam, cam.eye, height);
+                            sel.max_error_px = sel.max_error_px.max(pc);
+                        }
+                    }
                 }
+                let p = self.priority(h, u, cam, cam.eye, height);
                 // Prefetch: close to the threshold now or at the predicted eye.
                 let pp = p.max(self.priority(h, u, cam, predicted, height));
                 if pp > thr * self.opts.prefetch {

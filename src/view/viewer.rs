@@ -68,7 +68,8 @@ pub struct FrameStats {
     pub evictions: u64,
     /// Share of needed units that were ready (cumulative).
     pub hit_rate: f64,
-    /// Largest projected error left in the cut (pixels).
+    /// Largest projected error on screen (pixels): over the drawn patches
+    /// inside the view frustum (see `Selection::max_error_px`).
     pub max_error_px: f64,
     /// Nothing wanted is missing: the cut is what the camera asks for.
     pub settled: bool,
