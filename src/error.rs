@@ -52,6 +52,12 @@ pub enum Error {
     /// Bad arguments or options.
     #[error("{0}")]
     Usage(String),
+    /// A signal asked the process to stop (see `io::signal`).
+    #[error("interrupted by signal {0}")]
+    Interrupted(i32),
+    /// Standard output was closed by its reader (`octolod info S | head -1`).
+    #[error("standard output closed")]
+    ClosedOutput,
 }
 
 pub type Result<T, E = Error> = std::result::Result<T, E>;

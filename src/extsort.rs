@@ -224,6 +224,8 @@ impl<'a> RunReader<'a> {
             if self.left == 0 {
                 return Ok(None);
             }
+            // Each refill is a safe point for signals.
+            crate::io::signal::check()?;
             let want = ((self.left as usize).min(self.buf.len() / self.rec)) * self.rec;
             self.file.read_exact(&mut self.buf[..want]).ctx(&self.path, "read run file")?;
             self.pos = 0;

@@ -13,6 +13,23 @@ use std::time::Duration;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+/// `println!` for the commands' reports: a closed stdout is
+/// [`octolod::Error::ClosedOutput`] (returned with `?`), never a panic.
+macro_rules! out {
+    ($($t:tt)*) => {
+        say(format_args!($($t)*))?
+    };
+}
+
+fn say(args: std::fmt::Arguments) -> Result<()> {
+    use std::io::Write;
+    let mut o = std::io::stdout().lock();
+    o.write_fmt(args).and_then(|()| o.write_all(b"\n")).map_err(|e| match e.kind() {
+        std::io::ErrorKind::BrokenPipe => octolod::Error::ClosedOutput,
+        _ => octolod::Error::io("standard output", "write", e),
+    })
+}
+
 #[derive(Parser)]
 #[command(name = "octolod", version, about = "Simplify and view triangle meshes far larger than RAM")]
 struct Cli {
@@ -319,7 +336,7 @@ struct BuildArgs {
     #[arg(long, default_value_t = 16384)]
     leaf_tris: u64,
     /// Never split deeper than this (1..=21).
-    #[arg(long, default_value_t = 16)]
+    #[arg(long, default_value_t = 16, value_parser = clap::value_parser!(u8).range(1..=21))]
     max_depth: u8,
     /// Each level holds about 1/R of the triangles of the level below.
     #[arg(long, default_value_t = 2.0)]
@@ -349,6 +366,7 @@ impl BuildArgs {
             levels: self.levels,
             ..Default::default()
         };
+        octolod::lod::check_params(&params)?;
         Ok(octolod::pipeline::BuildOptions { params, quiet, force })
     }
 }
@@ -356,8 +374,8 @@ impl BuildArgs {
 /// Smallest `--leaf-tris` the CLI accepts.
 const MIN_LEAF_TRIS: u64 = 256;
 
-fn print_build(r: &octolod::pipeline::BuildReport) {
-    println!(
+fn print_build(r: &octolod::pipeline::BuildReport) -> Result<()> {
+    out!(
         "build: {} triangles, {} level-0 nodes, {} nodes, {} levels; soup {:.2} s, partition {:.2} s ({} counting pass{}), levels {:.2} s, total {:.2} s; {} on disk; peak RSS {}",
         r.soup.header.triangles,
         r.octree.leaves,
@@ -372,9 +390,9 @@ fn print_build(r: &octolod::pipeline::BuildReport) {
         octolod::progress::mib(r.disk_bytes),
         peak_rss().map(octolod::progress::mib).unwrap_or_else(|| "n/a".into())
     );
-    println!("{:>5} {:>7} {:>13} {:>11} {:>8} {:>10} {:>8}", "level", "nodes", "triangles", "err max", "locked", "prev.lock", "time");
+    out!("{:>5} {:>7} {:>13} {:>11} {:>8} {:>10} {:>8}", "level", "nodes", "triangles", "err max", "locked", "prev.lock", "time");
     for l in &r.levels {
-        println!(
+        out!(
             "{:>5} {:>7} {:>13} {:>11.3e} {:>7.1}% {:>9} {:>7.2}s",
             l.level,
             l.nodes,
@@ -385,36 +403,46 @@ fn print_build(r: &octolod::pipeline::BuildReport) {
             l.seconds
         );
     }
+    Ok(())
 }
 
 fn main() -> ExitCode {
-    // A closed pipe (`octolod info STORE | head -1`) ends the process
-    // quietly, as for other Unix tools, instead of a panic in println!.
-    // SAFETY: restoring the default disposition before any thread starts.
-    unsafe {
-        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
-    }
+    // Rust starts with SIGPIPE ignored: a closed stdout (`octolod info S |
+    // head -1`) is then an error on write ([`out!`]), which unwinds the
+    // command like any error (its temp paths removed, nothing committed
+    // after it) and ends quietly with 128 + SIGPIPE, the status a shell
+    // reports for a command its reader stopped.
     let cli = Cli::parse();
     if matches!(cli.cmd, Cmd::Render { .. }) {
         quiet_device_select();
     }
-    octolod::io::clean_up_on_signals();
+    if matches!(cli.cmd, Cmd::Render { .. } | Cmd::View { .. }) {
+        // Before any wgpu or winit call (see octolod::view::quiet).
+        octolod::view::quiet::quiet_wayland_probes();
+    }
+    octolod::io::signal::install();
     match run(cli) {
-        Ok(()) => ExitCode::SUCCESS,
+        Ok(code) => code,
+        Err(octolod::Error::ClosedOutput) => ExitCode::from(128 + libc::SIGPIPE as u8),
         Err(e) => {
-            octolod::io::yield_to_signal_handler();
-            eprintln!("octolod: error: {e}");
-            ExitCode::FAILURE
+            // Interrupted: 128 + the signal, as a shell reports it, and no message.
+            let status = octolod::io::signal::exit_status(&e);
+            if status == 1 {
+                eprintln!("octolod: error: {e}");
+            }
+            ExitCode::from(status)
         }
     }
 }
 
 /// Offscreen rendering presents to no display, so Mesa's implicit Vulkan
 /// layer that picks the GPU driving the display has nothing to choose by;
-/// without a desktop session it only prints "error: XDG_RUNTIME_DIR is
-/// invalid" (libwayland, from the layer's probe) on every run. Turn it off
-/// for `render`, unless the user asked it for a device
-/// (`MESA_VK_DEVICE_SELECT`) or set the switch themselves.
+/// it only probes the desktop session's displays. Turn it off for
+/// `render`, unless the user asked it for a device
+/// (`MESA_VK_DEVICE_SELECT`) or set the switch themselves. (The
+/// "error: XDG_RUNTIME_DIR is invalid" line its Wayland probe printed
+/// without a session, as do the GL backend's and `view`'s, is dropped by
+/// `octolod::view::quiet` whether or not the layer runs.)
 fn quiet_device_select() {
     if std::env::var_os("MESA_VK_DEVICE_SELECT").is_none() && std::env::var_os("NODEVICE_SELECT").is_none() {
         // SAFETY: called from main before any other thread exists.
@@ -422,7 +450,7 @@ fn quiet_device_select() {
     }
 }
 
-fn run(cli: Cli) -> Result<()> {
+fn run(cli: Cli) -> Result<ExitCode> {
     match cli.cmd {
         Cmd::Soup { input, output, mem, external, json } => {
             let opts = soup::SoupOptions {
@@ -435,11 +463,11 @@ fn run(cli: Cli) -> Result<()> {
             let rep = soup::build_soup(&input, &output, &opts)?;
             let peak = peak_rss();
             if json {
-                println!("{}", serde_json::to_string(&rep.json(opts.mem, peak)).expect("the report serializes"));
+                out!("{}", serde_json::to_string(&rep.json(opts.mem, peak)).expect("the report serializes"));
             } else {
-                println!("{}", rep.summary(peak));
+                out!("{}", rep.summary(peak));
             }
-            Ok(())
+            Ok(ExitCode::SUCCESS)
         }
         Cmd::Render { store, camera_path, frames, up, out, width, height, view, full_res, brute_force, settle, wireframe, diff_tolerance } => {
             if frames == 0 {
@@ -466,12 +494,14 @@ fn run(cli: Cli) -> Result<()> {
             let r = octolod::view::headless::render(&o)?;
             let max_res = r.frames.iter().map(|f| f.stats.resident_bytes).max().unwrap_or(0);
             let max_sel = r.frames.iter().map(|f| f.stats.select_ms).fold(0.0, f64::max);
-            let last = r.frames.last().unwrap();
+            let Some(last) = r.frames.last() else {
+                return Err(octolod::Error::Usage("render: no frame was rendered".into()));
+            };
             let cmp = match (last.psnr_db, last.diff_fraction) {
                 (Some(p), Some(d)) => format!(", last frame vs full-res: PSNR {p:.1} dB, {:.3}% pixels differ", 100.0 * d),
                 _ => String::new(),
             };
-            println!(
+            out!(
                 "render: {} frames -> {}; peak resident {} of {}; select <= {max_sel:.2} ms; last frame {} triangles{}{cmp}",
                 r.frames.len(),
                 r.out.display(),
@@ -489,10 +519,10 @@ fn run(cli: Cli) -> Result<()> {
                     octolod::progress::bytes(o.view.ram)
                 );
             }
-            Ok(())
+            Ok(ExitCode::SUCCESS)
         }
-        Cmd::View { store, view, window } => octolod::view::window::run_window(window.options(store, view.options()?, cli.quiet)?),
-        Cmd::PlyInfo { input, header_only } => ply_info(&input, header_only, cli.quiet),
+        Cmd::View { store, view, window } => octolod::view::window::run_window(window.options(store, view.options()?, cli.quiet)?).map(|()| ExitCode::SUCCESS),
+        Cmd::PlyInfo { input, header_only } => ply_info(&input, header_only, cli.quiet).map(|()| ExitCode::SUCCESS),
         Cmd::Metro { a, b, samples, seed, json, max_hausdorff, max_rms, max_mean, mem } => {
             use octolod::metro::{Limits, MemOptions, Options, RunOptions, Source};
             let limits = Limits::parse(max_hausdorff.as_deref(), max_rms.as_deref(), max_mean.as_deref())?;
@@ -500,18 +530,18 @@ fn run(cli: Cli) -> Result<()> {
             let mem = MemOptions::parse(mem.as_deref())?;
             let run = RunOptions { a: Source::parse(&a)?, b: Source::parse(&b)?, options, mem, limits, json };
             if !octolod::metro::run(&run)? {
-                std::process::exit(octolod::metro::EXIT_THRESHOLD.into());
+                return Ok(ExitCode::from(octolod::metro::EXIT_THRESHOLD));
             }
-            Ok(())
+            Ok(ExitCode::SUCCESS)
         }
         Cmd::Build { input, output, params, simplifier } => {
             let mut o = params.options(cli.quiet, cli.force)?;
             o.params.simplifier = simplifier;
             let r = octolod::pipeline::build_store(&input, &output, &o)?;
-            print_build(&r);
-            Ok(())
+            print_build(&r)?;
+            Ok(ExitCode::SUCCESS)
         }
-        Cmd::Info { store } => info(&store),
+        Cmd::Info { store } => info(&store).map(|()| ExitCode::SUCCESS),
         Cmd::Extract { store, level, max_error, output, no_weld } => {
             let s = octolod::store::Store::open(&store)?;
             let spec = match max_error {
@@ -522,19 +552,21 @@ fn run(cli: Cli) -> Result<()> {
                 None => octolod::pipeline::CutSpec::Level(level.unwrap_or(0)),
             };
             let (nv, nf) = octolod::pipeline::extract(&s, spec, &output, !no_weld, cli.force)?;
-            println!("extract: {}: {nv} vertices, {nf} triangles -> {}", spec.describe(), output.display());
-            Ok(())
+            out!("extract: {}: {nv} vertices, {nf} triangles -> {}", spec.describe(), output.display());
+            Ok(ExitCode::SUCCESS)
         }
         Cmd::Simplify { input, output, target_tris, target_ratio, target_error, simplifier, verify_samples, json, params } => {
             use octolod::reduce::{ReduceOptions, Target};
+            let _input = octolod::io::protect(&input);
             octolod::io::check_output(&output, octolod::io::OutputKind::Ply, cli.force)?;
             let threshold = target_error.as_deref().map(octolod::metro::Threshold::parse).transpose()?;
+            octolod::reduce::check_options(target_tris, target_ratio, verify_samples)?;
+            let bo = params.options(cli.quiet || json, false)?;
             let tmp = octolod::io::scratch_dir(&output)?;
             let dir = tmp.path().join("store.octolod");
-            let bo = params.options(cli.quiet || json, false)?;
             let r = octolod::pipeline::build_store(&input, &dir, &bo)?;
             if !json {
-                print_build(&r);
+                print_build(&r)?;
             }
             let s = octolod::store::Store::open(&dir)?;
             let target = match (target_tris, target_ratio, threshold) {
@@ -546,9 +578,9 @@ fn run(cli: Cli) -> Result<()> {
             let o = ReduceOptions { target, simplifier, mem: bo.params.mem, verify_samples, force: cli.force };
             let rep = octolod::reduce::simplify_store(&s, &output, &o)?;
             if json {
-                println!("{}", serde_json::to_string_pretty(&rep).expect("the report serializes"));
+                out!("{}", serde_json::to_string_pretty(&rep).expect("the report serializes"));
             } else {
-                println!(
+                out!(
                     "simplify: {} from {} ({} triangles, {:?}, {}): {} vertices, {} triangles -> {}",
                     match rep.target_triangles {
                         Some(n) => format!("{n} triangles asked"),
@@ -568,9 +600,10 @@ fn run(cli: Cli) -> Result<()> {
             }
             if !rep.reached {
                 eprintln!("simplify: target not met (see above); the closest mesh was written");
-                std::process::exit(3);
+                // Returning (not `exit`) drops the scratch store first.
+                return Ok(ExitCode::from(3));
             }
-            Ok(())
+            Ok(ExitCode::SUCCESS)
         }
     }
 }
@@ -594,20 +627,20 @@ impl BodySink for BboxSink {
 fn info(dir: &std::path::Path) -> Result<()> {
     let s = octolod::store::Store::open(dir)?;
     let h = &s.header;
-    println!("store: {}", dir.display());
-    println!(
+    out!("store: {}", dir.display());
+    out!(
         "attributes: {} (quadric dimension {}){}",
         h.attrs.describe(),
         h.attrs.quadric_dim(),
         if h.derived_normals { ", normals computed at build time" } else { "" }
     );
-    println!("nodes: {}, levels: {}, root: {} triangles", s.nodes.len(), h.levels, s.nodes[s.root()].tris);
+    out!("nodes: {}, levels: {}, root: {} triangles", s.nodes.len(), h.levels, s.nodes[s.root()].tris);
     let manifest = octolod::store::Manifest::read(dir).ok();
     if let Some(m) = &manifest {
-        println!("simplifier: {}", m.params.simplifier.name());
+        out!("simplifier: {}", m.params.simplifier.name());
     }
     let ml = |level: u8| manifest.as_ref().and_then(|m| m.levels.iter().find(|l| l.level == level).cloned());
-    println!(
+    out!(
         "{:>5} {:>8} {:>14} {:>14} {:>12} {:>12} {:>8} {:>9} {:>9}",
         "level", "nodes", "triangles", "bytes", "err min", "err max", "locked", "prev.lock", "time"
     );
@@ -618,7 +651,7 @@ fn info(dir: &std::path::Path) -> Result<()> {
         let emin = ids.iter().map(|&i| s.nodes[i].error as f64).fold(f64::INFINITY, f64::min);
         let emax = ids.iter().map(|&i| s.nodes[i].error as f64).fold(0.0, f64::max);
         let m = ml(level);
-        println!(
+        out!(
             "{level:>5} {:>8} {tris:>14} {bytes:>14} {:>12.3e} {emax:>12.3e} {:>8} {:>9} {:>9}",
             ids.len(),
             if ids.is_empty() { 0.0 } else { emin },
@@ -627,17 +660,17 @@ fn info(dir: &std::path::Path) -> Result<()> {
             m.as_ref().map(|m| format!("{:.2} s", m.seconds)).unwrap_or_else(|| "n/a".into()),
         );
     }
-    println!("locked: share of the level's vertex positions locked when it was simplified; prev.lock: share of the level below's locked positions still locked here");
+    out!("locked: share of the level's vertex positions locked when it was simplified; prev.lock: share of the level below's locked positions still locked here");
     Ok(())
 }
 
 fn ply_info(input: &std::path::Path, header_only: bool, quiet: bool) -> Result<()> {
     let h = ply::read_header(input)?;
-    println!("file: {}", input.display());
-    println!("format: {}", h.encoding.header_name());
-    println!("header bytes: {}", h.body_offset);
+    out!("file: {}", input.display());
+    out!("format: {}", h.encoding.header_name());
+    out!("header bytes: {}", h.body_offset);
     for c in &h.comments {
-        println!("comment: {c}");
+        out!("comment: {c}");
     }
     for e in &h.elements {
         let props: Vec<String> = e
@@ -648,12 +681,12 @@ fn ply_info(input: &std::path::Path, header_only: bool, quiet: bool) -> Result<(
                 ply::PropType::List(c, s) => format!("list {} {} {}", c.name(), s.name(), p.name),
             })
             .collect();
-        println!("element {} {}: {}", e.name, e.count, props.join(", "));
+        out!("element {} {}: {}", e.name, e.count, props.join(", "));
     }
-    println!("vertices: {}", h.vertex_count());
-    println!("faces: {}", h.face_count());
-    println!("attributes: {}", h.attrs.describe());
-    println!("quadric dimension: {}", h.attrs.quadric_dim());
+    out!("vertices: {}", h.vertex_count());
+    out!("faces: {}", h.face_count());
+    out!("attributes: {}", h.attrs.describe());
+    out!("quadric dimension: {}", h.attrs.quadric_dim());
     if header_only {
         return Ok(());
     }
@@ -665,10 +698,10 @@ fn ply_info(input: &std::path::Path, header_only: bool, quiet: bool) -> Result<(
     let secs = t0.elapsed().as_secs_f64();
     progress.finish();
     let b = sink.bbox;
-    println!("triangles (after fan triangulation): {}", st.triangles);
-    println!("degenerate triangles: {}", st.degenerate);
-    println!("polygons (>3 corners): {}", st.polygons);
-    println!(
+    out!("triangles (after fan triangulation): {}", st.triangles);
+    out!("degenerate triangles: {}", st.degenerate);
+    out!("polygons (>3 corners): {}", st.polygons);
+    out!(
         "decoded: {} bytes in {:.3} s ({:.1} MB/s, {:.2} M faces/s)",
         st.bytes,
         secs,
@@ -676,9 +709,9 @@ fn ply_info(input: &std::path::Path, header_only: bool, quiet: bool) -> Result<(
         st.faces as f64 / 1e6 / secs.max(1e-9)
     );
     if b.is_empty() {
-        println!("bbox: empty");
+        out!("bbox: empty");
     } else {
-        println!(
+        out!(
             "bbox: min [{}, {}, {}] max [{}, {}, {}] diagonal {}",
             b.min[0], b.min[1], b.min[2], b.max[0], b.max[1], b.max[2], b.diagonal()
         );

@@ -53,6 +53,7 @@ pub struct BuildReport {
 /// `opts.params.simplifier`.
 pub fn build_store(input: &Path, output: &Path, opts: &BuildOptions) -> Result<BuildReport> {
     let t0 = Instant::now();
+    let _input = crate::io::protect(input);
     let out = AtomicDir::create(output, OutputKind::Store, opts.force)?;
     let soup_path = out.path().join("input.soup");
     let lo = LodOptions { params: opts.params.clone(), quiet: opts.quiet, ..Default::default() };

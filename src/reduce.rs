@@ -57,7 +57,9 @@
 //! steps 1–2 above, the parts then welded in memory). Either way the result is *measured* with
 //! [`crate::metro`] against level 0 (Hausdorff, both directions, vertex,
 //! edge and face samples) and, while it exceeds E, the limit is lowered and
-//! the mesh rebuilt, down to the input itself.
+//! the mesh rebuilt, down to the input itself. The store's coarsest level
+//! is the floor: when E is at least a quarter of its recorded error
+//! (`COARSEST_FIRST`) it is measured first, and returned when within E.
 //!
 //! **Simplifiers.** `collapse` is quadric edge collapse with attributes
 //! ([`crate::lod::collapse`], shared with `build --simplifier collapse`):
@@ -180,17 +182,40 @@ impl Reduced {
     }
 }
 
+/// Checks `simplify`'s own options, before any work (the CLI calls it
+/// before it builds the scratch store): `--target-tris` at least 1,
+/// `--target-ratio` in (0, 1], `--verify-samples` from 1 to
+/// [`metro::MAX_SAMPLES`] (as metro's `--samples`).
+pub fn check_options(target_tris: Option<u64>, target_ratio: Option<f64>, verify_samples: Option<u64>) -> Result<()> {
+    if target_tris == Some(0) {
+        return Err(Error::Usage("simplify: --target-tris must be at least 1 (0 would write an empty mesh)".into()));
+    }
+    if let Some(r) = target_ratio.filter(|r| !(*r > 0.0 && *r <= 1.0)) {
+        return Err(Error::Usage(format!("simplify: --target-ratio must be in (0, 1] (a share of the input's triangles), not {r}")));
+    }
+    if verify_samples == Some(0) {
+        return Err(Error::Usage("simplify: --verify-samples must be at least 1".into()));
+    }
+    if let Some(n) = verify_samples.filter(|&n| n > metro::MAX_SAMPLES) {
+        return Err(Error::Usage(format!(
+            "simplify: --verify-samples {n} is more than {} per direction (hours of work); ask fewer",
+            metro::MAX_SAMPLES
+        )));
+    }
+    Ok(())
+}
+
 /// `octolod simplify` after the build: writes the reduced mesh to `out`.
 pub fn simplify_store(store: &Store, out: &Path, o: &ReduceOptions) -> Result<ReduceReport> {
     let input = store.level_triangles(0);
+    match o.target {
+        Target::Tris(n) => check_options(Some(n), None, o.verify_samples)?,
+        Target::Ratio(r) => check_options(None, Some(r), o.verify_samples)?,
+        Target::Error(_) => check_options(None, None, o.verify_samples)?,
+    }
     let (result, mut rep) = match o.target {
         Target::Tris(n) => reduce_to_count(store, n, out, o)?,
-        Target::Ratio(r) => {
-            if !(r > 0.0 && r.is_finite()) {
-                return Err(Error::Usage(format!("--target-ratio must be > 0, not {r}")));
-            }
-            reduce_to_count(store, (r * input as f64).round().max(1.0) as u64, out, o)?
-        }
+        Target::Ratio(r) => reduce_to_count(store, (r * input as f64).round().max(1.0) as u64, out, o)?,
         Target::Error(e) => {
             if !(e >= 0.0 && e.is_finite()) {
                 return Err(Error::Usage(format!("--target-error must be ≥ 0 and finite, not {e}")));
@@ -263,13 +288,55 @@ fn reduce_to_count(store: &Store, n: u64, out: &Path, o: &ReduceOptions) -> Resu
     Ok((r, rep))
 }
 
+/// Error targets at least this share of the coarsest level's recorded
+/// node error measure that level first: the recorded errors add each
+/// step's measured deviation, so they lie above metro's distance (1.1–2.3×
+/// from level 2 on, README "What E bounds"), rarely by more than 4×.
+const COARSEST_FIRST: f64 = 0.25;
+
 fn reduce_to_error(store: &Store, e: f64, o: &ReduceOptions) -> Result<(IndexedMesh, ReduceReport)> {
     let mut rep = ReduceReport { target_error: Some(e), ..Default::default() };
     let scratch = crate::io::scratch_dir(&store.dir)?;
     let candidate = scratch.path().join("candidate.ply");
+    // The candidate's two-sided Hausdorff distance to level 0, and the
+    // samples per direction it took.
+    let measure = |mesh: &IndexedMesh| -> Result<(f64, u64)> {
+        write_mesh_ply(&candidate, store.header.attrs, "octolod simplify candidate", mesh, true)?;
+        let mopts = metro::Options { samples: o.verify_samples, seed: 1, quiet: true };
+        let r = metro::compare_sources(
+            &Source::Store(store.dir.clone(), 0),
+            &Source::Ply(candidate.clone()),
+            &mopts,
+            &MemOptions { budget: o.mem, explicit: false },
+        )?;
+        Ok((r.combined.max, r.samples_target))
+    };
+    // The coarsest level is the smallest mesh on offer: when it is within
+    // E it is the answer, whatever the simplifier (an error limit that
+    // large once collapsed the whole mesh away). Measured first when E may
+    // hold it.
+    let top = store.top_level();
+    let top_error = store.level_nodes(top).iter().map(|&i| store.nodes[i].error as f64).fold(0.0, f64::max);
+    if top > 0 && e >= COARSEST_FIRST * top_error {
+        let cut = store.level_cut(top);
+        let mesh = load_cut(store, &cut, o)?;
+        let (h, samples) = measure(&mesh)?;
+        rep.tries = 1;
+        rep.hausdorff = Some(h);
+        rep.verify_samples = Some(samples);
+        if h <= e {
+            rep.route = "store-cut".into();
+            rep.start = format!("level {top}");
+            rep.start_triangles = cut.triangles(store);
+            rep.reached = true;
+            rep.note = Some(format!("the coarsest level (level {top}) measures {h:.3e}, within the error asked"));
+            return Ok((mesh, rep));
+        }
+    }
     let mut limit = e;
     for attempt in 1..=8u32 {
-        rep.tries = attempt;
+        crate::io::signal::check()?;
+        rep.tries += 1;
         let last = attempt == 8 || limit <= 0.0;
         let (cut, mesh) = match o.simplifier {
             Simplifier::Cluster => {
@@ -289,23 +356,20 @@ fn reduce_to_error(store: &Store, e: f64, o: &ReduceOptions) -> Result<(IndexedM
             }
         };
         rep.start_triangles = cut.triangles(store);
-        write_mesh_ply(&candidate, store.header.attrs, "octolod simplify candidate", &mesh, true)?;
-        let mopts = metro::Options { samples: o.verify_samples, seed: 1, quiet: true };
-        let r = metro::compare_sources(
-            &Source::Store(store.dir.clone(), 0),
-            &Source::Ply(candidate.clone()),
-            &mopts,
-            &MemOptions { budget: o.mem, explicit: false },
-        )?;
-        let h = r.combined.max;
+        if mesh.triangles.is_empty() && !last {
+            // Everything collapsed within the limit: too coarse to measure.
+            limit *= 0.5;
+            continue;
+        }
+        let (h, samples) = measure(&mesh)?;
         rep.hausdorff = Some(h);
-        rep.verify_samples = Some(r.samples_target);
+        rep.verify_samples = Some(samples);
         // A 5 % margin: metro's face samples are random, and another run
         // with more samples may find a slightly larger maximum.
         if h <= 0.95 * e || last {
             rep.reached = h <= e;
-            if attempt > 1 {
-                rep.note = Some(format!("met after {attempt} tries (the error limit lowered to {limit:.3e})"));
+            if rep.tries > 1 {
+                rep.note = Some(format!("met after {} tries (the error limit lowered to {limit:.3e})", rep.tries));
             }
             return Ok((mesh, rep));
         }
@@ -444,6 +508,7 @@ impl<'a> PerNode<'a> {
     fn reduce(&mut self, jobs: &[usize], goal: impl Fn(usize, usize) -> Goal + Sync) -> Result<()> {
         let attrs = self.store.header.attrs;
         for chunk in jobs.chunks(self.batch) {
+            crate::io::signal::check()?;
             let done: Vec<(usize, u64, u64, Vec<u8>)> = chunk
                 .par_iter()
                 .map(|&k| -> Result<_> {

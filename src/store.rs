@@ -335,6 +335,8 @@ pub fn write_index(dir: &Path, h: &StoreHeader, nodes: &[NodeRec], children: &[u
 
 /// An opened store: the index in memory, payloads read on demand.
 pub struct Store {
+    /// No output of this process replaces the directory while it is open.
+    _protect: crate::io::Protected,
     /// Pack files, opened once when the store is opened: a store rewritten
     /// in place later (`build --force` swaps the directory) cannot mix its
     /// new payloads into this reader's old index.
@@ -354,10 +356,13 @@ impl Store {
     /// Opens and validates the index (see [`Store::validate`]).
     pub fn open(dir: &Path) -> Result<Store> {
         let path = dir.join("nodes.bin");
-        let mut b = Vec::new();
-        File::open(&path).ctx(&path, "open store index")?.read_to_end(&mut b).ctx(&path, "read")?;
+        let (mut f, len) = crate::io::open_regular(&path, "open store index")?;
         let bad = |msg: String| Error::input(Location { file: path.clone(), ..Default::default() }, msg);
-        if b.len() < HEADER || b[..8] != MAGIC {
+        // The header first: the sizes it declares are checked against the
+        // files (the index's length, the packs' pages) before the index is
+        // read, so a damaged or sparse index never sizes an allocation.
+        let mut b = vec![0u8; HEADER];
+        if len < HEADER as u64 || f.read_exact(&mut b).is_err() || b[..8] != MAGIC {
             return Err(bad("not an octolod store index (bad magic)".into()));
         }
         let u32_at = |o: usize| u32::from_le_bytes(b[o..o + 4].try_into().unwrap());
@@ -377,19 +382,44 @@ impl Store {
         let expect = (n.checked_mul(NODE_REC as u64))
             .and_then(|x| x.checked_add(HEADER as u64))
             .and_then(|x| nc.checked_add(np).and_then(|l| l.checked_mul(4)).and_then(|l| x.checked_add(l)));
-        if expect != Some(b.len() as u64) {
-            return Err(bad(format!("index holds {} bytes, its header declares {n} nodes and {nc} + {np} links", b.len())));
+        if expect != Some(len) {
+            return Err(bad(format!("index holds {len} bytes, its header declares {n} nodes and {nc} + {np} links")));
+        }
+        let levels = u32_at(20);
+        if levels == 0 || levels > 256 {
+            return Err(bad(format!("{levels} levels declared (a store has 1 to 256)")));
+        }
+        // Every payload starts a page of its level's pack.
+        let mut packs = Vec::with_capacity(levels as usize);
+        let mut pages = 0u64;
+        for l in 0..levels as usize {
+            let p = pack_file(dir, l);
+            let (f, plen) = crate::io::open_regular(&p, "open pack file")?;
+            pages += plen.div_ceil(PAGE);
+            packs.push(f);
+        }
+        if n > pages {
+            return Err(bad(format!("{n} nodes declared, but the level packs hold only {pages} pages (each payload starts one)")));
+        }
+        if len > MAX_INDEX {
+            return Err(bad(format!("an index of {len} bytes: larger than any store octolod builds ({MAX_INDEX} bytes)")));
         }
         let n = n as usize;
         let header = StoreHeader {
             attrs,
             derived_normals: flags & FLAG_DERIVED_NORMALS != 0,
-            levels: u32_at(20),
+            levels,
             nodes: n as u64,
             root: u32_at(32),
             store_id: u64_at(40),
             bbox: aabb(64),
         };
+        b.resize(len as usize, 0);
+        f.read_exact(&mut b[HEADER..]).ctx(&path, "read")?;
+        let u32_at = |o: usize| u32::from_le_bytes(b[o..o + 4].try_into().unwrap());
+        let u64_at = |o: usize| u64::from_le_bytes(b[o..o + 8].try_into().unwrap());
+        let f64_at = |o: usize| f64::from_le_bytes(b[o..o + 8].try_into().unwrap());
+        let aabb = |o: usize| Aabb { min: [f64_at(o), f64_at(o + 8), f64_at(o + 16)], max: [f64_at(o + 24), f64_at(o + 32), f64_at(o + 40)] };
         let mut nodes = Vec::with_capacity(n);
         for i in 0..n {
             let o = HEADER + i * NODE_REC;
@@ -417,6 +447,7 @@ impl Store {
         let parents = list(lists + 4 * nc as usize, np);
         let payload_attrs = attrs.with(AttrSet::NORMAL, attrs.normal() || header.derived_normals);
         let mut s = Store {
+            _protect: crate::io::protect(dir),
             packs: Vec::new(),
             dir: dir.to_path_buf(),
             layout: VertexLayout::new(attrs),
@@ -427,10 +458,7 @@ impl Store {
             parents,
         };
         s.validate().map_err(|m| bad(m))?;
-        for l in 0..s.header.levels as usize {
-            let p = s.pack_path(l);
-            s.packs.push(File::open(&p).ctx(&p, "open pack file")?);
-        }
+        s.packs = packs;
         s.check_pack_ranges()?;
         Ok(s)
     }
@@ -443,6 +471,17 @@ impl Store {
             .collect::<Result<Vec<u64>>>()?;
         for (i, n) in self.nodes.iter().enumerate() {
             let l = n.level as usize;
+            // The record's counts give the payload's exact size (see the
+            // module doc): damaged counts are an error here, not a node no
+            // budget can load.
+            let patches = if n.level == 0 { 1 } else { n.child_count as u64 };
+            let want = 16 + 8 * patches + n.verts as u64 * self.payload_layout.size as u64 + 3 * n.tris as u64 * index_width(n.verts as usize) as u64;
+            if want != n.bytes as u64 {
+                return Err(Error::input(
+                    Location { file: self.dir.join("nodes.bin"), ..Default::default() },
+                    format!("node {i}: its record's {} vertices, {} triangles and {patches} patches need a payload of {want} bytes, the record says {}", n.verts, n.tris, n.bytes),
+                ));
+            }
             if n.offset.checked_add(n.bytes as u64).is_none_or(|e| e > len[l]) {
                 return Err(Error::input(
                     Location { file: self.pack_path(l), offset: Some(n.offset), ..Default::default() },
@@ -465,6 +504,10 @@ impl Store {
         }
         if self.header.root as usize != n - 1 {
             return Err(format!("root {} is not the last node ({})", self.header.root, n - 1));
+        }
+        let b = &self.header.bbox;
+        if !(b.min.iter().chain(&b.max).all(|x| x.is_finite()) && (0..3).all(|k| b.min[k] <= b.max[k])) {
+            return Err(format!("the input's bounding box {:?} .. {:?} is not a finite, non-empty box", b.min, b.max));
         }
         let top = self.header.levels.checked_sub(1).ok_or("zero levels")?;
         for (i, nd) in self.nodes.iter().enumerate() {
@@ -638,7 +681,8 @@ impl Store {
 
     /// The meshes `cut` draws, node by node (the drawn patches of each).
     pub fn cut_meshes<'a>(&'a self, cut: &'a Cut) -> impl Iterator<Item = Result<IndexedMesh>> + 'a {
-        cut.drawn.iter().map(move |&i| self.read_node(i).map(|nm| cut.drawn_mesh(&nm)))
+        // Each node is a safe point for signals (extract, metro, simplify).
+        cut.drawn.iter().map(move |&i| crate::io::signal::check().and_then(|()| self.read_node(i)).map(|nm| cut.drawn_mesh(&nm)))
     }
 
     /// The cut at object-space error `e` (see the module doc).
@@ -727,6 +771,13 @@ impl Cut {
         out
     }
 }
+
+/// Largest `nodes.bin` read: 2.6 × 10^7 nodes, a store of some 10^11
+/// triangles (the index is read whole).
+const MAX_INDEX: u64 = 4 << 30;
+
+/// Largest `store.json` read (a real one is a few KiB: a line per level).
+const MAX_MANIFEST: u64 = 16 << 20;
 
 /// `store.json`: what was built, how, and how long it took (for people and
 /// for `octolod info`; nothing reads it to open the store).
@@ -884,7 +935,12 @@ impl Manifest {
 
     pub fn read(dir: &Path) -> Result<Manifest> {
         let path = dir.join("store.json");
-        let text = std::fs::read_to_string(&path).ctx(&path, "read")?;
+        let (f, len) = crate::io::open_regular(&path, "open")?;
+        if len > MAX_MANIFEST {
+            return Err(Error::input(Location { file: path.clone(), ..Default::default() }, format!("a manifest of {len} bytes (at most {MAX_MANIFEST} are read)")));
+        }
+        let mut text = String::new();
+        f.take(MAX_MANIFEST).read_to_string(&mut text).ctx(&path, "read")?;
         serde_json::from_str(&text).map_err(|e| Error::input(Location { file: path.clone(), ..Default::default() }, format!("bad manifest: {e}")))
     }
 }

@@ -210,9 +210,12 @@ fn main() {
             std::process::exit(code);
         }
     };
-    octolod::io::clean_up_on_signals();
+    octolod::io::signal::install();
     if let Err(e) = run(args) {
-        octolod::io::yield_to_signal_handler();
+        // Interrupted (the writer stopped at a safe point): 128 + the signal.
+        if let Some(sig) = octolod::io::signal::interrupted() {
+            std::process::exit(128 + sig);
+        }
         eprintln!("octolod-gen: error: {e:#}");
         std::process::exit(1);
     }

@@ -112,6 +112,11 @@ pub(super) fn stream<W: Write + Send>(
         'outer: for group in jobs.chunks(window) {
             let mut next: Vec<(Job, Vec<u8>)> =
                 group.iter().map(|&j| (j, spare.try_recv().unwrap_or_default())).collect();
+            // Each window is a safe point for signals.
+            if crate::io::signal::interrupted().is_some() {
+                encoded = Err(io::Error::new(io::ErrorKind::Interrupted, "interrupted by a signal"));
+                break;
+            }
             encoded = next.par_iter_mut().try_for_each(|(job, buf)| encode(g, &enc, *job, buf));
             if encoded.is_err() {
                 break;

@@ -112,7 +112,9 @@
 //!   The store format is unchanged; `store.json` records the simplifier.
 //!
 //! Levels stop at a single node of at most `--root-tris` triangles (or at
-//! `--levels`). A level that barely shrinks (everything locked) doubles the
+//! `--levels`), or at the last level whose simplification would leave
+//! nothing (so the root always holds a triangle), within [`MAX_LEVELS`]
+//! (more is an error naming `--level-ratio`). A level that barely shrinks (everything locked) doubles the
 //! next level's leaf size, so nodes merge until nothing is shared.
 
 pub mod chunks;
@@ -199,8 +201,11 @@ pub struct Built {
     pub octree: OctreeReport,
 }
 
-/// Most levels built (a guard; halving from 2^40 triangles takes 30).
-const MAX_LEVELS: u8 = 64;
+/// Most levels built: halving from 2^40 triangles takes 30. A build that
+/// would need more (a `--level-ratio` near 1) is an error naming it, up
+/// front when the ratio alone says so ([`check_level_count`]), else when
+/// the level is reached.
+pub const MAX_LEVELS: u8 = 64;
 
 /// Depth of the centroid histograms that predict the next level's cells
 /// (1024 cells per axis; coarsened when they outgrow their memory share).
@@ -225,14 +230,44 @@ pub enum Level0Source<'a> {
     Routed(Level0),
 }
 
-/// Builds every level from `input` into store directory `dir`.
-pub fn build(input: Level0Source, dir: &Path, opts: &LodOptions) -> Result<Built> {
-    if !(opts.params.level_ratio > 1.0 && opts.params.level_ratio.is_finite()) {
-        return Err(Error::Usage("--level-ratio must be above 1".into()));
+/// Checks the hierarchy's parameters (the CLI calls it before any work):
+/// `--level-ratio` a finite number above 1, `--root-tris` at least 1,
+/// `--max-depth` within 1..=21.
+pub fn check_params(p: &BuildParams) -> Result<()> {
+    if !(p.level_ratio > 1.0 && p.level_ratio.is_finite()) {
+        return Err(Error::Usage(format!("--level-ratio must be a number above 1, not {}", p.level_ratio)));
     }
-    if opts.params.root_tris == 0 {
+    if p.root_tris == 0 {
         return Err(Error::Usage("--root-tris must be at least 1".into()));
     }
+    if !(1..=partition::KEY_DEPTH).contains(&p.max_depth) {
+        return Err(Error::Usage(format!("--max-depth must be within 1..={}, not {}", partition::KEY_DEPTH, p.max_depth)));
+    }
+    Ok(())
+}
+
+/// Fewest levels above level 0 that `triangles` need to reach a root of at
+/// most `--root-tris` at `--level-ratio` (each level at best 1/ratio of the
+/// one below); an error naming `--level-ratio` when that is more than
+/// [`MAX_LEVELS`] and `--levels` does not stop the build sooner.
+fn check_level_count(p: &BuildParams, triangles: u64) -> Result<()> {
+    if p.levels.is_some_and(|l| l <= MAX_LEVELS) || triangles <= p.root_tris {
+        return Ok(());
+    }
+    let needed = ((triangles as f64 / p.root_tris as f64).ln() / p.level_ratio.ln()).ceil();
+    if needed > MAX_LEVELS as f64 {
+        return Err(Error::Usage(format!(
+            "--level-ratio {} would take at least {needed} levels to bring {triangles} triangles down to a root of --root-tris {}, \
+             more than the {MAX_LEVELS} levels a store holds: raise --level-ratio (2 halves each level) or --root-tris, or stop at --levels L",
+            p.level_ratio, p.root_tris
+        )));
+    }
+    Ok(())
+}
+
+/// Builds every level from `input` into store directory `dir`.
+pub fn build(input: Level0Source, dir: &Path, opts: &LodOptions) -> Result<Built> {
+    check_params(&opts.params)?;
     let scratch = crate::io::scratch_dir(dir)?;
     let l0 = match input {
         Level0Source::Soup(soup, first) => {
@@ -242,6 +277,7 @@ pub fn build(input: Level0Source, dir: &Path, opts: &LodOptions) -> Result<Built
         Level0Source::Routed(l0) => l0,
     };
     let sh = l0.header;
+    check_level_count(&opts.params, sh.triangles)?;
     let attrs = sh.attrs;
     let bbox = sh.bbox;
     let layout = VertexLayout::new(attrs);
@@ -280,7 +316,17 @@ pub fn build(input: Level0Source, dir: &Path, opts: &LodOptions) -> Result<Built
         let ids: Vec<usize> = (0..tiling.leaves.len()).filter(|&i| leaves[i].tris > 0 || !chunks.refs_of(i).is_empty()).collect();
         let base = nodes.len();
         let total: u64 = ids.iter().map(|&i| leaves[i].tris).sum();
-        let is_final = (ids.len() == 1 && total <= opts.params.root_tris) || opts.params.levels == Some(level) || level == MAX_LEVELS;
+        let is_final = (ids.len() == 1 && total <= opts.params.root_tris) || opts.params.levels == Some(level);
+        if level == MAX_LEVELS && !is_final {
+            // Once a silent stop: a top level of many nodes, no single root.
+            return Err(Error::Usage(format!(
+                "the levels did not come down to one node of at most --root-tris {} triangles within {MAX_LEVELS} levels \
+                 (level {level} holds {total} triangles in {} nodes; --level-ratio {}): raise --level-ratio or --root-tris, or stop at --levels L",
+                opts.params.root_tris,
+                ids.len(),
+                opts.params.level_ratio
+            )));
+        }
         let cell_of = |i: usize| lc.cell(tiling.leaves[i].path, tiling.leaves[i].depth);
         let band = Band::new(&ids.iter().map(|&i| (cell_of(i), leaves[i].reach)).collect::<Vec<_>>());
         let mut rep = LevelReport { level, nodes: ids.len() as u64, triangles: total, error_min: f64::INFINITY, ..Default::default() };
@@ -557,6 +603,19 @@ pub fn build(input: Level0Source, dir: &Path, opts: &LodOptions) -> Result<Built
             rep.error_min = 0.0;
         }
         rep.seconds = t0.elapsed().as_secs_f64();
+        // Every node of this level simplified to nothing (a few triangles
+        // left, all collapsed, as `--root-tris 1` asks): the level above
+        // would be empty, so this one is the top and the root keeps its
+        // triangles.
+        let next_chunks = match next_chunks {
+            Some(mut c) if next_total == 0 => {
+                c.finish(next_tiling.leaves.len())?;
+                c.remove();
+                rep.tau = 0.0;
+                None
+            }
+            c => c,
+        };
         reports.push(rep);
         let old = std::mem::replace(&mut chunks, match next_chunks {
             Some(mut c) => {

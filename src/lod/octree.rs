@@ -144,6 +144,7 @@ fn scan(soup: &Path, cube: &LevelCube, batch: usize, progress: &Progress, mut f:
             buf.par_chunks_exact(rec).map(|t| cube.key(anchor(&layout, t))).collect_into_vec(&mut keys);
             f(&buf, &keys)?;
             progress.inc((buf.len() / rec) as u64);
+            crate::io::signal::check()?;
         }
         Ok(())
     })

@@ -98,7 +98,8 @@ where
             let Ok((i, r)) = rx.recv() else { break };
             waiting.insert(i, r);
             while let Some(r) = waiting.remove(&want) {
-                let res = r.and_then(|t| consume(want, t));
+                // Each consumed item is a safe point for signals.
+                let res = r.and_then(|t| consume(want, t)).and_then(|()| crate::io::signal::check());
                 want += 1;
                 state.lock().unwrap_or_else(|e| e.into_inner()).consumed = want;
                 ready.notify_all();

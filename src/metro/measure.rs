@@ -12,6 +12,7 @@ use super::sample::{Gen, Job, MemGen};
 use super::{BATCH_MAX, CHUNK};
 use crate::error::{Error, Result};
 use crate::geom::{Bvh, Mesh, P3};
+use crate::mesh::Aabb;
 use crate::progress::Progress;
 use rayon::prelude::*;
 
@@ -63,9 +64,15 @@ struct Acc {
 }
 
 impl Acc {
+    /// Counts a sample at squared distance `d2`; distances at most `snap`
+    /// are rounding and count as 0 ([`snap_distance`]).
     #[inline]
-    fn add(&mut self, d2: f64, p: P3) {
-        let d = d2.sqrt();
+    fn add(&mut self, d2: f64, p: P3, snap: f64) {
+        let mut d = d2.sqrt();
+        let mut d2 = d2;
+        if d <= snap {
+            (d, d2) = (0.0, 0.0);
+        }
         if self.n == 0 || d > self.max {
             self.max = d;
             self.max_at = p;
@@ -111,7 +118,7 @@ impl Target<'_> {
 
 /// Distances of one direction: batches from `gen`, closest points in
 /// `target`, per-job sums combined in job order.
-pub(super) fn measure(gen: &mut dyn Gen, target: &Target, batch: usize, progress: &Progress) -> Result<Distances> {
+pub(super) fn measure(gen: &mut dyn Gen, target: &Target, batch: usize, snap: f64, progress: &Progress) -> Result<Distances> {
     let mut points: Vec<P3> = Vec::new();
     let mut jobs: Vec<Job> = Vec::new();
     let mut d2: Vec<f64> = Vec::new();
@@ -119,6 +126,8 @@ pub(super) fn measure(gen: &mut dyn Gen, target: &Target, batch: usize, progress
     loop {
         points.clear();
         jobs.clear();
+        // Each batch is a safe point for signals.
+        crate::io::signal::check()?;
         if !gen.fill(&mut points, &mut jobs, batch)? {
             break;
         }
@@ -131,7 +140,7 @@ pub(super) fn measure(gen: &mut dyn Gen, target: &Target, batch: usize, progress
                 debug_assert!(j.start % CHUNK == 0 && j.len as u64 <= CHUNK);
                 let mut a = Acc::default();
                 for k in j.at..j.at + j.len {
-                    a.add(d2[k], points[k]);
+                    a.add(d2[k], points[k], snap);
                 }
                 a
             })
@@ -173,5 +182,26 @@ pub fn one_sided(src: &Mesh, target: &Bvh, samples: u64, seed: u64, progress: &P
         return Err(Error::Usage("metro: the source mesh has no triangles".into()));
     }
     src.check_indices().map_err(|m| Error::Usage(format!("metro: source mesh: {m}")))?;
-    measure(&mut MemGen::new(src, samples, seed), &Target::Mem(target), BATCH_MAX, progress)
+    // Every sample lies on `src`, and a distance near the rounding is to
+    // a point of `target` near it: `src`'s coordinates set the scale.
+    let snap = snap_distance(&[src.bbox()]);
+    measure(&mut MemGen::new(src, samples, seed), &Target::Mem(target), BATCH_MAX, snap, progress)
 }
+
+/// Distances at most this are rounding, not distance, and count as 0:
+/// [`SNAP_ULPS`] × `f64::EPSILON` × the largest coordinate magnitude of the
+/// boxes (see the module doc).
+pub fn snap_distance(boxes: &[Aabb]) -> f64 {
+    let m = boxes
+        .iter()
+        .filter(|b| !b.is_empty())
+        .flat_map(|b| b.min.iter().chain(b.max.iter()))
+        .map(|x| x.abs())
+        .filter(|x| x.is_finite())
+        .fold(0.0, f64::max);
+    SNAP_ULPS * f64::EPSILON * m
+}
+
+/// Rounding allowance of [`snap_distance`], in units of `f64::EPSILON` × the
+/// coordinates' magnitude.
+pub const SNAP_ULPS: f64 = 64.0;

@@ -132,6 +132,20 @@
 //! nodes) and each part is read once per pass and per role while the cache
 //! holds the working set, more often below it (the report counts loads).
 //!
+//! Rounding: a distance is computed from coordinates of magnitude `M`
+//! (the largest `|coordinate|` of the two meshes' bounding boxes) and is
+//! only good to some units of `f64::EPSILON × M`: generated meshes against
+//! themselves measured up to 0.7 of that (1.2e-16 at unit scale, 1.5e-14
+//! on tori spread over 100 units), not 0. So every sample distance at most
+//! [`SNAP_ULPS`] (64) × `f64::EPSILON × M` ([`snap_distance`]: 1.4e-14 at
+//! unit scale, 1.4e-8 around 1e6) counts as exactly 0, in the maximum,
+//! the mean and the RMS alike: identical meshes measure 0 wherever they
+//! lie (and pass `--max-hausdorff 0`), while a real offset far above the
+//! rounding (1e-12 at unit scale) still shows. The rounding grows with a
+//! triangle's thinness: soups of random slivers measured a median of 28
+//! and up to ~1000 × `f64::EPSILON × M` against themselves, and keep what
+//! exceeds the allowance.
+//!
 //! Thresholds (`--max-hausdorff`, `--max-rms`, `--max-mean`) are checked
 //! against the combined figures, absolute (`0.01`) or as a percentage of A's
 //! diagonal (`0.1%`); the CLI exits with [`EXIT_THRESHOLD`] (3) when one is
@@ -151,7 +165,7 @@ mod report;
 mod sample;
 
 pub use crate::geom::Mesh;
-pub use measure::{one_sided, Distances};
+pub use measure::{one_sided, snap_distance, Distances, SNAP_ULPS};
 pub use report::{Check, JsonBox, JsonCheck, JsonDistances, JsonMesh, JsonParts, JsonReport, Limits, MeshSummary, PagingReport, Report, Threshold, Timings};
 
 use crate::error::{Error, Location, Result};
@@ -288,6 +302,12 @@ impl Operand<'_> {
         match self {
             Operand::Mem(m) => m.triangles.len() as u64,
             Operand::Paged(l) => l.faces(),
+        }
+    }
+    fn bbox(&self) -> crate::mesh::Aabb {
+        match self {
+            Operand::Mem(m) => m.bbox(),
+            Operand::Paged(l) => l.bbox(),
         }
     }
 }
@@ -454,7 +474,12 @@ pub fn compare_sources(sa: &Source, sb: &Source, opts: &Options, mem: &MemOption
 /// `--mem`, no simplification; level 0 is the exact input). The store lives
 /// as long as the returned directory guard.
 fn level0_scratch_store(p: &Path, opts: &Options, mem: &MemOptions) -> Result<(crate::io::ScratchDir, Source)> {
-    let tmp = crate::io::scratch_dir(p)?;
+    // Next to the input (its file system has room for a copy of it); in the
+    // system's temp directory when the input's directory is not writable.
+    let tmp = match crate::io::scratch_dir(p) {
+        Ok(t) => t,
+        Err(e) => crate::io::scratch_in(&std::env::temp_dir()).map_err(|_| e)?,
+    };
     let stem = p.file_stem().map(|x| x.to_string_lossy().into_owned()).unwrap_or_else(|| "input".into());
     let dir = tmp.path().join(format!("{stem}.level0.octolod"));
     if crate::progress::visible(opts.quiet) {
@@ -480,6 +505,8 @@ fn compare_operands(a: &Operand, b: &Operand, opts: &Options, batch: usize, pagi
         Some(n) => n,
         None => SAMPLES_PER_FACE * a.faces().max(b.faces()),
     };
+    // Distances within rounding of the coordinates count as 0 (module doc).
+    let snap = snap_distance(&[a.bbox(), b.bbox()]);
     let seed_ab = mix64(opts.seed ^ 0xA70B);
     let seed_ba = mix64(opts.seed ^ 0xB70A);
     let mut bvh_s = 0.0;
@@ -508,11 +535,11 @@ fn compare_operands(a: &Operand, b: &Operand, opts: &Options, batch: usize, pagi
         let t1 = Instant::now();
         let progress = Progress::items(target, name, opts.quiet);
         let (d, summary) = match src {
-            Operand::Mem(m) => (measure(&mut MemGen::new(m, target, seed), &tg, batch, &progress)?, None),
+            Operand::Mem(m) => (measure(&mut MemGen::new(m, target, seed), &tg, batch, snap, &progress)?, None),
             Operand::Paged(l) => {
                 let p = paging.as_ref().expect("a paged operand comes with a cache");
                 let mut g = PagedGen::new(l, p.cache, target, seed);
-                let d = measure(&mut g, &tg, batch, &progress)?;
+                let d = measure(&mut g, &tg, batch, snap, &progress)?;
                 (d, Some(g.summary()))
             }
         };
@@ -645,6 +672,50 @@ mod tests {
         assert!(r1.combined.max > 0.0);
         let r_other = compare(&a, &b, &Options { samples: Some(3 * CHUNK + 123), seed: 5, quiet: true }).unwrap();
         assert_ne!(r1.combined.sum, r_other.combined.sum, "the seed changes the face samples");
+    }
+
+    /// Issue "Reliability v2" item 13f: a mesh against itself measured
+    /// 1.4e-16, not 0 (so `--max-hausdorff 0` failed); far from the origin
+    /// the rounding grows with the coordinates.
+    #[test]
+    fn identical_meshes_measure_zero_anywhere_and_real_offsets_still_show() {
+        // A wavy 40 × 40 grid over [0, 1]², scaled and moved.
+        let grid = |scale: f64, offset: f64, shift: f64| {
+            let n = 40u32;
+            let mut positions = Vec::new();
+            for j in 0..=n {
+                for i in 0..=n {
+                    let (x, y) = (i as f64 / n as f64, j as f64 / n as f64);
+                    let z = 0.1 * (7.0 * x).sin() * (5.0 * y).cos();
+                    positions.push([x * scale + offset, y * scale - offset, z * scale + 0.5 * offset + shift]);
+                }
+            }
+            let mut triangles = Vec::new();
+            for j in 0..n {
+                for i in 0..n {
+                    let v = j * (n + 1) + i;
+                    triangles.push([v, v + 1, v + n + 2]);
+                    triangles.push([v, v + n + 2, v + n + 1]);
+                }
+            }
+            Mesh::new(positions, triangles)
+        };
+        let opts = Options { samples: Some(200_000), seed: 3, quiet: true };
+        for (scale, offset) in [(1.0, 0.0), (0.9, 1.0), (3.0, 100.0), (10.0, 1e6), (1.0, -3e9)] {
+            let m = grid(scale, offset, 0.0);
+            let r = compare(&m, &m, &opts).unwrap();
+            for d in [r.a_to_b, r.b_to_a, r.combined] {
+                assert_eq!((d.max, d.mean, d.rms, d.sum, d.sum2), (0.0, 0.0, 0.0, 0.0, 0.0), "offset {offset}");
+            }
+            assert!(r.check(&Limits::parse(Some("0"), Some("0"), Some("0")).unwrap()).iter().all(|c| !c.exceeded));
+        }
+        // A real offset far above the rounding still measures.
+        for shift in [1e-9, 1e-12] {
+            let r = compare(&grid(1.0, 0.0, 0.0), &grid(1.0, 0.0, shift), &opts).unwrap();
+            assert!(r.combined.max > 0.5 * shift && r.combined.max <= 1.01 * shift, "shift {shift}: {}", r.combined.max);
+            assert!(r.combined.mean > 0.0 && r.combined.rms > 0.0);
+        }
+        assert_eq!(snap_distance(&[crate::mesh::Aabb { min: [-2.0, 0.0, 0.0], max: [1.0, 1.0, 1.0] }]), 2.0 * SNAP_ULPS * f64::EPSILON);
     }
 
 }

@@ -157,6 +157,7 @@ impl PagedLevel {
             (0..nodes.len())
                 .into_par_iter()
                 .map(|k| {
+                    crate::io::signal::check()?;
                     let _r = cache.reserve(costs[k].load);
                     let m = store.read_node(nodes[k])?.mesh;
                     cache.scan_bytes.fetch_add(store.nodes[nodes[k]].bytes as u64, Relaxed);
@@ -184,6 +185,11 @@ impl PagedLevel {
         }
         let tree = BoxTree::new(&boxes);
         Ok(PagedLevel { name, store, op, nodes, costs, boxes, face_base, tree, bbox })
+    }
+
+    /// Bounds of the level's triangles.
+    pub(super) fn bbox(&self) -> Aabb {
+        self.bbox
     }
 
     pub fn parts(&self) -> usize {

@@ -166,7 +166,7 @@ const MAX_HEADER: usize = 1 << 20;
 
 /// Reads and parses the header of `path`.
 pub fn read_header(path: &Path) -> Result<PlyHeader> {
-    let mut f = std::fs::File::open(path).map_err(|e| Error::io(path, "open", e))?;
+    let (mut f, file_len) = crate::io::open_regular(path, "open")?;
     let mut buf = Vec::with_capacity(4096);
     let mut chunk = [0u8; 4096];
     let body_offset = loop {
@@ -187,7 +187,53 @@ pub fn read_header(path: &Path) -> Result<PlyHeader> {
         }
         buf.extend_from_slice(&chunk[..n]);
     };
-    parse_header(path, &buf[..body_offset], body_offset as u64)
+    let h = parse_header(path, &buf[..body_offset], body_offset as u64)?;
+    check_body_size(path, &h, file_len)?;
+    Ok(h)
+}
+
+/// Refuses a header whose element counts need more bytes than the file
+/// holds (each record at least its fixed scalars and list counts in
+/// binary, two bytes a value in ascii), before any reader sizes a buffer,
+/// a bucket set or a scratch file from them.
+fn check_body_size(path: &Path, h: &PlyHeader, file_len: u64) -> Result<()> {
+    let avail = file_len.saturating_sub(h.body_offset) as u128;
+    let mut need = 0u128;
+    for e in &h.elements {
+        let per = match h.encoding {
+            Encoding::Ascii => 2 * e.props.len() as u128,
+            _ => e.props.iter().map(|p| match p.ty {
+                PropType::Scalar(s) | PropType::List(s, _) => s.size() as u128,
+            }).sum(),
+        };
+        let before = need;
+        need += e.count as u128 * per;
+        // An ascii body's last value needs no separator after it.
+        let floor = if h.encoding == Encoding::Ascii { need.saturating_sub(1) } else { need };
+        if floor > avail {
+            // The record the body ends in: exactly, for fixed-size binary
+            // records; at the latest, where records can be longer.
+            let record = ((avail.saturating_sub(before)) / per.max(1)) as u64;
+            let exact = h.encoding != Encoding::Ascii && e.fixed_size().is_some();
+            let l = Location {
+                file: path.to_path_buf(),
+                element: Some(e.name.clone()),
+                record: exact.then_some(record),
+                offset: Some(file_len),
+                ..Default::default()
+            };
+            return Err(Error::input(
+                l,
+                format!(
+                    "unexpected end of file: the header declares {} '{}' records, which with the elements before them need at least {floor} bytes, but the body holds {avail}{}",
+                    e.count,
+                    e.name,
+                    if exact { String::new() } else { format!(" (it ends by record {record} at the latest)") }
+                ),
+            ));
+        }
+    }
+    Ok(())
 }
 
 fn loc(path: &Path) -> Location {

@@ -62,7 +62,7 @@ struct Input {
 
 impl Input {
     fn open(path: &Path, offset: u64) -> Result<Input> {
-        let mut file = File::open(path).map_err(|e| Error::io(path, "open", e))?;
+        let (mut file, _) = crate::io::open_regular(path, "open")?;
         file.seek(SeekFrom::Start(offset)).map_err(|e| Error::io(path, "seek", e))?;
         Ok(Input { file, buf: vec![0; BUF], pos: 0, end: 0, base: offset, eof: false, path: path.to_path_buf() })
     }
@@ -260,10 +260,12 @@ impl BodyReader<'_> {
         )
     }
 
-    fn tick(&mut self) {
+    /// Reports progress; a safe point for signals (after each batch).
+    fn tick(&mut self) -> Result<()> {
         let off = self.input.offset();
         self.progress.inc(off - self.reported);
         self.reported = off;
+        crate::io::signal::check()
     }
 
     fn finish(mut self) -> Result<BodyStats> {
@@ -292,7 +294,7 @@ impl BodyReader<'_> {
                 ));
             }
         }
-        self.tick();
+        self.tick()?;
         self.stats.bytes = self.input.offset();
         Ok(self.stats)
     }
@@ -324,7 +326,7 @@ impl BodyReader<'_> {
             sink.vertices(first, &self.verts)?;
             self.stats.vertices += self.verts.len() as u64;
             self.verts.clear();
-            self.tick();
+            self.tick()?;
         }
         Ok(())
     }
@@ -675,7 +677,7 @@ impl BodyReader<'_> {
             sink.triangles(&self.tris)?;
             self.stats.triangles += self.tris.len() as u64;
             self.tris.clear();
-            self.tick();
+            self.tick()?;
         }
         Ok(())
     }
@@ -712,7 +714,7 @@ impl BodyReader<'_> {
                 let n = (self.input.avail() as u64).min(total - done);
                 self.input.pos += n as usize;
                 done += n;
-                self.tick();
+                self.tick()?;
             }
             return Ok(());
         }
@@ -736,7 +738,7 @@ impl BodyReader<'_> {
                 }
             }
             if rec % 65536 == 0 {
-                self.tick();
+                self.tick()?;
             }
         }
         Ok(())

@@ -89,11 +89,10 @@ pub fn header(opts: &PlyWriteOptions, n_vertices: u64, n_faces: u64) -> String {
     let mut h = String::with_capacity(512);
     h.push_str("ply\n");
     let _ = writeln!(h, "format {} 1.0", opts.encoding.header_name());
-    // Marks the file as ours, so `--force` may replace it later (see `io::OutputKind`).
-    if !opts.comments.iter().any(|c| c.starts_with("octolod")) {
-        h.push_str("comment octolod\n");
-    }
-    for c in &opts.comments {
+    // Marks the file as ours, so `--force` may replace it later: exactly
+    // this line (see `io::OutputKind::recognise`).
+    let _ = writeln!(h, "comment {}", crate::io::PLY_MARK);
+    for c in opts.comments.iter().filter(|c| c.as_str() != crate::io::PLY_MARK) {
         let _ = writeln!(h, "comment {}", c.replace(['\n', '\r'], " "));
     }
     let _ = writeln!(h, "element vertex {n_vertices}");
@@ -545,7 +544,7 @@ mod tests {
         let h = header(&PlyWriteOptions::default(), 3, 1);
         assert_eq!(
             h,
-            "ply\nformat binary_little_endian 1.0\ncomment octolod\nelement vertex 3\nproperty float x\nproperty float y\n\
+            "ply\nformat binary_little_endian 1.0\ncomment octolod-output\nelement vertex 3\nproperty float x\nproperty float y\n\
              property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"
         );
     }
@@ -561,7 +560,7 @@ mod tests {
             comments: vec!["made by test".into(), "two\nlines".into()],
             extra_vertex_quality: true,
         };
-        let expect = "ply\nformat ascii 1.0\ncomment octolod\ncomment made by test\ncomment two lines\nelement vertex 7\n\
+        let expect = "ply\nformat ascii 1.0\ncomment octolod-output\ncomment made by test\ncomment two lines\nelement vertex 7\n\
             property double x\nproperty float quality\nproperty double y\nproperty double z\n\
             property float nx\nproperty float ny\nproperty float nz\n\
             property uchar red\nproperty uchar green\nproperty uchar blue\nproperty uchar alpha\n\
@@ -577,7 +576,7 @@ mod tests {
         };
         assert_eq!(
             header(&opts2, 0, 0),
-            "ply\nformat binary_big_endian 1.0\ncomment octolod\nelement vertex 0\nproperty float x\nproperty float y\n\
+            "ply\nformat binary_big_endian 1.0\ncomment octolod-output\nelement vertex 0\nproperty float x\nproperty float y\n\
              property float z\nproperty float red\nproperty float green\nproperty float blue\n\
              property float s\nproperty float t\nelement face 0\nproperty list uchar int vertex_indices\nend_header\n"
         );

@@ -239,6 +239,7 @@ pub fn build_soup_tapped(input: &Path, output: &Path, opts: &SoupOptions, tap: O
     if opts.mem < crate::mem::MIN_BUDGET {
         return Err(Error::Usage(format!("--mem must be at least {} bytes", crate::mem::MIN_BUDGET)));
     }
+    let _input = crate::io::protect(input);
     crate::io::check_output(output, crate::io::OutputKind::Soup, opts.replace)?;
     let header = read_header(input)?;
     check_has_faces(input, &header)?;
@@ -509,6 +510,7 @@ fn build_external(
             done += 1;
             if done % 65536 == 0 {
                 join_progress.set(done);
+                crate::io::signal::check()?;
             }
             Ok(())
         })?;
@@ -548,7 +550,7 @@ fn build_external(
         }
         written += (tris.len() / (3 * s)) as u64;
         write_progress.set(written);
-        Ok(())
+        crate::io::signal::check()
     })?;
     write_progress.finish();
     debug_assert_eq!(written, body.triangles);

@@ -403,6 +403,42 @@ fn default_between() -> f64 {
     10.0
 }
 
+/// Most frames one `octolod render` run takes, all counted: the path's
+/// poses (the orbit's `--frames`, or a path file's after expansion) plus
+/// `--settle` (about an hour at lavapipe's pace on a small store).
+pub const MAX_FRAMES: usize = 100_000;
+
+impl PathFile {
+    /// The poses the file expands to, computed without expanding them; an
+    /// error naming the field when `hold`, `frames_between` or the total
+    /// exceeds [`MAX_FRAMES`].
+    fn pose_count(&self) -> std::result::Result<usize, String> {
+        let limit = MAX_FRAMES as f64;
+        if !(self.hold <= limit) {
+            return Err(format!("\"hold\": {} is more than {MAX_FRAMES} frames", self.hold));
+        }
+        let hold = self.hold.max(0.0) as usize;
+        let listed = if let Some(fr) = &self.frames {
+            fr.len()
+        } else if let Some(kf) = &self.keyframes {
+            if !(self.frames_between <= limit) {
+                return Err(format!("\"frames_between\": {} is more than {MAX_FRAMES} frames", self.frames_between));
+            }
+            let between = self.frames_between.max(1.0) as usize;
+            kf.len().saturating_sub(1).saturating_mul(between).saturating_add(kf.len().min(1))
+        } else {
+            return Err("needs \"frames\" or \"keyframes\"".into());
+        };
+        let total = listed.saturating_add(hold);
+        if total > MAX_FRAMES {
+            return Err(format!(
+                "the path expands to {total} frames ({listed} from \"frames\" or \"keyframes\" and \"frames_between\", {hold} of \"hold\"), more than {MAX_FRAMES}"
+            ));
+        }
+        Ok(total)
+    }
+}
+
 /// A camera path for `octolod render`, in JSON:
 ///
 /// ```json
@@ -415,7 +451,8 @@ fn default_between() -> f64 {
 /// the store's bounds on each axis, so one path fits any store). Poses are
 /// interpolated linearly, `frames_between` frames per keyframe interval;
 /// `hold` repeats the last pose so loading can settle. `"frames"` may list
-/// every pose instead of `keyframes`.
+/// every pose instead of `keyframes`. A path expands to at most
+/// [`MAX_FRAMES`] poses (checked before any is made).
 #[derive(Clone, Debug, PartialEq)]
 pub struct CameraPath {
     pub fov_y_deg: f64,
@@ -430,8 +467,18 @@ impl CameraPath {
         CameraPath::parse(&text, bounds, up).map_err(|m| Error::Usage(format!("{}: {m}", path.display())))
     }
 
+    /// The poses a path file expands to (at most [`MAX_FRAMES`]), without
+    /// making them: `render` checks its counts with it before any work.
+    pub fn count_file(path: &Path) -> Result<usize> {
+        let text = std::fs::read_to_string(path).ctx(path, "read camera path")?;
+        let f: PathFile = serde_json::from_str(&text)
+            .map_err(|e| Error::Usage(format!("{}: not a valid camera path: {e}", path.display())))?;
+        f.pose_count().map_err(|m| Error::Usage(format!("{}: {m}", path.display())))
+    }
+
     pub fn parse(text: &str, bounds: &Aabb, default_up: DVec3) -> std::result::Result<CameraPath, String> {
         let f: PathFile = serde_json::from_str(text).map_err(|e| format!("not a valid camera path: {e}"))?;
+        let count = f.pose_count()?;
         let map = |p: [f64; 3], what: &str| -> std::result::Result<DVec3, String> {
             let p = DVec3::from(p);
             if !p.is_finite() {
@@ -480,6 +527,7 @@ impl CameraPath {
         }
         let last = *poses.last().unwrap();
         poses.extend(std::iter::repeat_n(last, f.hold.max(0.0) as usize));
+        debug_assert_eq!(poses.len(), count);
         if !(1.0..=170.0).contains(&f.fov_y_deg) {
             return Err(format!("fov_y_deg {} is outside 1..170", f.fov_y_deg));
         }
@@ -623,6 +671,26 @@ mod tests {
         // A file's own "up" wins over the default.
         let p = CameraPath::parse(r#"{"up":[0,0,2],"frames":[{"eye":[0,0,0],"target":[1,0,0]}]}"#, &b, DVec3::Y).unwrap();
         assert_eq!(p.up, DVec3::Z);
+    }
+
+    #[test]
+    fn camera_path_counts_are_bounded_before_expansion() {
+        let b = Aabb { min: [0.0; 3], max: [1.0; 3] };
+        let key = r#"{"eye":[0,0,0],"target":[1,0,0]},{"eye":[0,1,0],"target":[1,0,0]}"#;
+        // Once a capacity overflow (hold) or memory growing until abort
+        // (frames_between); now errors naming the field, before any pose.
+        for (text, field) in [
+            (r#"{"frames":[{"eye":[0,0,0],"target":[1,0,0]}],"hold":1e18}"#.to_string(), "\"hold\""),
+            (format!(r#"{{"keyframes":[{key}],"frames_between":1e15}}"#), "\"frames_between\""),
+            (format!(r#"{{"keyframes":[{key},{key}],"frames_between":40000}}"#), "expands to 120001 frames"),
+            (format!(r#"{{"keyframes":[{key}],"frames_between":60000,"hold":60000}}"#), "expands to 120001 frames"),
+        ] {
+            let e = CameraPath::parse(&text, &b, DVec3::Z).unwrap_err();
+            assert!(e.contains(field) && e.contains(&MAX_FRAMES.to_string()), "{text}: {e}");
+        }
+        // Up to the limit is fine.
+        let p = CameraPath::parse(&format!(r#"{{"keyframes":[{key}],"frames_between":50000,"hold":49999}}"#), &b, DVec3::Z).unwrap();
+        assert_eq!(p.poses.len(), MAX_FRAMES);
     }
 
     #[test]

@@ -16,8 +16,12 @@
 //! [`Viewer::frame`] per frame, which never waits for a load, so the first
 //! frames show the pinned coarse levels and later ones refine as loads
 //! land. `--settle` keeps rendering the last pose until nothing is pending.
+//!
+//! Counts are checked before any work (before the output directory is
+//! made): the path's poses and `--settle` add up to at most
+//! [`MAX_FRAMES`]; a run that rendered no frame fails and keeps nothing.
 
-use super::camera::{Camera, CameraPath, Up};
+use super::camera::{Camera, CameraPath, Up, MAX_FRAMES};
 use super::gpu::{DrawParams, GpuMesh, Renderer};
 use super::DrawItem;
 use super::viewer::{load_all_originals, FrameStats, ViewOptions, Viewer};
@@ -132,8 +136,32 @@ pub fn draw_params(cam: &Camera, origin: glam::DVec3, w: u32, h: u32, wireframe:
     }
 }
 
+/// Checks the run's counts before any work: the path's poses (the orbit's
+/// `--frames`, or the path file's after expansion, counted without making
+/// them) and `--settle`, at most [`MAX_FRAMES`] together.
+fn check_counts(o: &RenderOptions) -> Result<()> {
+    use crate::error::Error;
+    if o.orbit_frames > MAX_FRAMES {
+        return Err(Error::Usage(format!("render: --frames {} is more than {MAX_FRAMES} frames", o.orbit_frames)));
+    }
+    let poses = match &o.camera_path {
+        Some(p) => CameraPath::count_file(p)?,
+        None => o.orbit_frames.max(1),
+    };
+    if o.settle > MAX_FRAMES - poses {
+        return Err(Error::Usage(format!(
+            "render: --settle {} is too many: the path's {poses} frames and --settle may add up to at most {MAX_FRAMES} frames",
+            o.settle
+        )));
+    }
+    Ok(())
+}
+
 /// Renders the path; see the module doc.
 pub fn render(o: &RenderOptions) -> Result<RenderReport> {
+    check_counts(o)?;
+    // The store and the camera path are never replaced by this output.
+    let _inputs = [Some(&o.store), o.camera_path.as_ref()].map(|p| p.map(|p| crate::io::protect(p)));
     let out = AtomicDir::create(&o.out, crate::io::OutputKind::Frames, o.force)?;
     let mut renderer = Renderer::headless(o.width, o.height)?;
     let mut viewer: Viewer<GpuMesh> = Viewer::open(&o.store, o.view.clone())?;
@@ -154,12 +182,13 @@ pub fn render(o: &RenderOptions) -> Result<RenderReport> {
         std::fs::create_dir_all(out.path().join("reference")).ctx(out.path(), "create directory")?;
     }
     let clear8 = clear_rgba8(true);
-    let progress = crate::progress::Progress::items((path.poses.len() + o.settle) as u64, "rendering", o.quiet);
+    let total = path.poses.len().saturating_add(o.settle);
+    let progress = crate::progress::Progress::items(total as u64, "rendering", o.quiet);
     let mut frames = Vec::new();
     let mut i = 0usize;
     loop {
         let last_pose = i + 1 >= path.poses.len();
-        if i >= path.poses.len() + o.settle {
+        if i >= total {
             break;
         }
         let mut cam = path.camera(i);
@@ -206,12 +235,17 @@ pub fn render(o: &RenderOptions) -> Result<RenderReport> {
         let settled = rec.stats.settled;
         frames.push(rec);
         progress.inc(1);
+        // Each frame is a safe point for signals.
+        crate::io::signal::check()?;
         i += 1;
         if last_pose && i >= path.poses.len() && (settled || o.brute_force) {
             break;
         }
     }
     progress.finish();
+    if frames.is_empty() {
+        return Err(crate::error::Error::Usage("render: no frame was rendered; nothing is kept".into()));
+    }
     write_stats(out.path(), &frames, o)?;
     // Frames drawn while nodes failed to load are not what was asked:
     // nothing is kept and the run fails, naming the first failures.
@@ -238,6 +272,7 @@ pub fn full_res_frame(renderer: &mut Renderer, store: &crate::store::Store, cam:
         if next >= leaves.len() {
             return Ok(None);
         }
+        crate::io::signal::check()?;
         let (mut batch, mut bytes) = (Vec::new(), 0u64);
         while next < leaves.len() && bytes < batch_bytes {
             let m = super::draw_node(&store.read_node(leaves[next])?, ctx.attrs, ctx.origin);

@@ -1,13 +1,12 @@
 //! PNG output and image comparison.
 //!
 //! Takes: tightly packed RGBA8 frames (as [`crate::view::gpu::Renderer`]
-//! returns them). Gives: PNG files written atomically (a temp name renamed
-//! into place, never a half-written PNG under the final name), PSNR and
+//! returns them). Gives: PNG files (written into a render's temp directory,
+//! which appears under its final name only when complete), PSNR and
 //! differing-pixel statistics between two frames, and the fraction of a frame
 //! left at the clear color (used to detect cracks between nodes).
 
 use crate::error::{Error, IoContext, Result};
-use crate::io::AtomicFile;
 use std::path::Path;
 
 fn check_len(rgba: &[u8], width: u32, height: u32) -> Result<()> {
@@ -21,7 +20,9 @@ fn check_len(rgba: &[u8], width: u32, height: u32) -> Result<()> {
     Ok(())
 }
 
-/// Writes an RGBA8 image as PNG at `path` (parent directories created).
+/// Writes an RGBA8 image as PNG at `path`, in an existing directory (none is
+/// created: a render's temp directory removed by an interruption stays
+/// removed).
 pub fn write_png(path: impl AsRef<Path>, width: u32, height: u32, rgba: &[u8]) -> Result<()> {
     use ::image::ImageEncoder;
     let path = path.as_ref();
@@ -29,14 +30,14 @@ pub fn write_png(path: impl AsRef<Path>, width: u32, height: u32, rgba: &[u8]) -
     if width == 0 || height == 0 {
         return Err(Error::Usage(format!("{}: cannot write an empty {width}x{height} PNG", path.display())));
     }
-    let mut f = AtomicFile::create(path, crate::io::OutputKind::Inner, false)?;
-    ::image::codecs::png::PngEncoder::new(f.writer())
+    let mut f = std::io::BufWriter::new(std::fs::File::create(path).ctx(path, "create")?);
+    ::image::codecs::png::PngEncoder::new(&mut f)
         .write_image(rgba, width, height, ::image::ExtendedColorType::Rgba8)
         .map_err(|e| match e {
             ::image::ImageError::IoError(io) => Error::io(path, "write PNG", io),
             other => Error::Usage(format!("{}: cannot encode PNG: {other}", path.display())),
         })?;
-    f.commit()
+    std::io::Write::flush(&mut f).ctx(path, "write PNG")
 }
 
 /// Reads a PNG (any color type) as RGBA8: `(width, height, rgba)`.
@@ -160,11 +161,16 @@ mod tests {
     }
 
     #[test]
-    fn png_round_trip_is_atomic_and_exact() {
+    fn png_round_trip_is_exact_and_creates_no_directory() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("sub").join("x.png");
         let (w, h) = (3u32, 2u32);
         let rgba: Vec<u8> = (0..w * h * 4).map(|i| (i * 11 % 256) as u8).collect();
+        // A directory that is gone (a render's temp directory removed by an
+        // interruption) is not created again.
+        assert!(write_png(&path, w, h, &rgba).is_err());
+        assert!(!path.parent().unwrap().exists());
+        std::fs::create_dir(path.parent().unwrap()).unwrap();
         write_png(&path, w, h, &rgba).unwrap();
         assert_eq!(read_png(&path).unwrap(), (w, h, rgba.clone()));
         // Only the final file is left in the directory.

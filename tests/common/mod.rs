@@ -12,6 +12,7 @@ use octolod::store::{Cut, IndexedMesh, Store};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
+pub mod cli;
 pub mod store_mutation;
 
 /// Generates `shape` with `tris` triangles and `attrs`, writes it as
