@@ -19,6 +19,7 @@ use libfuzzer_sys::fuzz_target;
 use octolod::gen::{GenOptions, Generator, Shape};
 use octolod::mesh::AttrSet;
 use octolod::pipeline::{build_store, BuildOptions};
+use octolod::store::BuildParams;
 use octolod::ply::write::{write_ply, PlyWriteOptions};
 use std::path::PathBuf;
 use std::sync::OnceLock;
@@ -39,7 +40,8 @@ fn base() -> &'static Base {
         let ply = root.join("in.ply");
         write_ply(&ply, &PlyWriteOptions::default(), &v, &f).expect("write the input");
         let built = root.join("base.octolod");
-        let opts = BuildOptions { mem: 4 << 20, leaf_tris: 256, max_depth: 12, root_tris: 256, ..Default::default() };
+        let params = BuildParams { mem: 16 << 20, leaf_tris: 256, max_depth: 12, root_tris: 256, ..Default::default() };
+        let opts = BuildOptions { params, ..Default::default() };
         build_store(&ply, &built, &opts).expect("build the base store");
         Base { files: store_mutation::snapshot(&built), work: root.join("damaged.octolod") }
     })
