@@ -375,3 +375,29 @@ fn long_output_names_work_and_a_slash_after_a_file_name_is_refused_at_once() {
     assert!(err(&o).contains("ends with '/'") && !String::from_utf8_lossy(&o.stdout).contains("build:"), "refused before the build: {}", err(&o));
     assert_eq!(names(d.path()).len(), 3, "{:?}", names(d.path()));
 }
+
+/// Item 12: a cut held back by `--ram` never settled, so `render` drew its
+/// last pose 600 more times as "still loading" and exited 0, the same as
+/// for a store whose damaged counts no budget could hold. It now settles
+/// as soon as nothing more fits, and warns naming `--ram`.
+#[test]
+fn a_cut_held_back_by_the_ram_budget_settles_and_is_reported() {
+    if std::env::var("OCTOLOD_SKIP_GPU_TESTS").as_deref() == Ok("1") {
+        eprintln!("OCTOLOD_SKIP_GPU_TESTS=1: skipping a GPU test");
+        return;
+    }
+    let d = tempfile::tempdir().unwrap();
+    let ply = d.path().join("in.ply");
+    gen("sphere", 20_000, &ply);
+    let st = d.path().join("s.octolod");
+    build(&ply, &st);
+    let out = d.path().join("f");
+    let o = octolod(&["render", s(&st), "-o", s(&out), "--frames", "2", "--ram", "100K", "--width", "200", "--height", "150"]);
+    assert!(o.status.success(), "{}", err(&o));
+    let text = String::from_utf8_lossy(&o.stdout);
+    // The loads that fit land within a few frames; then it stops (it drew
+    // 602 frames before).
+    let frames: usize = text.split_whitespace().nth(1).and_then(|n| n.parse().ok()).unwrap_or(usize::MAX);
+    assert!(frames <= 20 && text.contains("(settled)"), "{text}");
+    assert!(err(&o).contains("--ram 100.0 KiB"), "{}", err(&o));
+}

@@ -71,7 +71,9 @@ pub struct FrameStats {
     /// Largest projected error on screen (pixels): over the drawn patches
     /// inside the view frustum (see `Selection::max_error_px`).
     pub max_error_px: f64,
-    /// Nothing wanted is missing: the cut is what the camera asks for.
+    /// Nothing wanted is missing (the cut is what the camera asks for), or
+    /// nothing missing can load within the RAM budget (the cut is as fine
+    /// as `--ram` allows; `max_error_px` then exceeds the target).
     pub settled: bool,
     /// Node loads that failed so far (the cut then lacks their detail).
     pub load_failures: u64,
@@ -242,7 +244,11 @@ impl<M: GpuBytes> Viewer<M> {
             evictions: c.evictions,
             hit_rate: if c.hits + c.misses == 0 { 1.0 } else { c.hits as f64 / (c.hits + c.misses) as f64 },
             max_error_px: sel.max_error_px,
-            settled: sel.wanted.is_empty() && self.cache.awaiting_upload() == 0,
+            // Nothing left to load, or nothing more that can be: no load in
+            // flight and no wanted node fits the budget (the cut is as fine
+            // as --ram allows; `render` then warns, as it does for the
+            // triangle budget).
+            settled: (sel.wanted.is_empty() || (left == sel.wanted.len() && self.cache.in_flight() == 0)) && self.cache.awaiting_upload() == 0,
             load_failures: c.load_failures,
         };
         self.last = sel;
