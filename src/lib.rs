@@ -13,6 +13,7 @@ pub mod error;
 pub mod extsort;
 pub mod gen;
 pub mod geom;
+pub mod gltf;
 pub mod io;
 pub mod mem;
 pub mod mesh;
@@ -25,11 +26,13 @@ pub mod ply;
 pub mod progress;
 pub mod quadric;
 pub mod reduce;
+pub mod serve;
 
 pub mod lod;
 
 pub mod soup;
 pub mod store;
+pub mod tiles;
 pub mod view;
 
 pub use error::{Error, Result};

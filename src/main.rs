@@ -36,8 +36,9 @@ struct Cli {
     /// No progress bars (they are also hidden when stderr is not a terminal).
     #[arg(long, short, global = true)]
     quiet: bool,
-    /// Replace an existing output of the same kind (a store, a PLY or soup
-    /// octolod wrote, a render directory). Anything else is never replaced.
+    /// Replace an existing output of the same kind (a store, a PLY, glTF or
+    /// soup octolod wrote, a render or tileset directory). Anything else is
+    /// never replaced.
     #[arg(long, global = true)]
     force: bool,
     #[command(subcommand)]
@@ -75,7 +76,33 @@ enum Cmd {
     },
     /// Per level: nodes, triangles, bytes, error range, build time.
     Info { store: PathBuf },
-    /// Write a cut of a store as one indexed PLY: a whole level, or the cut at an error.
+    /// Export a store as a 3D Tiles 1.1 tileset (tileset.json + one GLB per tile) for web viewers and Cesium.
+    Tiles {
+        store: PathBuf,
+        /// Output directory (tileset.json, t/*.glb).
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Quantized attributes (KHR_mesh_quantization).
+        #[arg(long)]
+        quantize: bool,
+        /// meshopt-compressed buffers (EXT_meshopt_compression, with an uncompressed fallback).
+        #[arg(long)]
+        compress: bool,
+        /// Working-memory budget (e.g. 512M).
+        #[arg(long, default_value = mem::DEFAULT_BUDGET_ARG)]
+        mem: String,
+        /// Split a level's cell while it holds more triangles than this.
+        #[arg(long, default_value_t = 32768)]
+        tile_tris: u64,
+        /// Up axis of the model: auto (as `view`), x, y, z, -x, -y or -z.
+        #[arg(long, default_value = "auto")]
+        up: String,
+        /// Print the report as JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Write a cut of a store as one indexed PLY, or glTF by the output's
+    /// extension (OUT.glb, or OUT.gltf + OUT.bin): a whole level, or the cut at an error.
     Extract {
         store: PathBuf,
         /// The whole level L (default 0, the input).
@@ -89,6 +116,12 @@ enum Cmd {
         /// Do not weld vertices shared between nodes (streams, no level in memory).
         #[arg(long)]
         no_weld: bool,
+        /// glTF outputs: KHR_mesh_quantization (16-bit positions, 8-bit normals, 16-bit uvs).
+        #[arg(long)]
+        quantize: bool,
+        /// glTF outputs: EXT_meshopt_compression of the vertex and index buffers.
+        #[arg(long)]
+        compress: bool,
     },
     /// One mesh of the size (or error) asked: builds a store in a scratch
     /// directory, then reduces its nearest level to exactly that size.
@@ -209,6 +242,23 @@ enum Cmd {
         /// Only parse the header (no bbox, no body validation).
         #[arg(long)]
         header_only: bool,
+    },
+    /// Serve a 3D Tiles directory (or a store, exported first) and the browser viewer page over HTTP.
+    ///
+    /// `/` is the viewer page, `/tiles/` the tileset. Prints one line,
+    /// `serving URL (tileset: URL)`, once listening; runs until SIGINT/SIGTERM.
+    Serve {
+        /// A 3D Tiles directory (holding tileset.json) or a store.
+        input: PathBuf,
+        /// Port to listen on (0: any free port).
+        #[arg(long, default_value_t = 8080)]
+        port: u16,
+        /// Address to listen on.
+        #[arg(long, default_value = "127.0.0.1")]
+        bind: std::net::IpAddr,
+        /// Open the page in the default browser (xdg-open; best effort).
+        #[arg(long)]
+        open: bool,
     },
 }
 
@@ -523,6 +573,15 @@ fn run(cli: Cli) -> Result<ExitCode> {
         }
         Cmd::View { store, view, window } => octolod::view::window::run_window(window.options(store, view.options()?, cli.quiet)?).map(|()| ExitCode::SUCCESS),
         Cmd::PlyInfo { input, header_only } => ply_info(&input, header_only, cli.quiet).map(|()| ExitCode::SUCCESS),
+        Cmd::Serve { input, port, bind, open } => {
+            let o = octolod::serve::ServeOptions { port, bind, quiet: cli.quiet, ..Default::default() };
+            let server = octolod::serve::bind(&input, &o)?;
+            out!("serving {} (tileset: {})", server.url(), server.tileset_url());
+            if open {
+                octolod::serve::open_browser(&server.url(), cli.quiet);
+            }
+            server.run().map(|()| ExitCode::SUCCESS)
+        }
         Cmd::Metro { a, b, samples, seed, json, max_hausdorff, max_rms, max_mean, mem } => {
             use octolod::metro::{Limits, MemOptions, Options, RunOptions, Source};
             let limits = Limits::parse(max_hausdorff.as_deref(), max_rms.as_deref(), max_mean.as_deref())?;
@@ -542,7 +601,40 @@ fn run(cli: Cli) -> Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Cmd::Info { store } => info(&store).map(|()| ExitCode::SUCCESS),
-        Cmd::Extract { store, level, max_error, output, no_weld } => {
+        Cmd::Tiles { store, output, quantize, compress, mem, tile_tris, up, json } => {
+            let s = octolod::store::Store::open(&store)?;
+            let o = octolod::tiles::TilesOptions {
+                quantize,
+                compress,
+                mem: mem::parse_budget(&mem, "--mem")?,
+                tile_tris,
+                up: Up::parse(&up)?,
+                quiet: cli.quiet || json,
+                force: cli.force,
+            };
+            let r = octolod::tiles::export(&s, &output, &o)?;
+            if json {
+                out!("{}", serde_json::to_string_pretty(&r).expect("the report serializes"));
+            } else {
+                out!(
+                    "tiles: {} tiles ({} with content, depth {}), {} triangles of which {} skirt, from {} store triangles; {} for a {} store ({:.2}x); {:.2} s, {:.2} M store tri/s -> {}",
+                    r.tiles,
+                    r.contents,
+                    r.depth,
+                    r.triangles,
+                    r.skirt_triangles,
+                    r.store_triangles,
+                    octolod::progress::mib(r.tileset_bytes),
+                    octolod::progress::mib(r.store_bytes),
+                    r.tileset_bytes as f64 / r.store_bytes.max(1) as f64,
+                    r.seconds,
+                    r.mtris_per_s,
+                    output.display()
+                );
+            }
+            Ok(ExitCode::SUCCESS)
+        }
+        Cmd::Extract { store, level, max_error, output, no_weld, quantize, compress } => {
             let s = octolod::store::Store::open(&store)?;
             let spec = match max_error {
                 Some(e) => {
@@ -551,7 +643,8 @@ fn run(cli: Cli) -> Result<ExitCode> {
                 }
                 None => octolod::pipeline::CutSpec::Level(level.unwrap_or(0)),
             };
-            let (nv, nf) = octolod::pipeline::extract(&s, spec, &output, !no_weld, cli.force)?;
+            let gltf = octolod::gltf::GltfOptions { quantize, compress };
+            let (nv, nf) = octolod::pipeline::extract_as(&s, spec, &output, !no_weld, cli.force, &gltf)?;
             out!("extract: {}: {nv} vertices, {nf} triangles -> {}", spec.describe(), output.display());
             Ok(ExitCode::SUCCESS)
         }

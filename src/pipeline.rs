@@ -1,13 +1,14 @@
-//! Whole-pipeline commands: PLY → store (`build`), store → PLY (`extract`
+//! Whole-pipeline commands: PLY → store (`build`), store → PLY or glTF (`extract`
 //! of a whole level or of the cut at an error; `simplify` is in
 //! [`crate::reduce`]).
 //!
 //! Takes: paths and typed options from the binaries. Gives: a complete
 //! `NAME.octolod/` directory (written under a temporary name and moved into
 //! place only when every stage succeeded) with its `store.json` manifest,
-//! or one indexed PLY of a cut.
+//! or one indexed PLY (or glTF, by the output's extension) of a cut.
 
 use crate::error::{IoContext, Result};
+use crate::gltf::GltfOptions;
 use crate::io::{AtomicDir, OutputKind};
 use crate::lod::{LevelReport, LodOptions};
 use crate::octree::OctreeReport;
@@ -137,12 +138,47 @@ impl CutSpec {
     }
 }
 
-/// Writes a cut as one indexed PLY (binary little endian, with the input's
-/// attributes). Vertices shared by neighbouring nodes are welded
+/// Writes a cut as one indexed mesh, by `out`'s extension: `.glb` or
+/// `.gltf` (+ `.bin`) as glTF 2.0 with default [`GltfOptions`] (see
+/// [`extract_as`]), anything else as PLY (binary little endian, with the
+/// input's attributes). Vertices shared by neighbouring nodes are welded
 /// (bit-identical vertices become one) unless `weld` is false, which
-/// streams node by node without holding the cut in memory. An existing PLY
-/// octolod wrote at `out` is replaced only when `force` is set.
+/// streams node by node without holding the cut in memory. An existing
+/// output octolod wrote at `out` is replaced only when `force` is set.
 pub fn extract(store: &Store, spec: CutSpec, out: &Path, weld: bool, force: bool) -> Result<(u64, u64)> {
+    extract_as(store, spec, out, weld, force, &GltfOptions::default())
+}
+
+/// [`extract`] with the glTF options (`--quantize`, `--compress`), which
+/// are refused for a PLY output. A glTF is written from the welded cut in
+/// memory as one primitive, or, with `weld` false, streamed in two passes
+/// over the nodes with one primitive per run of whole nodes of at most
+/// [`crate::gltf::STREAM_GROUP_VERTICES`] vertices (only that run in memory).
+pub fn extract_as(store: &Store, spec: CutSpec, out: &Path, weld: bool, force: bool, gltf: &GltfOptions) -> Result<(u64, u64)> {
+    if crate::gltf::Container::of(out).is_none() {
+        if gltf.quantize || gltf.compress {
+            return Err(crate::Error::Usage(format!(
+                "--quantize and --compress apply to glTF outputs (.glb, .gltf); {} would be written as PLY",
+                out.display()
+            )));
+        }
+        return extract_ply(store, spec, out, weld, force);
+    }
+    crate::gltf::check_output(out, force)?;
+    let cut = spec.cut(store)?;
+    let name = format!("octolod {} of {}", spec.describe(), store.dir.display());
+    let attrs = store.header.attrs;
+    if weld {
+        let parts = store.cut_meshes(&cut).collect::<Result<Vec<_>>>()?;
+        let m = weld_union(&store.layout, &parts);
+        drop(parts);
+        return crate::gltf::write_mesh(out, &m, attrs, gltf, force, &name);
+    }
+    crate::gltf::write_parts(out, attrs, gltf, force, &name, crate::gltf::STREAM_GROUP_VERTICES, || store.cut_meshes(&cut))
+}
+
+/// [`extract`] to a PLY.
+fn extract_ply(store: &Store, spec: CutSpec, out: &Path, weld: bool, force: bool) -> Result<(u64, u64)> {
     let cut = spec.cut(store)?;
     let opts = mesh_ply_options(store.header.attrs, &format!("octolod {} of {}", spec.describe(), store.dir.display()));
     if weld {

@@ -1,8 +1,9 @@
 //! File plumbing shared by the stages.
 //!
 //! * [`output`]: outputs that appear under their final name only when
-//!   complete ([`AtomicFile`], [`AtomicDir`]) and the rules of what may be
-//!   replaced (`--force`, [`protect`]ed inputs, foreign files).
+//!   complete ([`AtomicFile`], [`AtomicDir`], [`AtomicGltfPair`]) and the
+//!   rules of what may be replaced (`--force`, [`protect`]ed inputs, foreign
+//!   files).
 //! * [`temp`]: locked temp and scratch paths next to the output
 //!   ([`ScratchDir`]), and the sweep of dead runs' leftovers.
 //! * [`signal`]: SIGINT/SIGTERM/SIGHUP stop work at safe points.
@@ -15,7 +16,10 @@ pub mod output;
 pub mod signal;
 pub mod temp;
 
-pub use output::{check_output, protect, AtomicDir, AtomicFile, OutputKind, Protected, FRAMES_MARKER, PLY_MARK, SOUP_MAGIC, STORE_MAGIC};
+pub use output::{
+    check_output, gltf_bin_path, is_octolod_gltf, protect, AtomicDir, AtomicFile, AtomicGltfPair, OutputKind, Protected, FRAMES_MARKER, GLTF_MARK_KEY,
+    GLTF_MARK_VALUE, PLY_MARK, SOUP_MAGIC, STORE_MAGIC, TILES_MARKER,
+};
 pub use temp::{parent_dir, remove_stale_temps, scratch_dir, scratch_in, ScratchDir};
 
 use crate::error::{Error, IoContext, Result};

@@ -11,8 +11,13 @@
 //! * An existing path is replaced only when it is a complete octolod output
 //!   of the same kind ([`OutputKind::recognise`]: a store's index magic, a
 //!   soup's magic, a render directory's marker, a PLY's exact
-//!   [`PLY_MARK`] comment line) **and** `force` is set; anything else that
-//!   exists is refused before any work starts.
+//!   [`PLY_MARK`] comment line, a glTF's `asset.extras.octolod` marker)
+//!   **and** `force` is set; anything else that exists is refused before any
+//!   work starts.
+//! * A `.gltf`'s buffer, the `.bin` beside it ([`gltf_bin_path`]), is
+//!   replaced only when the old `.gltf` is octolod's and names that `.bin`
+//!   in `buffers[].uri`; both are written under temp names and moved into
+//!   place together ([`AtomicGltfPair`]).
 //! * A directory output (store, render directory) is replaced only when it
 //!   holds nothing but what octolod wrote there (a store: `nodes.bin`,
 //!   `store.json` and its levels' packs; a render directory: the files its
@@ -20,8 +25,10 @@
 //!   refused. The old output is then removed file by file, never with a
 //!   recursive delete; what appeared in it meanwhile is kept under a
 //!   visible name.
-//! * Nothing that holds a path the running command reads ([`protect`]: its
-//!   input, an opened store, a camera path) is ever replaced.
+//! * Nothing that is, holds or lies inside a path the running command reads
+//!   ([`protect`]: its input, an opened store, a camera path) is ever
+//!   replaced (so `extract s.octolod -o s.octolod/nodes.gltf --force` cannot
+//!   replace the store's `nodes.bin` as the glTF's buffer).
 //! * A store is swapped in with one `renameat2(RENAME_EXCHANGE)`, so the
 //!   final name always holds a complete store.
 
@@ -43,6 +50,13 @@ pub enum OutputKind {
     Soup,
     /// A `render` output directory (holds the [`FRAMES_MARKER`] file).
     Frames,
+    /// A `tiles` output directory, a 3D Tiles tileset (holds the
+    /// [`TILES_MARKER`] file).
+    Tiles,
+    /// A glTF 2.0 file: a GLB, or `.gltf` JSON, whose `asset.extras` maps
+    /// [`GLTF_MARK_KEY`] to [`GLTF_MARK_VALUE`]. For a path ending in
+    /// `.gltf` (any case), [`check_output`] checks its `.bin` too.
+    Gltf,
 }
 
 /// The first bytes of a store's `nodes.bin` ([`crate::store::MAGIC`]):
@@ -55,10 +69,19 @@ pub const SOUP_MAGIC: [u8; 8] = *b"OCTSOUP\0";
 /// is [`FRAMES_MARKER_TEXT`], the next ones list the files the render wrote.
 pub const FRAMES_MARKER: &str = ".octolod-render";
 const FRAMES_MARKER_TEXT: &str = "octolod render output";
+/// The marker file every `tiles` output directory holds, like [`FRAMES_MARKER`].
+pub const TILES_MARKER: &str = ".octolod-tiles";
+const TILES_MARKER_TEXT: &str = "octolod 3D Tiles output";
 /// The comment every PLY octolod writes carries, as a whole header line
 /// `comment octolod-output`: recognised exactly, so a user's comment that
 /// merely starts with "octolod" never makes a file replaceable.
 pub const PLY_MARK: &str = "octolod-output";
+/// The key in `asset.extras` of every glTF octolod writes…
+pub const GLTF_MARK_KEY: &str = "octolod";
+/// …and its value.
+pub const GLTF_MARK_VALUE: &str = "output";
+/// Largest glTF JSON read when recognising an existing output.
+const GLTF_MAX_JSON: u64 = 256 << 20;
 
 impl OutputKind {
     pub fn describe(self) -> &'static str {
@@ -67,11 +90,23 @@ impl OutputKind {
             OutputKind::Ply => "a PLY written by octolod",
             OutputKind::Soup => "an octolod triangle soup",
             OutputKind::Frames => "an octolod render directory",
+            OutputKind::Tiles => "an octolod tileset directory",
+            OutputKind::Gltf => "a glTF written by octolod",
         }
     }
 
     fn is_dir(self) -> bool {
-        matches!(self, OutputKind::Store | OutputKind::Frames)
+        matches!(self, OutputKind::Store | OutputKind::Frames | OutputKind::Tiles)
+    }
+
+    /// A listing directory's marker file, its first line and the one
+    /// subdirectory it may hold.
+    fn marker(self) -> Option<(&'static str, &'static str, &'static str)> {
+        match self {
+            OutputKind::Frames => Some((FRAMES_MARKER, FRAMES_MARKER_TEXT, "reference")),
+            OutputKind::Tiles => Some((TILES_MARKER, TILES_MARKER_TEXT, "t")),
+            _ => None,
+        }
     }
 
     /// Whether `p` is a complete output of this kind.
@@ -79,10 +114,12 @@ impl OutputKind {
         match self {
             OutputKind::Store => p.is_dir() && head(&p.join("nodes.bin"), 8).is_some_and(|b| b == STORE_MAGIC),
             OutputKind::Soup => p.is_file() && head(p, 8).is_some_and(|b| b == SOUP_MAGIC),
-            OutputKind::Frames => {
-                p.is_dir() && head(&p.join(FRAMES_MARKER), 4096).is_some_and(|b| b.starts_with(FRAMES_MARKER_TEXT.as_bytes()))
+            OutputKind::Frames | OutputKind::Tiles => {
+                let (name, text, _) = self.marker().expect("a listing kind");
+                p.is_dir() && head(&p.join(name), 4096).is_some_and(|b| b.starts_with(text.as_bytes()))
             }
             OutputKind::Ply => p.is_file() && head(p, 64 << 10).is_some_and(|b| ply_is_ours(&b)),
+            OutputKind::Gltf => is_octolod_gltf(p),
         }
     }
 
@@ -98,15 +135,16 @@ impl OutputKind {
                 v.extend((0..levels.min(256)).map(|l| PathBuf::from(format!("level-{l}.pack"))));
                 OwnEntries::Listed(v)
             }
-            OutputKind::Frames => {
-                let text = head(&dir.join(FRAMES_MARKER), 64 << 20).map(|b| String::from_utf8_lossy(&b).into_owned()).unwrap_or_default();
+            OutputKind::Frames | OutputKind::Tiles => {
+                let (name, _, _) = self.marker().expect("a listing kind");
+                let text = head(&dir.join(name), 64 << 20).map(|b| String::from_utf8_lossy(&b).into_owned()).unwrap_or_default();
                 let mut lines = text.lines().skip(1).filter(|l| !l.is_empty()).peekable();
-                if lines.peek().is_none() {
+                if lines.peek().is_none() && self == OutputKind::Frames {
                     return OwnEntries::RenderNames;
                 }
-                OwnEntries::Listed(lines.map(PathBuf::from).chain([PathBuf::from(FRAMES_MARKER)]).collect())
+                OwnEntries::Listed(lines.map(PathBuf::from).chain([PathBuf::from(name)]).collect())
             }
-            OutputKind::Ply | OutputKind::Soup => OwnEntries::Listed(Vec::new()),
+            OutputKind::Ply | OutputKind::Soup | OutputKind::Gltf => OwnEntries::Listed(Vec::new()),
         }
     }
 }
@@ -138,10 +176,11 @@ impl OwnEntries {
     }
 }
 
-/// Regular files under `dir` (and in its subdirectories, for render
-/// directories' `reference/`), relative; and the entries that are neither
-/// octolod's nor regular files, which make the directory a user's.
-fn foreign_entries(dir: &Path, own: &OwnEntries, subdirs: bool) -> (Vec<PathBuf>, Vec<PathBuf>) {
+/// Regular files under `dir` (and in its one subdirectory `sub`, a render
+/// directory's `reference/` or a tileset's `t/`), relative; and the entries
+/// that are neither octolod's nor regular files, which make the directory
+/// a user's.
+fn foreign_entries(dir: &Path, own: &OwnEntries, sub: Option<&str>) -> (Vec<PathBuf>, Vec<PathBuf>) {
     let (mut mine, mut foreign) = (Vec::new(), Vec::new());
     let mut stack = vec![PathBuf::new()];
     while let Some(rel) = stack.pop() {
@@ -153,7 +192,7 @@ fn foreign_entries(dir: &Path, own: &OwnEntries, subdirs: bool) -> (Vec<PathBuf>
             let r = rel.join(e.file_name());
             match e.file_type() {
                 Ok(t) if t.is_file() && own.holds(&r) => mine.push(r),
-                Ok(t) if t.is_dir() && subdirs && rel.as_os_str().is_empty() && r == Path::new("reference") => stack.push(r),
+                Ok(t) if t.is_dir() && rel.as_os_str().is_empty() && sub.is_some_and(|s| r == Path::new(s)) => stack.push(r),
                 _ => foreign.push(r),
             }
         }
@@ -183,6 +222,108 @@ fn head(p: &Path, n: usize) -> Option<Vec<u8>> {
     Some(b)
 }
 
+// ---------------------------------------------------------------------- glTF
+
+/// Whether `path` is a glTF octolod wrote: a regular file holding a GLB (by
+/// its magic) or glTF JSON whose `asset.extras.octolod` is `"output"`.
+pub fn is_octolod_gltf(path: &Path) -> bool {
+    gltf_json(path).is_some_and(|v| gltf_is_ours(&v))
+}
+
+fn gltf_is_ours(v: &serde_json::Value) -> bool {
+    v["asset"]["extras"][GLTF_MARK_KEY] == GLTF_MARK_VALUE
+}
+
+/// The `.bin` that holds the buffer of the `.gltf` at `gltf` (same stem).
+pub fn gltf_bin_path(gltf: &Path) -> PathBuf {
+    gltf.with_extension("bin")
+}
+
+/// Whether a glTF output at `p` is `.gltf` JSON with a `.bin` beside it
+/// (by the extension, any case), not a GLB.
+fn is_gltf_pair(p: &Path) -> bool {
+    p.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("gltf"))
+}
+
+/// The JSON of a GLB or `.gltf` at `path` (a regular file), if it parses.
+fn gltf_json(path: &Path) -> Option<serde_json::Value> {
+    const GLB_MAGIC: &[u8; 4] = b"glTF";
+    let mut f = File::open(path).ok()?;
+    let meta = f.metadata().ok()?;
+    if !meta.is_file() {
+        return None;
+    }
+    let mut head = [0u8; 20];
+    let n = read_full(&mut f, &mut head).ok()?;
+    let bytes = if n == 20 && &head[..4] == GLB_MAGIC {
+        let word = |k: usize| u32::from_le_bytes(head[k..k + 4].try_into().unwrap());
+        if word(4) != 2 || &head[16..20] != b"JSON" || word(12) as u64 > GLTF_MAX_JSON {
+            return None;
+        }
+        let mut b = vec![0u8; word(12) as usize];
+        f.read_exact(&mut b).ok()?;
+        b
+    } else {
+        if meta.len() > GLTF_MAX_JSON {
+            return None;
+        }
+        let mut b = head[..n].to_vec();
+        f.read_to_end(&mut b).ok()?;
+        b
+    };
+    let text = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(&bytes);
+    serde_json::from_slice(text).ok()
+}
+
+fn read_full(f: &mut File, b: &mut [u8]) -> std::io::Result<usize> {
+    let mut n = 0;
+    while n < b.len() {
+        match f.read(&mut b[n..])? {
+            0 => break,
+            k => n += k,
+        }
+    }
+    Ok(n)
+}
+
+/// A relative URI reference's bytes, percent-decoded; `None` when it is not
+/// a bare file name (a scheme, a query, a path, a bad escape).
+fn uri_file_name(uri: &str) -> Option<Vec<u8>> {
+    if uri.is_empty() || uri.contains(['/', '\\', ':', '?', '#']) {
+        return None;
+    }
+    let b = uri.as_bytes();
+    let mut out = Vec::with_capacity(b.len());
+    let mut k = 0;
+    while k < b.len() {
+        if b[k] == b'%' {
+            let hex = std::str::from_utf8(b.get(k + 1..k + 3)?).ok()?;
+            out.push(u8::from_str_radix(hex, 16).ok()?);
+            k += 3;
+        } else {
+            out.push(b[k]);
+            k += 1;
+        }
+    }
+    Some(out)
+}
+
+/// Whether the `.gltf` at `gltf` is a regular file octolod wrote whose
+/// `buffers[].uri` names `bin` (a file beside it).
+fn gltf_names_bin(gltf: &Path, bin: &Path) -> bool {
+    use std::os::unix::ffi::OsStrExt;
+    if !fs::symlink_metadata(gltf).is_ok_and(|m| m.is_file()) || parent_dir(gltf) != parent_dir(bin) {
+        return false;
+    }
+    let Some(name) = bin.file_name() else { return false };
+    gltf_json(gltf).is_some_and(|v| {
+        gltf_is_ours(&v)
+            && v["buffers"].as_array().is_some_and(|bufs| {
+                bufs.iter().any(|b| b["uri"].as_str().and_then(uri_file_name).is_some_and(|n| n == name.as_bytes()))
+            })
+    })
+}
+
 // ------------------------------------------------------------------ operands
 
 /// Paths the running commands read: never replaced while protected.
@@ -200,7 +341,8 @@ impl Drop for Protected {
 
 /// Protects `p` (an input file, an opened store, a camera path) from every
 /// output of this process while the guard lives: an output whose
-/// replacement would delete `p` or a directory holding it is refused.
+/// replacement would delete `p`, a directory holding it or a file inside it
+/// is refused.
 pub fn protect(p: &Path) -> Protected {
     static N: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
     let id = N.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
@@ -209,43 +351,96 @@ pub fn protect(p: &Path) -> Protected {
     Protected(id)
 }
 
-/// A protected path at or under `dest`, if any.
-fn protected_under(dest: &Path) -> Option<PathBuf> {
+/// A protected path at or under `dest`, or a protected directory holding
+/// `dest`, if any; and `dest` canonical.
+fn protected_near(dest: &Path) -> Option<(PathBuf, PathBuf)> {
     let d = fs::canonicalize(dest).ok()?;
     let l = PROTECTED.lock().unwrap_or_else(|e| e.into_inner());
-    l.iter().map(|(_, p)| p).find(|p| p.starts_with(&d)).cloned()
+    let p = l.iter().map(|(_, p)| p).find(|p| p.starts_with(&d) || d.starts_with(p)).cloned()?;
+    Some((p, d))
+}
+
+/// Refuses `dest` when replacing it would touch a protected path.
+fn check_protected(dest: &Path) -> Result<()> {
+    let Some((p, d)) = protected_near(dest) else { return Ok(()) };
+    let what = if d == p {
+        "is".to_string()
+    } else if d.starts_with(&p) {
+        format!("is inside {},", p.display())
+    } else {
+        format!("holds {},", p.display())
+    };
+    Err(Error::Usage(format!("{} {what} an input of this command; refusing to replace it (choose another output path)", dest.display())))
+}
+
+fn what_is(meta: &fs::Metadata) -> &'static str {
+    if meta.is_dir() {
+        "a directory"
+    } else if meta.is_file() {
+        "a file"
+    } else {
+        "something else"
+    }
 }
 
 // -------------------------------------------------------------------- checks
 
 /// Refuses `dest` unless it is free, or a complete output of `kind` that
 /// holds only octolod's files and no protected path, and `force` is set.
-/// Call before any work starts (it is checked again at commit).
+/// For a `.gltf` ([`OutputKind::Gltf`]), its `.bin` ([`gltf_bin_path`]) too:
+/// free, or named by the old `.gltf`, which is octolod's. Call before any
+/// work starts (it is checked again at commit).
 pub fn check_output(dest: &Path, kind: OutputKind, force: bool) -> Result<()> {
     if !kind.is_dir() && dest.as_os_str().as_encoded_bytes().ends_with(b"/") {
         return Err(Error::Usage(format!("{}: {} is a file, but the path ends with '/'", dest.display(), kind.describe())));
     }
-    let Ok(meta) = fs::symlink_metadata(dest) else { return Ok(()) };
-    let what = if meta.is_dir() { "a directory" } else if meta.is_file() { "a file" } else { "something else" };
-    if !(kind.recognise(dest) && !meta.file_type().is_symlink()) {
+    if kind == OutputKind::Gltf && is_gltf_pair(dest) {
+        // Refusals first (they hold with --force too), then the want of --force.
+        let bin = gltf_bin_path(dest);
+        let main = refusal(dest, kind)?;
+        let old_bin = bin_refusal(&bin, dest)?;
+        if main {
+            needs_force(dest, kind, force)?;
+        }
+        if old_bin && !force {
+            return Err(Error::Usage(format!(
+                "{} already exists (the buffer of a glTF written by octolod); pass --force to replace it",
+                bin.display()
+            )));
+        }
+        return Ok(());
+    }
+    if refusal(dest, kind)? {
+        needs_force(dest, kind, force)?;
+    }
+    Ok(())
+}
+
+/// What refuses `dest` whatever `--force` says: something there that is not
+/// a complete output of `kind`, or that touches a protected path. Gives
+/// whether `dest` exists.
+fn refusal(dest: &Path, kind: OutputKind) -> Result<bool> {
+    let Ok(meta) = fs::symlink_metadata(dest) else { return Ok(false) };
+    if meta.file_type().is_symlink() || !kind.recognise(dest) {
         return Err(Error::Usage(format!(
-            "{} already exists and is {what} that is not {}; refusing to replace it (remove it yourself or choose another output path)",
+            "{} already exists and is {} that is not {}; refusing to replace it (remove it yourself or choose another output path)",
             dest.display(),
+            what_is(&meta),
             kind.describe()
         )));
     }
-    if let Some(p) = protected_under(dest) {
-        let what = if fs::canonicalize(dest).is_ok_and(|d| d == p) { "is".to_string() } else { format!("holds {},", p.display()) };
-        return Err(Error::Usage(format!(
-            "{} {what} an input of this command; refusing to replace it (choose another output path)",
-            dest.display()
-        )));
-    }
+    check_protected(dest)?;
+    Ok(true)
+}
+
+/// The rest of [`check_output`] for an existing output of `kind`: `force`,
+/// and (directories) nothing in it but octolod's files.
+fn needs_force(dest: &Path, kind: OutputKind, force: bool) -> Result<()> {
     if !force {
         return Err(Error::Usage(format!("{} already exists ({}); pass --force to replace it", dest.display(), kind.describe())));
     }
     if kind.is_dir() {
-        let (_, foreign) = foreign_entries(dest, &kind.own_entries(dest), kind == OutputKind::Frames);
+        let (_, foreign) = foreign_entries(dest, &kind.own_entries(dest), kind.marker().map(|m| m.2));
         if !foreign.is_empty() {
             let names: Vec<String> = foreign.iter().take(3).map(|p| p.display().to_string()).collect();
             return Err(Error::Usage(format!(
@@ -261,16 +456,36 @@ pub fn check_output(dest: &Path, kind: OutputKind, force: bool) -> Result<()> {
     Ok(())
 }
 
+/// [`refusal`] for the `.bin` of the `.gltf` at `gltf`: it may be replaced
+/// only when it is a regular file that the old `.gltf`, octolod's, names.
+/// Gives whether `bin` exists.
+fn bin_refusal(bin: &Path, gltf: &Path) -> Result<bool> {
+    let Ok(meta) = fs::symlink_metadata(bin) else { return Ok(false) };
+    if !(meta.is_file() && gltf_names_bin(gltf, bin)) {
+        return Err(Error::Usage(format!(
+            "{} already exists and is {} that is not the buffer of a glTF octolod wrote at {}; refusing to replace it (remove it yourself or choose another output path)",
+            bin.display(),
+            what_is(&meta),
+            gltf.display()
+        )));
+    }
+    check_protected(bin)?;
+    Ok(true)
+}
+
 /// Removes an old directory output of `kind` (moved aside to `old`, once
 /// at `dest`) file by file: only what octolod wrote. Anything else found
 /// in it (added while this run worked) is kept, under a visible name next
 /// to `dest`.
 fn remove_old_output(old: &Path, dest: &Path, own: &OwnEntries, kind: OutputKind) {
-    let (mine, _) = foreign_entries(old, own, kind == OutputKind::Frames);
+    let sub = kind.marker().map(|m| m.2);
+    let (mine, _) = foreign_entries(old, own, sub);
     for rel in &mine {
         let _ = fs::remove_file(old.join(rel));
     }
-    let _ = fs::remove_dir(old.join("reference"));
+    if let Some(s) = sub {
+        let _ = fs::remove_dir(old.join(s));
+    }
     if fs::remove_dir(old).is_ok() {
         temp::unregister(old);
         return;
@@ -324,17 +539,11 @@ fn place(tmp: &Path, dest: &Path, kind: OutputKind, force: bool) -> Result<()> {
     // Re-checked at commit: the path may have changed while we worked.
     super::signal::check()?;
     check_output(dest, kind, force)?;
-    let exists = fs::symlink_metadata(dest).is_ok();
-    if !exists {
-        // No-replace semantics: a file is hard-linked (fails if the name was
-        // taken meanwhile); a directory rename fails onto a non-empty one.
-        if fs::metadata(tmp).map(|m| m.is_file()).unwrap_or(false) {
-            fs::hard_link(tmp, dest).ctx(dest, "move into place")?;
-            return fs::remove_file(tmp).ctx(tmp, "remove temp file");
-        }
-        return fs::rename(tmp, dest).ctx(dest, "rename into place");
-    }
     if !kind.is_dir() {
+        return place_file(tmp, dest);
+    }
+    if fs::symlink_metadata(dest).is_err() {
+        // No-replace semantics: a directory rename fails onto a non-empty one.
         return fs::rename(tmp, dest).ctx(dest, "rename into place");
     }
     // An existing output directory of the same kind, --force given.
@@ -351,6 +560,17 @@ fn place(tmp: &Path, dest: &Path, kind: OutputKind, force: bool) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// Moves file `tmp` to `dest`: a hard link when `dest` is free (which
+/// fails, rather than replace, when the name was taken meanwhile), a rename
+/// over the checked old output otherwise.
+fn place_file(tmp: &Path, dest: &Path) -> Result<()> {
+    if fs::symlink_metadata(dest).is_err() {
+        fs::hard_link(tmp, dest).ctx(dest, "move into place")?;
+        return fs::remove_file(tmp).ctx(tmp, "remove temp file");
+    }
+    fs::rename(tmp, dest).ctx(dest, "rename into place")
 }
 
 /// A file written under a temporary name and renamed to its final name on commit.
@@ -432,6 +652,164 @@ impl Drop for AtomicFile {
     }
 }
 
+/// A `.gltf` and the `.bin` beside it ([`gltf_bin_path`]), written as one
+/// output: each under a temp name next to it (locked, registered and swept
+/// like every temp path, see [`super::temp`]), both removed if dropped
+/// uncommitted, and on [`AtomicGltfPair::commit`] moved into place only
+/// once both are completely written and synced: the `.bin` first, so a new
+/// `.gltf` under its final name always has its whole buffer beside it.
+/// What may be replaced: see [`check_output`] ([`OutputKind::Gltf`]).
+pub struct AtomicGltfPair {
+    json: AtomicFile,
+    bin: AtomicFile,
+}
+
+impl AtomicGltfPair {
+    /// Checks `gltf` and its `.bin` (see [`check_output`]), then creates
+    /// both temp files, and their directory if missing.
+    pub fn create(gltf: impl AsRef<Path>, force: bool) -> Result<AtomicGltfPair> {
+        let gltf = gltf.as_ref();
+        if !is_gltf_pair(gltf) {
+            return Err(Error::Usage(format!("{}: a glTF with its buffer beside it ends in .gltf", gltf.display())));
+        }
+        let json = AtomicFile::create(gltf, OutputKind::Gltf, force)?;
+        let dest = gltf_bin_path(gltf);
+        let (tmp, f) = temp::create_temp_file(&dest)?;
+        let bin = AtomicFile { tmp, dest, kind: OutputKind::Gltf, force, writer: Some(BufWriter::with_capacity(super::SEQ_BUF, f)), sync: true };
+        Ok(AtomicGltfPair { json, bin })
+    }
+    /// The `.gltf`'s JSON.
+    pub fn json(&mut self) -> &mut BufWriter<File> {
+        self.json.writer()
+    }
+    /// The `.bin`'s bytes.
+    pub fn bin(&mut self) -> &mut BufWriter<File> {
+        self.bin.writer()
+    }
+    pub fn dest(&self) -> &Path {
+        &self.json.dest
+    }
+    pub fn bin_dest(&self) -> &Path {
+        &self.bin.dest
+    }
+
+    /// Flushes and syncs both, checks both paths again, then moves the
+    /// `.bin` and the `.gltf` into place. When the `.gltf` cannot be placed
+    /// (its path changed while we worked), the old `.bin` is put back.
+    pub fn commit(mut self) -> Result<()> {
+        let r = self.commit_both();
+        for f in [&mut self.json, &mut self.bin] {
+            // Writers taken: Drop leaves the temp names to this.
+            f.writer = None;
+            let _ = fs::remove_file(&f.tmp);
+            temp::unregister(&f.tmp);
+        }
+        r
+    }
+
+    fn commit_both(&mut self) -> Result<()> {
+        let finish = |f: &mut AtomicFile| -> Result<File> {
+            let w = f.writer.take().expect("writer taken");
+            let file = w.into_inner().map_err(|e| e.into_error()).ctx(&f.tmp, "write")?;
+            file.sync_all().ctx(&f.tmp, "sync")?;
+            Ok(file)
+        };
+        // Still open (and locked) until moved.
+        let _json_file = finish(&mut self.json)?;
+        let bin_file = finish(&mut self.bin)?;
+        super::signal::check()?;
+        let (gltf, bin, force) = (self.json.dest.clone(), self.bin.dest.clone(), self.json.force);
+        // Both again, as before the work: either may have changed since.
+        check_output(&gltf, OutputKind::Gltf, force)?;
+        // POSIX renames one name at a time. The old buffer stays reachable
+        // (a hard link under a locked temp name) until the new .gltf is in
+        // place, so a failure to place the .gltf puts it back. What remains
+        // is the window between the two renames (no safe point in it: a
+        // signal waits for the end): a crash, power cut or SIGKILL there
+        // leaves the new .bin beside the old .gltf. If octolod wrote that
+        // .gltf (it names this .bin), a reader sees a buffer of another
+        // layout (usually of another byteLength, which loaders reject), and
+        // `--force` replaces the pair; without an old .gltf, a lone new .bin
+        // that no .gltf names, which later runs refuse to replace (remove it
+        // by hand). Directories are not synced: a power cut may also lose
+        // either rename, as for every output.
+        let aside = if fs::symlink_metadata(&bin).is_ok() { Some(Aside::keep(&bin)?) } else { None };
+        let moved = match &aside {
+            Some(_) => fs::rename(&self.bin.tmp, &bin).ctx(&bin, "rename into place"),
+            None => fs::hard_link(&self.bin.tmp, &bin).ctx(&bin, "move into place"),
+        };
+        if let Err(e) = moved {
+            if let Some(a) = aside {
+                a.discard();
+            }
+            return Err(e);
+        }
+        #[cfg(test)]
+        tests::BETWEEN.with(|h| h.borrow_mut().take().map(|f| f(&gltf)));
+        let placed = refusal(&gltf, OutputKind::Gltf)
+            .and_then(|old| if old { needs_force(&gltf, OutputKind::Gltf, force) } else { Ok(()) })
+            .and_then(|()| place_file(&self.json.tmp, &gltf));
+        match (placed, aside) {
+            (Ok(()), aside) => {
+                if let Some(a) = aside {
+                    a.discard();
+                }
+                Ok(())
+            }
+            (Err(e), Some(a)) => {
+                a.restore(&bin);
+                Err(e)
+            }
+            (Err(e), None) => {
+                use std::os::unix::fs::MetadataExt;
+                // Ours (the same file) still: taken back.
+                let ours = |m: fs::Metadata| bin_file.metadata().is_ok_and(|f| f.ino() == m.ino() && f.dev() == m.dev());
+                if fs::symlink_metadata(&bin).is_ok_and(ours) {
+                    let _ = fs::remove_file(&bin);
+                }
+                Err(e)
+            }
+        }
+    }
+}
+
+/// An old output file kept under a locked temp name while its replacement
+/// is committed.
+struct Aside {
+    path: PathBuf,
+    _lock: File,
+}
+
+impl Aside {
+    fn keep(p: &Path) -> Result<Aside> {
+        let f = File::open(p).ctx(p, "open")?;
+        // Locked, so another run's sweep keeps it (best effort: the sweep
+        // also keeps what it cannot open).
+        // SAFETY: flock on a valid open descriptor.
+        unsafe {
+            use std::os::unix::io::AsRawFd;
+            libc::flock(f.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB);
+        }
+        let path = temp::temp_name(p);
+        temp::register(&path);
+        if let Err(e) = fs::hard_link(p, &path) {
+            temp::unregister(&path);
+            return Err(Error::io(path, "keep the old file", e));
+        }
+        Ok(Aside { path, _lock: f })
+    }
+    fn discard(self) {
+        let _ = fs::remove_file(&self.path);
+        temp::unregister(&self.path);
+    }
+    fn restore(self, p: &Path) {
+        if fs::rename(&self.path, p).is_err() {
+            let _ = fs::remove_file(&self.path);
+        }
+        temp::unregister(&self.path);
+    }
+}
+
 /// A directory built under a temporary name and moved into place on commit.
 pub struct AtomicDir {
     tmp: PathBuf,
@@ -461,16 +839,17 @@ impl AtomicDir {
     pub fn commit(mut self) -> Result<()> {
         let lock = self.lock.as_ref().expect("committed once");
         lock.remove_file()?;
-        if self.kind == OutputKind::Frames {
-            // The marker lists every file the render wrote, so a later
+        if let Some((name, first, sub)) = self.kind.marker() {
+            // The marker lists every file the command wrote, so a later
             // `--force` replaces exactly those.
-            let (mine, _) = foreign_entries(&self.tmp, &OwnEntries::All, true);
-            let mut text = format!("{FRAMES_MARKER_TEXT}\n");
-            for p in mine.iter().filter(|p| *p != Path::new(FRAMES_MARKER)) {
+            let (mut mine, _) = foreign_entries(&self.tmp, &OwnEntries::All, Some(sub));
+            mine.sort();
+            let mut text = format!("{first}\n");
+            for p in mine.iter().filter(|p| *p != Path::new(name)) {
                 text.push_str(&p.to_string_lossy());
                 text.push('\n');
             }
-            let m = self.tmp.join(FRAMES_MARKER);
+            let m = self.tmp.join(name);
             fs::write(&m, text).ctx(&m, "write")?;
         }
         place(&self.tmp, &self.dest, self.kind, self.force)?;
@@ -714,6 +1093,136 @@ mod tests {
         let _g = protect(&ply);
         let e = AtomicFile::create(&ply, OutputKind::Ply, true).err().expect("must refuse").to_string();
         assert!(e.contains("is an input of this command"), "{e}");
+    }
+
+    type Hook = Option<Box<dyn FnOnce(&Path)>>;
+
+    thread_local! {
+        /// Run between the placements of a glTF pair's `.bin` and `.gltf`.
+        pub(super) static BETWEEN: std::cell::RefCell<Hook> = const { std::cell::RefCell::new(None) };
+    }
+
+    #[test]
+    fn a_gltf_that_cannot_be_placed_after_its_bin_puts_the_old_bin_back() {
+        let d = tempfile::tempdir().unwrap();
+        let g = d.path().join("m.gltf");
+        let bin = d.path().join("m.bin");
+        write_pair(&g, false, "m.bin", b"old").unwrap();
+        let old_json = fs::read(&g).unwrap();
+        // The old .gltf turns into a user's file once the .bin is placed.
+        BETWEEN.with(|h| *h.borrow_mut() = Some(Box::new(|g: &Path| fs::write(g, "user's").unwrap())));
+        let e = write_pair(&g, true, "m.bin", b"new").unwrap_err().to_string();
+        assert!(e.contains("refusing"), "{e}");
+        assert_eq!(fs::read(&bin).unwrap(), b"old", "the old buffer is back");
+        assert_eq!(fs::read(&g).unwrap(), b"user's");
+        assert_eq!(names(d.path()), ["m.bin", "m.gltf"]);
+        // A fresh pair: the new .bin is taken back.
+        fs::write(&g, &old_json).unwrap();
+        let g2 = d.path().join("n.gltf");
+        BETWEEN.with(|h| *h.borrow_mut() = Some(Box::new(|g: &Path| fs::create_dir(g).unwrap())));
+        assert!(write_pair(&g2, false, "n.bin", b"new").is_err());
+        assert_eq!(names(d.path()), ["m.bin", "m.gltf", "n.gltf"]);
+        assert!(d.path().join("n.gltf").is_dir());
+    }
+
+    /// glTF JSON of ours (or not) naming `uri` as its buffer.
+    fn gltf_text(ours: bool, uri: &str) -> String {
+        let mark = if ours { r#","extras":{"octolod":"output"}"# } else { "" };
+        format!(r#"{{"asset":{{"version":"2.0"{mark}}},"buffers":[{{"uri":"{uri}","byteLength":3}}]}}"#)
+    }
+
+    fn write_pair(g: &Path, force: bool, uri: &str, bin: &[u8]) -> Result<()> {
+        let mut p = AtomicGltfPair::create(g, force)?;
+        p.json().write_all(gltf_text(true, uri).as_bytes()).unwrap();
+        p.bin().write_all(bin).unwrap();
+        p.commit()
+    }
+
+    #[test]
+    fn gltf_outputs_are_recognised_by_their_marker() {
+        let d = tempfile::tempdir().unwrap();
+        let (ours, theirs, glb) = (d.path().join("a.gltf"), d.path().join("b.gltf"), d.path().join("c.glb"));
+        fs::write(&ours, gltf_text(true, "a.bin")).unwrap();
+        fs::write(&theirs, gltf_text(false, "b.bin")).unwrap();
+        // A GLB: header, then the JSON chunk.
+        let json = br#"{"asset":{"version":"2.0","extras":{"octolod":"output"}}}  "#;
+        let mut b = b"glTF".to_vec();
+        for x in [2u32, 20 + json.len() as u32, json.len() as u32] {
+            b.extend_from_slice(&x.to_le_bytes());
+        }
+        b.extend_from_slice(b"JSON");
+        b.extend_from_slice(json);
+        fs::write(&glb, &b).unwrap();
+        assert!(OutputKind::Gltf.recognise(&ours) && OutputKind::Gltf.recognise(&glb));
+        assert!(!OutputKind::Gltf.recognise(&theirs) && !OutputKind::Gltf.recognise(d.path()));
+        assert!(gltf_names_bin(&ours, &d.path().join("a.bin")) && !gltf_names_bin(&ours, &d.path().join("b.bin")));
+        assert_eq!(uri_file_name("a%20b.bin").unwrap(), b"a b.bin");
+        assert!(uri_file_name("../a.bin").is_none() && uri_file_name("data:,x").is_none() && uri_file_name("a%2").is_none());
+    }
+
+    #[test]
+    fn a_gltf_pair_is_placed_together_and_its_bin_only_when_the_old_gltf_names_it() {
+        let d = tempfile::tempdir().unwrap();
+        let g = d.path().join("m.gltf");
+        let bin = d.path().join("m.bin");
+        {
+            let mut p = AtomicGltfPair::create(&g, false).unwrap();
+            p.json().write_all(b"partial").unwrap();
+            p.bin().write_all(b"partial").unwrap();
+        }
+        assert!(names(d.path()).is_empty(), "dropped: nothing left");
+        write_pair(&g, false, "m.bin", b"one").unwrap();
+        assert_eq!(names(d.path()), ["m.bin", "m.gltf"]);
+        let e = write_pair(&g, false, "m.bin", b"two").unwrap_err().to_string();
+        assert!(e.contains("--force"), "{e}");
+        write_pair(&g, true, "m.bin", b"two").unwrap();
+        assert_eq!(fs::read(&bin).unwrap(), b"two");
+        // Percent-encoded, the same name.
+        fs::write(&g, gltf_text(true, "m%2Ebin")).unwrap();
+        write_pair(&g, true, "m.bin", b"three").unwrap();
+        assert_eq!(names(d.path()), ["m.bin", "m.gltf"]);
+        // A .bin the old .gltf does not name, or a .gltf of another tool.
+        for text in [gltf_text(true, "other.bin"), gltf_text(false, "m.bin")] {
+            fs::write(&g, &text).unwrap();
+            for force in [false, true] {
+                let e = AtomicGltfPair::create(&g, force).err().expect("must refuse").to_string();
+                assert!(e.contains("refusing"), "{e}");
+            }
+        }
+        assert_eq!(fs::read(&bin).unwrap(), b"three");
+        // A .bin appearing while a fresh pair is written: refused at commit,
+        // kept, and nothing of ours left.
+        let g2 = d.path().join("n.gltf");
+        let mut p = AtomicGltfPair::create(&g2, true).unwrap();
+        p.json().write_all(gltf_text(true, "n.bin").as_bytes()).unwrap();
+        p.bin().write_all(b"ours").unwrap();
+        fs::write(d.path().join("n.bin"), b"user's").unwrap();
+        assert!(p.commit().unwrap_err().to_string().contains("refusing"));
+        assert_eq!(fs::read(d.path().join("n.bin")).unwrap(), b"user's");
+        assert_eq!(names(d.path()), ["m.bin", "m.gltf", "n.bin"]);
+        // A protected .bin (the file alone): refused, even named by ours.
+        fs::write(&g, gltf_text(true, "m.bin")).unwrap();
+        {
+            let _guard = protect(&bin);
+            let e = AtomicGltfPair::create(&g, true).err().expect("must refuse").to_string();
+            assert!(e.contains("m.bin is an input of this command"), "{e}");
+        }
+        write_pair(&g, true, "m.bin", b"four").unwrap();
+        assert_eq!(fs::read(&bin).unwrap(), b"four");
+    }
+
+    #[test]
+    fn nothing_inside_a_protected_directory_is_replaced() {
+        let d = tempfile::tempdir().unwrap();
+        let dir = d.path().join("in");
+        fs::create_dir(&dir).unwrap();
+        let ply = dir.join("o.ply");
+        fs::write(&ply, "ply\nformat ascii 1.0\ncomment octolod-output\nend_header\n").unwrap();
+        let _g = protect(&dir);
+        let e = AtomicFile::create(&ply, OutputKind::Ply, true).err().expect("must refuse").to_string();
+        assert!(e.contains("is inside") && e.contains("an input of this command"), "{e}");
+        // A new file there is no replacement.
+        assert!(AtomicFile::create(dir.join("new.ply"), OutputKind::Ply, false).is_ok());
     }
 
     #[test]

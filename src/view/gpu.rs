@@ -108,6 +108,9 @@ pub struct RendererOptions {
     /// Draw wireframes from line-list index buffers even when the device
     /// supports `PolygonMode::Line` (tests the fallback path).
     pub line_list_wireframe: bool,
+    /// Cull back faces (as glTF's single-sided materials do); octolod
+    /// itself draws both sides (open scans show their back).
+    pub cull_back_faces: bool,
 }
 
 /// How wireframes are drawn on this device.
@@ -390,7 +393,7 @@ impl Renderer {
                     topology,
                     strip_index_format: None,
                     front_face: wgpu::FrontFace::Ccw,
-                    cull_mode: None,
+                    cull_mode: opts.cull_back_faces.then_some(wgpu::Face::Back),
                     unclipped_depth: false,
                     polygon_mode,
                     conservative: false,

@@ -1,0 +1,848 @@
+//! glTF 2.0 output: one mesh, or a store cut given part by part, as a
+//! binary `.glb` or as `.gltf` JSON with a `.bin` buffer beside it.
+//!
+//! Takes: [`IndexedMesh`]es (whole, or node by node in two passes), the
+//! [`AttrSet`] saying which attributes are real, and [`GltfOptions`].
+//! Gives: one scene, one node, one mesh of triangle primitives. POSITION
+//! always; NORMAL (made unit length), COLOR_0 and TEXCOORD_0 only when the
+//! set has them. Positions are `f32` relative to the bounding box's centre,
+//! the node's `translation` (JSON doubles), so a mesh 10^6 from the origin
+//! keeps its detail. Attributes are interleaved in one bufferView per primitive;
+//! indices are `u16` up to 65535 vertices, else `u32`; triangles keep
+//! their order and winding.
+//! * Colours: octolod's [`Vertex::color`] bytes are sRGB-encoded, as PLY
+//!   files carry them (alpha linear); glTF's COLOR_0 is linear. RGB goes
+//!   through the exact sRGB transfer function and is stored as normalized
+//!   `u16` (VEC3 padded to 8 bytes, or VEC4 with alpha, which is copied
+//!   as it is: `a × 257`). Not normalized `u8`, even with `quantize` (where
+//!   glTF allows `u16` colours too): linear bytes merge the dark tones (sRGB
+//!   0 to 17 would get 2 codes, and the 256 sRGB bytes only 183 distinct
+//!   codes), where `u16` keeps every sRGB byte apart (by 19 steps or more)
+//!   and converts back to the same byte.
+//! * One material for every primitive, `pbrMetallicRoughness` with
+//!   `metallicFactor` 0 and `roughnessFactor` 1 (glTF's default material is
+//!   fully metallic: dark in Cesium and physically based viewers), white,
+//!   and `doubleSided`: octolod's own renderer draws both sides, and scans
+//!   with holes and open borders show their back.
+//! * `quantize`: KHR_mesh_quantization: positions as normalized `i16` (the
+//!   node's translation and uniform scale dequantize), normals as
+//!   normalized `i8` (padded to 4 bytes), uvs as normalized `u16` when all
+//!   lie in [0,1].
+//! * `compress`: EXT_meshopt_compression (meshopt's vertex codec version 0,
+//!   mode ATTRIBUTES; its index codec, mode TRIANGLES) in buffer 0, with a
+//!   placeholder fallback buffer (no `uri`, `fallback: true`) giving the
+//!   uncompressed layout; a fallback without data makes the extension
+//!   required (its spec says so).
+//!
+//! A whole mesh is one primitive ([`encode_glb`], [`write_mesh`]); a cut
+//! streamed ([`write_parts`]) is one primitive per run of whole nodes of at
+//! most [`STREAM_GROUP_VERTICES`] vertices, only one run in memory. Every
+//! output carries `asset.extras.octolod = "output"` ([`is_octolod_gltf`]).
+//! Files are written as every octolod output is ([`crate::io`],
+//! [`OutputKind::Gltf`]): a `.glb` through an [`AtomicFile`], a `.gltf` and
+//! its `.bin` through an [`AtomicGltfPair`]; what may be replaced is decided
+//! there ([`check_output`]).
+//! Hand-written: the format is JSON (serde_json is already here) plus
+//! little-endian buffers; the codecs come from the `meshopt` crate.
+
+use crate::error::{Error, IoContext, Result};
+use crate::io::{AtomicFile, AtomicGltfPair, OutputKind};
+use crate::mesh::{AttrSet, Vertex};
+use crate::store::IndexedMesh;
+use serde_json::{json, Map, Value};
+use std::borrow::Borrow;
+use std::fs::{self, File};
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+
+/// Whether `path` is a glTF octolod wrote (recognised in [`crate::io`]).
+pub use crate::io::is_octolod_gltf;
+
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct GltfOptions {
+    /// KHR_mesh_quantization: integer positions, normals and (in [0,1]) uvs.
+    pub quantize: bool,
+    /// EXT_meshopt_compression on every vertex and index bufferView.
+    pub compress: bool,
+}
+
+/// The two containers, chosen by the output's extension.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Container {
+    /// `.glb`: one binary file.
+    Glb,
+    /// `.gltf`: JSON, with the buffer in a `.bin` of the same stem.
+    Gltf,
+}
+
+impl Container {
+    /// `.glb` or `.gltf` (any case); `None` for anything else.
+    pub fn of(path: &Path) -> Option<Container> {
+        let ext = path.extension()?.to_str()?.to_ascii_lowercase();
+        match ext.as_str() {
+            "glb" => Some(Container::Glb),
+            "gltf" => Some(Container::Gltf),
+            _ => None,
+        }
+    }
+}
+
+/// Vertices per primitive when a cut is streamed node by node (whole nodes
+/// are grouped up to this; a larger node is a primitive of its own).
+pub const STREAM_GROUP_VERTICES: u64 = 1 << 20;
+
+/// The marker in `asset.extras` of every glTF octolod writes.
+pub use crate::io::{GLTF_MARK_KEY as MARKER_KEY, GLTF_MARK_VALUE as MARKER_VALUE};
+
+const GLB_MAGIC: &[u8; 4] = b"glTF";
+const CHUNK_JSON: &[u8; 4] = b"JSON";
+const CHUNK_BIN: &[u8; 4] = b"BIN\0";
+
+const ARRAY_BUFFER: u32 = 34962;
+const ELEMENT_ARRAY_BUFFER: u32 = 34963;
+const BYTE: u32 = 5120;
+const SHORT: u32 = 5122;
+const UNSIGNED_SHORT: u32 = 5123;
+const UNSIGNED_INT: u32 = 5125;
+const FLOAT: u32 = 5126;
+
+// ------------------------------------------------------------------ survey
+
+/// A primitive: a run of whole parts (those with triangles).
+#[derive(Clone, Debug)]
+struct Group {
+    parts: usize,
+    vertices: u64,
+    triangles: u64,
+    lo: [f64; 3],
+    hi: [f64; 3],
+}
+
+/// What the first pass over the parts learns: counts, bounds, uv range
+/// and the primitives.
+#[derive(Clone, Debug)]
+struct Survey {
+    limit: u64,
+    groups: Vec<Group>,
+    vertices: u64,
+    triangles: u64,
+    lo: [f64; 3],
+    hi: [f64; 3],
+    /// Every uv lies in [0,1].
+    uv_unit: bool,
+}
+
+impl Survey {
+    fn new(limit: u64) -> Survey {
+        Survey { limit: limit.max(1), groups: Vec::new(), vertices: 0, triangles: 0, lo: [f64::INFINITY; 3], hi: [f64::NEG_INFINITY; 3], uv_unit: true }
+    }
+
+    fn add(&mut self, m: &IndexedMesh) -> Result<()> {
+        if m.triangles.is_empty() {
+            return Ok(());
+        }
+        let nv = m.vertices.len() as u64;
+        if nv > u32::MAX as u64 {
+            return Err(Error::Usage(format!("a mesh of {nv} vertices does not fit 32-bit indices")));
+        }
+        for (k, t) in m.triangles.iter().enumerate() {
+            if let Some(&i) = t.iter().find(|&&i| i as u64 >= nv) {
+                return Err(Error::Usage(format!("triangle {k} uses vertex {i}, but the mesh has {nv} vertices")));
+            }
+        }
+        let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+        for (k, v) in m.vertices.iter().enumerate() {
+            if !v.pos.iter().all(|x| x.is_finite()) {
+                return Err(Error::Usage(format!("vertex {k} has a non-finite position {:?}", v.pos)));
+            }
+            for a in 0..3 {
+                lo[a] = lo[a].min(v.pos[a]);
+                hi[a] = hi[a].max(v.pos[a]);
+            }
+            self.uv_unit &= v.uv.iter().all(|u| (0.0..=1.0).contains(u));
+        }
+        for a in 0..3 {
+            self.lo[a] = self.lo[a].min(lo[a]);
+            self.hi[a] = self.hi[a].max(hi[a]);
+        }
+        let join = self.groups.last().is_some_and(|g| g.vertices + nv <= self.limit.min(u32::MAX as u64));
+        if !join {
+            self.groups.push(Group { parts: 0, vertices: 0, triangles: 0, lo, hi });
+        }
+        let g = self.groups.last_mut().expect("a group");
+        g.parts += 1;
+        g.vertices += nv;
+        g.triangles += m.triangles.len() as u64;
+        for a in 0..3 {
+            g.lo[a] = g.lo[a].min(lo[a]);
+            g.hi[a] = g.hi[a].max(hi[a]);
+        }
+        self.vertices += nv;
+        self.triangles += m.triangles.len() as u64;
+        Ok(())
+    }
+}
+
+// ------------------------------------------------------------------ layout
+
+/// How each vertex is stored: one interleaved record of `stride` bytes
+/// (every attribute at a multiple of 4, as glTF requires).
+#[derive(Clone, Copy, Debug)]
+struct Layout {
+    attrs: AttrSet,
+    quantize: bool,
+    centre: [f64; 3],
+    /// Quantized: the half extent that maps to ±32767; 1 otherwise.
+    scale: f64,
+    stride: usize,
+    normal_at: Option<usize>,
+    color_at: Option<usize>,
+    /// Offset, and whether stored as normalized u16.
+    uv_at: Option<(usize, bool)>,
+}
+
+impl Layout {
+    fn new(attrs: AttrSet, opts: &GltfOptions, s: &Survey) -> Layout {
+        let centre = [0, 1, 2].map(|a| s.lo[a] + 0.5 * (s.hi[a] - s.lo[a]));
+        let half = (0..3).map(|a| 0.5 * (s.hi[a] - s.lo[a])).fold(0.0f64, f64::max);
+        let scale = if opts.quantize && half > 0.0 && half.is_finite() { half } else { 1.0 };
+        let mut off = if opts.quantize { 8 } else { 12 };
+        let normal_at = attrs.normal().then(|| {
+            let at = off;
+            off += if opts.quantize { 4 } else { 12 };
+            at
+        });
+        let color_at = attrs.color().then(|| {
+            // u16 × 3 (padded) or × 4.
+            let at = off;
+            off += 8;
+            at
+        });
+        let uv_at = attrs.uv().then(|| {
+            let unorm = opts.quantize && s.uv_unit;
+            let at = off;
+            off += if unorm { 4 } else { 8 };
+            (at, unorm)
+        });
+        Layout { attrs, quantize: opts.quantize, centre, scale, stride: off, normal_at, color_at, uv_at }
+    }
+
+    /// A stored float position (relative to the centre).
+    fn pos_f32(&self, p: [f64; 3]) -> [f32; 3] {
+        [0, 1, 2].map(|a| (p[a] - self.centre[a]) as f32)
+    }
+
+    /// A stored quantized position.
+    fn pos_i16(&self, p: [f64; 3]) -> [i16; 3] {
+        [0, 1, 2].map(|a| ((p[a] - self.centre[a]) / self.scale * 32767.0).round().clamp(-32767.0, 32767.0) as i16)
+    }
+
+    /// POSITION's min and max as JSON (the stored values: monotonic in
+    /// the input, so the bounds' images are the images' bounds).
+    fn pos_bounds(&self, lo: [f64; 3], hi: [f64; 3]) -> (Value, Value) {
+        if self.quantize {
+            (json!(self.pos_i16(lo)), json!(self.pos_i16(hi)))
+        } else {
+            let f = |p: [f64; 3]| json!(self.pos_f32(p).map(f64::from));
+            (f(lo), f(hi))
+        }
+    }
+
+    fn encode(&self, v: &Vertex, out: &mut [u8]) {
+        let out = &mut out[..self.stride];
+        out.fill(0);
+        if self.quantize {
+            for (a, q) in self.pos_i16(v.pos).iter().enumerate() {
+                out[2 * a..2 * a + 2].copy_from_slice(&q.to_le_bytes());
+            }
+        } else {
+            for (a, x) in self.pos_f32(v.pos).iter().enumerate() {
+                out[4 * a..4 * a + 4].copy_from_slice(&x.to_le_bytes());
+            }
+        }
+        if let Some(o) = self.normal_at {
+            let n = unit(v.normal);
+            if self.quantize {
+                for a in 0..3 {
+                    out[o + a] = ((n[a] * 127.0).round().clamp(-127.0, 127.0) as i8) as u8;
+                }
+            } else {
+                for (a, x) in n.iter().enumerate() {
+                    out[o + 4 * a..o + 4 * a + 4].copy_from_slice(&x.to_le_bytes());
+                }
+            }
+        }
+        if let Some(o) = self.color_at {
+            let table = srgb_table();
+            for a in 0..3 {
+                out[o + 2 * a..o + 2 * a + 2].copy_from_slice(&table[v.color[a] as usize].to_le_bytes());
+            }
+            if self.attrs.alpha() {
+                out[o + 6..o + 8].copy_from_slice(&(v.color[3] as u16 * 257).to_le_bytes());
+            }
+        }
+        if let Some((o, unorm)) = self.uv_at {
+            for a in 0..2 {
+                if unorm {
+                    let q = (v.uv[a] as f64 * 65535.0).round().clamp(0.0, 65535.0) as u16;
+                    out[o + 2 * a..o + 2 * a + 2].copy_from_slice(&q.to_le_bytes());
+                } else {
+                    out[o + 4 * a..o + 4 * a + 4].copy_from_slice(&v.uv[a].to_le_bytes());
+                }
+            }
+        }
+    }
+
+    /// The vertex attributes' accessors (semantic, byteOffset, componentType, type, normalized).
+    fn attributes(&self) -> Vec<(&'static str, usize, u32, &'static str, bool)> {
+        let mut v = vec![("POSITION", 0, if self.quantize { SHORT } else { FLOAT }, "VEC3", self.quantize)];
+        if let Some(o) = self.normal_at {
+            v.push(("NORMAL", o, if self.quantize { BYTE } else { FLOAT }, "VEC3", self.quantize));
+        }
+        if let Some(o) = self.color_at {
+            v.push(("COLOR_0", o, UNSIGNED_SHORT, if self.attrs.alpha() { "VEC4" } else { "VEC3" }, true));
+        }
+        if let Some((o, unorm)) = self.uv_at {
+            v.push(("TEXCOORD_0", o, if unorm { UNSIGNED_SHORT } else { FLOAT }, "VEC2", unorm));
+        }
+        v
+    }
+}
+
+/// The sRGB transfer function's inverse: an sRGB-encoded value (0 to 1)
+/// to linear.
+pub fn srgb_to_linear(c: f64) -> f64 {
+    if c <= 0.04045 {
+        c / 12.92
+    } else {
+        ((c + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+/// Each sRGB byte's linear value as normalized `u16`.
+fn srgb_table() -> &'static [u16; 256] {
+    static T: std::sync::OnceLock<[u16; 256]> = std::sync::OnceLock::new();
+    T.get_or_init(|| std::array::from_fn(|b| (srgb_to_linear(b as f64 / 255.0) * 65535.0).round() as u16))
+}
+
+/// `n` made unit length (in f64); a zero or non-finite normal becomes +z,
+/// since glTF requires unit normals.
+fn unit(n: [f32; 3]) -> [f32; 3] {
+    let d = n.map(f64::from);
+    let l = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+    if l > 0.0 && l.is_finite() {
+        d.map(|x| (x / l) as f32)
+    } else {
+        [0.0, 0.0, 1.0]
+    }
+}
+
+fn index_width(vertices: u64) -> usize {
+    if vertices <= 65535 {
+        2
+    } else {
+        4
+    }
+}
+
+fn align4(x: u64) -> u64 {
+    (x + 3) & !3
+}
+
+/// Where one primitive's two bufferViews lie in a buffer.
+#[derive(Clone, Copy, Debug, Default)]
+struct Placed {
+    vertex: (u64, u64),
+    index: (u64, u64),
+}
+
+/// The uncompressed layout of every primitive (vertices, then indices,
+/// each view starting at a multiple of 4) and the buffer's length.
+fn raw_layout(s: &Survey, l: &Layout) -> (Vec<Placed>, u64) {
+    let mut at = 0u64;
+    let placed = s
+        .groups
+        .iter()
+        .map(|g| {
+            let v = (at, g.vertices * l.stride as u64);
+            at = align4(v.0 + v.1);
+            let i = (at, 3 * g.triangles * index_width(g.vertices) as u64);
+            at = align4(i.0 + i.1);
+            Placed { vertex: v, index: i }
+        })
+        .collect();
+    (placed, at)
+}
+
+// -------------------------------------------------------------- the buffer
+
+/// A writer that knows its position.
+struct Counted<W: Write> {
+    w: W,
+    at: u64,
+}
+
+impl<W: Write> Counted<W> {
+    fn put(&mut self, b: &[u8]) -> std::io::Result<()> {
+        self.w.write_all(b)?;
+        self.at += b.len() as u64;
+        Ok(())
+    }
+    fn pad4(&mut self) -> std::io::Result<()> {
+        let n = (align4(self.at) - self.at) as usize;
+        self.put(&[0u8; 3][..n])
+    }
+}
+
+/// One primitive's data as it is gathered.
+struct GroupBuf {
+    vertices: Vec<u8>,
+    indices: Vec<u32>,
+    base: u32,
+    parts: usize,
+}
+
+/// meshopt's vertex codec, version 0 (the only one EXT_meshopt_compression
+/// accepts; meshopt's default is now version 1).
+fn compress_vertices(bytes: &[u8], stride: usize) -> Result<Vec<u8>> {
+    macro_rules! by_stride {
+        ($($n:literal)*) => {
+            match stride {
+                $($n => meshopt::encoding::encode_vertex_buffer_level(bytemuck::cast_slice::<u8, [u8; $n]>(bytes), 2, Some(0)),)*
+                _ => unreachable!("vertex stride {stride}"),
+            }
+        };
+    }
+    by_stride!(4 8 12 16 20 24 28 32 36 40 44 48).map_err(|e| Error::Usage(format!("meshopt vertex encoding failed: {e:?}")))
+}
+
+/// Streams the primitives of `parts` (the survey's groups, in order) into
+/// `w`, compressed or not; gives where each primitive's views landed.
+fn write_bin<W: Write, M: Borrow<IndexedMesh>>(
+    w: &mut Counted<W>,
+    path: &Path,
+    s: &Survey,
+    l: &Layout,
+    compress: bool,
+    parts: impl Iterator<Item = Result<M>>,
+) -> Result<Vec<Placed>> {
+    let mut placed = Vec::with_capacity(s.groups.len());
+    let mut buf = GroupBuf { vertices: Vec::new(), indices: Vec::new(), base: 0, parts: 0 };
+    let changed = || Error::Usage(format!("{}: the meshes changed between the two passes over them", path.display()));
+    let flush = |buf: &mut GroupBuf, g: &Group, w: &mut Counted<W>| -> Result<Placed> {
+        if buf.base as u64 != g.vertices || buf.indices.len() as u64 != 3 * g.triangles {
+            return Err(changed());
+        }
+        let mut p = Placed::default();
+        let vstart = w.at;
+        if compress {
+            let c = compress_vertices(&buf.vertices, l.stride)?;
+            w.put(&c).ctx(path, "write")?;
+        } else {
+            w.put(&buf.vertices).ctx(path, "write")?;
+        }
+        p.vertex = (vstart, w.at - vstart);
+        w.pad4().ctx(path, "write")?;
+        let istart = w.at;
+        if compress {
+            let c = meshopt::encoding::encode_index_buffer(&buf.indices, g.vertices as usize)
+                .map_err(|e| Error::Usage(format!("meshopt index encoding failed: {e:?}")))?;
+            w.put(&c).ctx(path, "write")?;
+        } else {
+            let width = index_width(g.vertices);
+            let mut b = Vec::with_capacity(buf.indices.len() * width);
+            for &i in &buf.indices {
+                if width == 2 {
+                    b.extend_from_slice(&(i as u16).to_le_bytes());
+                } else {
+                    b.extend_from_slice(&i.to_le_bytes());
+                }
+            }
+            w.put(&b).ctx(path, "write")?;
+        }
+        p.index = (istart, w.at - istart);
+        w.pad4().ctx(path, "write")?;
+        buf.vertices.clear();
+        buf.indices.clear();
+        buf.base = 0;
+        buf.parts = 0;
+        Ok(p)
+    };
+    let mut record = vec![0u8; l.stride];
+    for m in parts {
+        let m = m?;
+        let m = m.borrow();
+        if m.triangles.is_empty() {
+            continue;
+        }
+        let g = s.groups.get(placed.len()).ok_or_else(changed)?;
+        if buf.parts == 0 {
+            buf.vertices.reserve((g.vertices as usize).saturating_mul(l.stride));
+            buf.indices.reserve(3 * g.triangles as usize);
+        }
+        for v in &m.vertices {
+            l.encode(v, &mut record);
+            buf.vertices.extend_from_slice(&record);
+        }
+        let base = buf.base;
+        for t in &m.triangles {
+            buf.indices.extend(t.iter().map(|&i| base + i));
+        }
+        buf.base = u32::try_from(base as u64 + m.vertices.len() as u64).map_err(|_| changed())?;
+        buf.parts += 1;
+        if buf.parts == g.parts {
+            placed.push(flush(&mut buf, g, w)?);
+        }
+    }
+    if placed.len() != s.groups.len() || buf.parts != 0 {
+        return Err(changed());
+    }
+    Ok(placed)
+}
+
+// ---------------------------------------------------------------- the JSON
+
+/// The glTF document. `placed`: where the primitives' views are in buffer
+/// 0 (for `compress`, the compressed streams; the uncompressed layout then
+/// goes to the fallback buffer 1). `uri`: buffer 0's, for `.gltf`.
+fn document(s: &Survey, l: &Layout, opts: &GltfOptions, name: Option<&str>, placed: &[Placed], bin_len: u64, uri: Option<&str>) -> Value {
+    let (raw, raw_len) = raw_layout(s, l);
+    let mut views = Vec::new();
+    let mut accessors = Vec::new();
+    let mut primitives = Vec::new();
+    for (k, g) in s.groups.iter().enumerate() {
+        let width = index_width(g.vertices);
+        let view = |raw: (u64, u64), stored: (u64, u64), stride: usize, target: u32, mode: &str, count: u64, with_stride: bool| {
+            let mut v = Map::new();
+            v.insert("buffer".into(), json!(if opts.compress { 1 } else { 0 }));
+            v.insert("byteOffset".into(), json!(if opts.compress { raw.0 } else { stored.0 }));
+            v.insert("byteLength".into(), json!(if opts.compress { raw.1 } else { stored.1 }));
+            if with_stride {
+                v.insert("byteStride".into(), json!(stride));
+            }
+            v.insert("target".into(), json!(target));
+            if opts.compress {
+                v.insert(
+                    "extensions".into(),
+                    json!({"EXT_meshopt_compression": {
+                        "buffer": 0, "byteOffset": stored.0, "byteLength": stored.1,
+                        "byteStride": stride, "mode": mode, "count": count,
+                    }}),
+                );
+            }
+            Value::Object(v)
+        };
+        let vview = views.len();
+        views.push(view(raw[k].vertex, placed[k].vertex, l.stride, ARRAY_BUFFER, "ATTRIBUTES", g.vertices, true));
+        let iview = views.len();
+        views.push(view(raw[k].index, placed[k].index, width, ELEMENT_ARRAY_BUFFER, "TRIANGLES", 3 * g.triangles, false));
+        let mut attributes = Map::new();
+        for (semantic, offset, ctype, ty, normalized) in l.attributes() {
+            let mut a = Map::new();
+            a.insert("bufferView".into(), json!(vview));
+            a.insert("byteOffset".into(), json!(offset));
+            a.insert("componentType".into(), json!(ctype));
+            if normalized {
+                a.insert("normalized".into(), json!(true));
+            }
+            a.insert("count".into(), json!(g.vertices));
+            a.insert("type".into(), json!(ty));
+            if semantic == "POSITION" {
+                let (lo, hi) = l.pos_bounds(g.lo, g.hi);
+                a.insert("min".into(), lo);
+                a.insert("max".into(), hi);
+            }
+            attributes.insert(semantic.into(), json!(accessors.len()));
+            accessors.push(Value::Object(a));
+        }
+        let indices = accessors.len();
+        accessors.push(json!({
+            "bufferView": iview, "componentType": if width == 2 { UNSIGNED_SHORT } else { UNSIGNED_INT },
+            "count": 3 * g.triangles, "type": "SCALAR",
+        }));
+        primitives.push(json!({"attributes": attributes, "indices": indices, "material": 0, "mode": 4}));
+    }
+    let mut buffer0 = Map::new();
+    if let Some(u) = uri {
+        buffer0.insert("uri".into(), json!(u));
+    }
+    buffer0.insert("byteLength".into(), json!(bin_len));
+    let mut buffers = vec![Value::Object(buffer0)];
+    if opts.compress {
+        buffers.push(json!({"byteLength": raw_len, "extensions": {"EXT_meshopt_compression": {"fallback": true}}}));
+    }
+    let mut node = Map::new();
+    node.insert("mesh".into(), json!(0));
+    node.insert("translation".into(), json!(l.centre));
+    if l.quantize {
+        node.insert("scale".into(), json!([l.scale, l.scale, l.scale]));
+    }
+    let mut mesh = Map::new();
+    if let Some(n) = name {
+        mesh.insert("name".into(), json!(n));
+        node.insert("name".into(), json!(n));
+    }
+    mesh.insert("primitives".into(), Value::Array(primitives));
+    let mut exts = Vec::new();
+    if opts.quantize {
+        exts.push("KHR_mesh_quantization");
+    }
+    if opts.compress {
+        exts.push("EXT_meshopt_compression");
+    }
+    let mut doc = Map::new();
+    doc.insert(
+        "asset".into(),
+        json!({"version": "2.0", "generator": concat!("octolod ", env!("CARGO_PKG_VERSION")), "extras": {MARKER_KEY: MARKER_VALUE}}),
+    );
+    if !exts.is_empty() {
+        doc.insert("extensionsUsed".into(), json!(exts));
+        doc.insert("extensionsRequired".into(), json!(exts));
+    }
+    doc.insert("scene".into(), json!(0));
+    doc.insert("scenes".into(), json!([{"nodes": [0]}]));
+    doc.insert("nodes".into(), json!([node]));
+    doc.insert("meshes".into(), json!([mesh]));
+    doc.insert("materials".into(), json!([material()]));
+    doc.insert("accessors".into(), Value::Array(accessors));
+    doc.insert("bufferViews".into(), Value::Array(views));
+    doc.insert("buffers".into(), Value::Array(buffers));
+    Value::Object(doc)
+}
+
+/// The one material: white, not metallic, fully rough, double-sided (see
+/// the module doc).
+fn material() -> Value {
+    json!({
+        "pbrMetallicRoughness": {"baseColorFactor": [1.0, 1.0, 1.0, 1.0], "metallicFactor": 0.0, "roughnessFactor": 1.0},
+        "doubleSided": true,
+    })
+}
+
+/// The JSON chunk's bytes, padded with spaces to a multiple of 4.
+fn json_bytes(doc: &Value) -> Vec<u8> {
+    let mut b = serde_json::to_vec(doc).expect("JSON of plain values");
+    b.resize(align4(b.len() as u64) as usize, b' ');
+    b
+}
+
+/// The GLB's 12-byte header and its JSON chunk (with both chunk headers'
+/// worth of length counted); the BIN chunk of `bin_len` bytes follows.
+/// An error naming `.gltf` when the whole would pass 4 GiB.
+fn glb_head(json: &[u8], bin_len: u64, what: &str) -> Result<Vec<u8>> {
+    let total = glb_total(json.len() as u64, bin_len);
+    if total > u32::MAX as u64 {
+        return Err(Error::Usage(format!(
+            "{what}: the GLB would be {total} bytes, over the format's 4 GiB limit; write a .gltf (JSON + .bin) instead"
+        )));
+    }
+    let mut h = Vec::with_capacity(28 + json.len());
+    h.extend_from_slice(GLB_MAGIC);
+    h.extend_from_slice(&2u32.to_le_bytes());
+    h.extend_from_slice(&(total as u32).to_le_bytes());
+    h.extend_from_slice(&(json.len() as u32).to_le_bytes());
+    h.extend_from_slice(CHUNK_JSON);
+    h.extend_from_slice(json);
+    h.extend_from_slice(&(align4(bin_len) as u32).to_le_bytes());
+    h.extend_from_slice(CHUNK_BIN);
+    Ok(h)
+}
+
+fn glb_total(json_len: u64, bin_len: u64) -> u64 {
+    12 + 8 + align4(json_len) + 8 + align4(bin_len)
+}
+
+// ------------------------------------------------------------- in memory
+
+/// Encodes one mesh as a complete GLB (one scene, one node, one mesh, one triangle primitive).
+pub fn encode_glb(mesh: &IndexedMesh, attrs: AttrSet, opts: &GltfOptions, out: &mut Vec<u8>) -> Result<()> {
+    let mut s = Survey::new(u64::MAX);
+    s.add(mesh)?;
+    if s.triangles == 0 {
+        return Err(empty("the mesh"));
+    }
+    let l = Layout::new(attrs, opts, &s);
+    let mut bin = Counted { w: Vec::new(), at: 0 };
+    let placed = write_bin(&mut bin, Path::new("glb"), &s, &l, opts.compress, std::iter::once(Ok(mesh)))?;
+    let doc = document(&s, &l, opts, None, &placed, bin.at, None);
+    let head = glb_head(&json_bytes(&doc), bin.at, "the mesh")?;
+    out.reserve(head.len() + bin.w.len());
+    out.extend_from_slice(&head);
+    out.extend_from_slice(&bin.w);
+    Ok(())
+}
+
+fn empty(what: &str) -> Error {
+    Error::Usage(format!("{what} has no triangles: a glTF needs at least one (nothing written)"))
+}
+
+// ----------------------------------------------------------------- to files
+
+/// Writes one mesh at `out` (`.glb`, or `.gltf` with its `.bin`) as one
+/// primitive; `name` names the mesh and node. Gives (vertices, triangles).
+pub fn write_mesh(out: &Path, mesh: &IndexedMesh, attrs: AttrSet, opts: &GltfOptions, force: bool, name: &str) -> Result<(u64, u64)> {
+    write_parts(out, attrs, opts, force, name, u64::MAX, || std::iter::once(Ok(mesh)))
+}
+
+/// Writes the meshes `parts()` gives (called twice, each time giving the
+/// same parts in the same order) as one glTF at `out`: one primitive per
+/// run of whole parts holding at most `group_vertices` vertices, so only
+/// one run is in memory at a time (parts without triangles are left out).
+/// `out` is checked first ([`check_output`]); every file is written under
+/// a temporary name and moved into place when complete (for `.gltf`, both
+/// files once both are written, the `.bin` first: [`AtomicGltfPair`]).
+/// Gives the vertices and triangles written.
+pub fn write_parts<M, I, F>(out: &Path, attrs: AttrSet, opts: &GltfOptions, force: bool, name: &str, group_vertices: u64, mut parts: F) -> Result<(u64, u64)>
+where
+    M: Borrow<IndexedMesh>,
+    I: Iterator<Item = Result<M>>,
+    F: FnMut() -> I,
+{
+    let container = Container::of(out)
+        .ok_or_else(|| Error::Usage(format!("{}: a glTF output ends in .glb or .gltf", out.display())))?;
+    check_output(out, force)?;
+    let mut s = Survey::new(group_vertices);
+    for m in parts() {
+        s.add(m?.borrow())?;
+    }
+    if s.triangles == 0 {
+        return Err(empty(&format!("{}: the cut", out.display())));
+    }
+    let l = Layout::new(attrs, opts, &s);
+    let what = out.display().to_string();
+    match container {
+        Container::Glb if !opts.compress => {
+            // Every length is known from the counts: the JSON first, then
+            // the buffer streamed straight behind it.
+            let mut file = AtomicFile::create(out, OutputKind::Gltf, force)?;
+            let (raw, len) = raw_layout(&s, &l);
+            let head = glb_head(&json_bytes(&document(&s, &l, opts, Some(name), &raw, len, None)), len, &what)?;
+            file.writer().write_all(&head).ctx(out, "write")?;
+            let mut bin = Counted { w: file.writer(), at: 0 };
+            let placed = write_bin(&mut bin, out, &s, &l, false, parts())?;
+            if bin.at != len || placed.iter().zip(&raw).any(|(a, b)| a.vertex.1 != b.vertex.1 || a.index.1 != b.index.1) {
+                return Err(Error::Usage(format!("{what}: the buffer's size changed while it was written")));
+            }
+            file.commit()?;
+        }
+        Container::Glb => {
+            // Compressed lengths are known only once compressed: the buffer
+            // goes to a scratch file, then behind the JSON.
+            let mut file = AtomicFile::create(out, OutputKind::Gltf, force)?;
+            let scratch = crate::io::scratch_dir(out)?;
+            let spool = scratch.path().join("buffer.bin");
+            let f = File::create(&spool).ctx(&spool, "create")?;
+            let mut bin = Counted { w: BufWriter::with_capacity(crate::io::SEQ_BUF, f), at: 0 };
+            let placed = write_bin(&mut bin, &spool, &s, &l, true, parts())?;
+            let len = bin.at;
+            drop(bin.w.into_inner().map_err(|e| e.into_error()).ctx(&spool, "write")?);
+            let head = glb_head(&json_bytes(&document(&s, &l, opts, Some(name), &placed, len, None)), len, &what)?;
+            let w = file.writer();
+            w.write_all(&head).ctx(out, "write")?;
+            let mut f = File::open(&spool).ctx(&spool, "open")?;
+            let copied = std::io::copy(&mut f, w).ctx(out, "write")?;
+            if copied != len {
+                return Err(Error::Usage(format!("{}: scratch buffer truncated", spool.display())));
+            }
+            drop(f);
+            fs::remove_file(&spool).ctx(&spool, "remove")?;
+            drop(scratch);
+            file.commit()?;
+        }
+        Container::Gltf => {
+            let mut pair = AtomicGltfPair::create(out, force)?;
+            let bin_path = pair.bin_dest().to_path_buf();
+            let mut bin = Counted { w: pair.bin(), at: 0 };
+            let placed = write_bin(&mut bin, &bin_path, &s, &l, opts.compress, parts())?;
+            let len = bin.at;
+            let uri = uri_of(&bin_path);
+            let doc = document(&s, &l, opts, Some(name), &placed, len, Some(&uri));
+            let mut text = serde_json::to_vec_pretty(&doc).expect("JSON of plain values");
+            text.push(b'\n');
+            pair.json().write_all(&text).ctx(out, "write")?;
+            pair.commit()?;
+        }
+    }
+    Ok((s.vertices, s.triangles))
+}
+
+/// The `.bin` beside a `.gltf` ([`crate::io::gltf_bin_path`]).
+pub fn bin_path(gltf: &Path) -> PathBuf {
+    crate::io::gltf_bin_path(gltf)
+}
+
+/// A file name as a relative URI reference (percent-encoded but for
+/// unreserved characters).
+fn uri_of(p: &Path) -> String {
+    use std::os::unix::ffi::OsStrExt;
+    let name = p.file_name().map(|n| n.as_bytes()).unwrap_or(b"");
+    let mut s = String::new();
+    for &b in name {
+        if b.is_ascii_alphanumeric() || b"-._~".contains(&b) {
+            s.push(b as char);
+        } else {
+            s.push_str(&format!("%{b:02X}"));
+        }
+    }
+    s
+}
+
+/// Refuses `out` unless it is free, or (with `force`) a glTF octolod wrote
+/// and no input of the command; for a `.gltf`, also its `.bin`, which may
+/// be replaced only when that glTF is octolod's and names it. Call before
+/// any work (it is checked again as the files are moved into place). The
+/// rules are [`crate::io::check_output`]'s for [`OutputKind::Gltf`].
+pub fn check_output(out: &Path, force: bool) -> Result<()> {
+    crate::io::check_output(out, OutputKind::Gltf, force)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tri() -> IndexedMesh {
+        let v = |x: f64, y: f64| Vertex { pos: [x, y, 0.0], normal: [0.0, 0.0, 2.0], color: [1, 2, 3, 4], uv: [x as f32, y as f32] };
+        IndexedMesh { vertices: vec![v(0.0, 0.0), v(1.0, 0.0), v(0.0, 1.0)], triangles: vec![[0, 1, 2]] }
+    }
+
+    #[test]
+    fn strides_and_attribute_offsets_are_multiples_of_four() {
+        let mut s = Survey::new(u64::MAX);
+        s.add(&tri()).unwrap();
+        for bits in 0..32 {
+            let Some(attrs) = AttrSet::from_bits(bits) else { continue };
+            for quantize in [false, true] {
+                let l = Layout::new(attrs, &GltfOptions { quantize, compress: false }, &s);
+                assert_eq!(l.stride % 4, 0);
+                assert!(l.stride <= 48);
+                assert!(l.attributes().iter().all(|a| a.1 % 4 == 0));
+            }
+        }
+    }
+
+    #[test]
+    fn the_glb_size_limit_names_gltf() {
+        assert!(glb_head(b"{}  ", u32::MAX as u64 - 40, "x").is_ok());
+        let e = glb_head(b"{}  ", u32::MAX as u64, "x.glb").unwrap_err().to_string();
+        assert!(e.contains("4 GiB") && e.contains(".gltf"), "{e}");
+    }
+
+    #[test]
+    fn uris_are_percent_encoded() {
+        assert_eq!(uri_of(Path::new("/a/b c#1%.bin")), "b%20c%231%25.bin");
+        assert_eq!(uri_of(Path::new("x-y_z~.bin")), "x-y_z~.bin");
+    }
+
+    #[test]
+    fn empty_and_broken_meshes_are_errors() {
+        let mut out = Vec::new();
+        assert!(encode_glb(&IndexedMesh::default(), AttrSet(0), &GltfOptions::default(), &mut out).is_err());
+        let mut m = tri();
+        m.triangles[0][2] = 3;
+        assert!(encode_glb(&m, AttrSet(0), &GltfOptions::default(), &mut out).is_err());
+        assert!(out.is_empty());
+        encode_glb(&tri(), AttrSet(0), &GltfOptions::default(), &mut out).unwrap();
+        assert_eq!(&out[..4], b"glTF");
+        assert_eq!(u32::from_le_bytes(out[8..12].try_into().unwrap()) as usize, out.len());
+    }
+}
