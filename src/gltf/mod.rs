@@ -603,18 +603,21 @@ fn document(s: &Survey, l: &Layout, opts: &GltfOptions, name: Option<&str>, plac
     doc.insert("scenes".into(), json!([{"nodes": [0]}]));
     doc.insert("nodes".into(), json!([node]));
     doc.insert("meshes".into(), json!([mesh]));
-    doc.insert("materials".into(), json!([material()]));
+    doc.insert("materials".into(), json!([material(l.attrs.color())]));
     doc.insert("accessors".into(), Value::Array(accessors));
     doc.insert("bufferViews".into(), Value::Array(views));
     doc.insert("buffers".into(), Value::Array(buffers));
     Value::Object(doc)
 }
 
-/// The one material: white, not metallic, fully rough, double-sided (see
-/// the module doc).
-fn material() -> Value {
+/// The one material: not metallic, fully rough, double-sided (see the
+/// module doc); white under vertex colours, else octolod's own grey
+/// ([`crate::view::DEFAULT_COLOR`], linear), so a mesh without colours
+/// looks in any client as it does in `view` and `render`.
+fn material(colored: bool) -> Value {
+    let base = if colored { [1.0; 3] } else { crate::view::DEFAULT_COLOR.map(|c| srgb_to_linear(c as f64 / 255.0))[..3].try_into().unwrap() };
     json!({
-        "pbrMetallicRoughness": {"baseColorFactor": [1.0, 1.0, 1.0, 1.0], "metallicFactor": 0.0, "roughnessFactor": 1.0},
+        "pbrMetallicRoughness": {"baseColorFactor": [base[0], base[1], base[2], 1.0], "metallicFactor": 0.0, "roughnessFactor": 1.0},
         "doubleSided": true,
     })
 }

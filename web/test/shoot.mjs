@@ -277,7 +277,9 @@ async function main() {
 			const tc = Date.now();
 			let png;
 			if (opts.page) {
-				png = Buffer.from(await page.screenshot({ type: 'png' }));
+				// The overlay refreshes every 250 ms: let it show the settled state.
+				await new Promise((r) => setTimeout(r, 400));
+				png = Buffer.from(await page.screenshot({ type: 'png', captureBeyondViewport: false }));
 			} else {
 				const dataUrl = await page.evaluate(() => window.octolod.capture());
 				png = Buffer.from(dataUrl.slice(dataUrl.indexOf(',') + 1), 'base64');
