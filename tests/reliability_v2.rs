@@ -401,3 +401,21 @@ fn a_cut_held_back_by_the_ram_budget_settles_and_is_reported() {
     assert!(frames <= 20 && text.contains("(settled)"), "{text}");
     assert!(err(&o).contains("--ram 100.0 KiB"), "{}", err(&o));
 }
+
+/// Item 9: a camera path is read once (a FIFO works) and bounded: a link
+/// to /dev/zero is an error, not an endless read.
+#[test]
+fn a_camera_path_is_read_once_and_bounded() {
+    let d = tempfile::tempdir().unwrap();
+    let ply = d.path().join("in.ply");
+    gen("sphere", 3000, &ply);
+    let st = d.path().join("s.octolod");
+    build(&ply, &st);
+    let zero = d.path().join("zero.json");
+    std::os::unix::fs::symlink("/dev/zero", &zero).unwrap();
+    let out = d.path().join("f");
+    let (code, e) = run_limited(&["render", s(&st), "-o", s(&out), "--camera-path", s(&zero)], 30);
+    assert_eq!(code, Some(1), "{e}");
+    assert!(e.contains("zero.json") && e.contains("camera path over"), "{e}");
+    assert!(!out.exists());
+}

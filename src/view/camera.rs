@@ -439,6 +439,22 @@ impl PathFile {
     }
 }
 
+/// Largest camera path file read (a path of 100,000 frames is a few MB).
+const MAX_PATH_FILE: u64 = 64 << 20;
+
+/// A camera path file's text, read once (a FIFO works) and at most
+/// [`MAX_PATH_FILE`] bytes (a link to /dev/zero is an error, not a hang).
+fn read_path_file(path: &Path) -> Result<String> {
+    use std::io::Read;
+    let f = std::fs::File::open(path).ctx(path, "read camera path")?;
+    let mut b = Vec::new();
+    f.take(MAX_PATH_FILE + 1).read_to_end(&mut b).ctx(path, "read camera path")?;
+    if b.len() as u64 > MAX_PATH_FILE {
+        return Err(Error::Usage(format!("{}: a camera path over {MAX_PATH_FILE} bytes", path.display())));
+    }
+    String::from_utf8(b).map_err(|_| Error::Usage(format!("{}: a camera path is UTF-8 JSON", path.display())))
+}
+
 /// A camera path for `octolod render`, in JSON:
 ///
 /// ```json
@@ -463,14 +479,14 @@ pub struct CameraPath {
 impl CameraPath {
     /// Reads a path file; `up` is used when the file names none.
     pub fn load(path: &Path, bounds: &Aabb, up: DVec3) -> Result<CameraPath> {
-        let text = std::fs::read_to_string(path).ctx(path, "read camera path")?;
+        let text = read_path_file(path)?;
         CameraPath::parse(&text, bounds, up).map_err(|m| Error::Usage(format!("{}: {m}", path.display())))
     }
 
     /// The poses a path file expands to (at most [`MAX_FRAMES`]), without
     /// making them: `render` checks its counts with it before any work.
     pub fn count_file(path: &Path) -> Result<usize> {
-        let text = std::fs::read_to_string(path).ctx(path, "read camera path")?;
+        let text = read_path_file(path)?;
         let f: PathFile = serde_json::from_str(&text)
             .map_err(|e| Error::Usage(format!("{}: not a valid camera path: {e}", path.display())))?;
         f.pose_count().map_err(|m| Error::Usage(format!("{}: {m}", path.display())))
