@@ -5,10 +5,14 @@ use octolod::mesh::Aabb;
 use octolod::ply::read::{read_body, BodySink};
 use octolod::progress::{peak_rss, Progress};
 use octolod::view::camera::Up;
+#[cfg(feature = "view")]
 use octolod::view::select::SelectOptions;
+#[cfg(feature = "view")]
 use octolod::view::viewer::ViewOptions;
+#[cfg(feature = "view")]
 use octolod::view::window::WindowOptions;
 use octolod::{mem, ply, soup, Result};
+#[cfg(feature = "view")]
 use std::time::Duration;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -189,6 +193,7 @@ enum Cmd {
     /// Works without a display (e.g. Mesa lavapipe). With --full-res, also
     /// renders the path from every leaf at full resolution and reports PSNR
     /// and the fraction of differing pixels per frame.
+    #[cfg_attr(not(feature = "view"), command(about = "Render frames offscreen (not in this build: it has no `view` feature)", long_about = None))]
     Render {
         store: PathBuf,
         /// Camera path JSON (default: an orbit of --frames frames).
@@ -229,6 +234,7 @@ enum Cmd {
     /// Examine (1): drag orbits, right/shift-drag pans, wheel dollies. Fly (2), walk (3):
     /// WASD, Q/E down/up, drag looks, shift faster. Tab cycles modes; R reset, F frame all,
     /// Z wireframe, +/- field of view, F1/H overlay, V vsync, U up axis, Esc quit.
+    #[cfg_attr(not(feature = "view"), command(about = "Open an interactive window on a store (not in this build: it has no `view` feature)", long_about = None))]
     View {
         store: PathBuf,
         #[command(flatten)]
@@ -289,6 +295,7 @@ struct ViewArgs {
     io_delay_ms: u64,
 }
 
+#[cfg(feature = "view")]
 impl ViewArgs {
     fn options(&self) -> Result<ViewOptions> {
         let ram = mem::parse_budget(&self.ram, "--ram")?;
@@ -348,6 +355,7 @@ struct WindowArgs {
     frames: Option<u64>,
 }
 
+#[cfg(feature = "view")]
 impl WindowArgs {
     fn options(&self, store: PathBuf, view: ViewOptions, quiet: bool) -> Result<WindowOptions> {
         check_size(self.width, self.height)?;
@@ -370,6 +378,7 @@ impl WindowArgs {
     }
 }
 
+#[cfg(feature = "view")]
 fn check_size(width: u32, height: u32) -> Result<()> {
     if width == 0 || height == 0 || width > 16384 || height > 16384 {
         return Err(octolod::Error::Usage("--width/--height must be within 1..16384".into()));
@@ -463,9 +472,11 @@ fn main() -> ExitCode {
     // after it) and ends quietly with 128 + SIGPIPE, the status a shell
     // reports for a command its reader stopped.
     let cli = Cli::parse();
+    #[cfg(feature = "view")]
     if matches!(cli.cmd, Cmd::Render { .. }) {
         quiet_device_select();
     }
+    #[cfg(feature = "view")]
     if matches!(cli.cmd, Cmd::Render { .. } | Cmd::View { .. }) {
         // Before any wgpu or winit call (see octolod::view::quiet).
         octolod::view::quiet::quiet_wayland_probes();
@@ -493,11 +504,20 @@ fn main() -> ExitCode {
 /// "error: XDG_RUNTIME_DIR is invalid" line its Wayland probe printed
 /// without a session, as do the GL backend's and `view`'s, is dropped by
 /// `octolod::view::quiet` whether or not the layer runs.)
+#[cfg(feature = "view")]
 fn quiet_device_select() {
     if std::env::var_os("MESA_VK_DEVICE_SELECT").is_none() && std::env::var_os("NODEVICE_SELECT").is_none() {
         // SAFETY: called from main before any other thread exists.
         unsafe { std::env::set_var("NODEVICE_SELECT", "1") };
     }
+}
+
+/// `view` and `render` in a build without the `view` feature (no wgpu, no
+/// winit): they stay in the command line, so `--help` lists them and a
+/// script gets this error (exit 1) instead of "unrecognized subcommand".
+#[cfg(not(feature = "view"))]
+fn no_view() -> octolod::Error {
+    octolod::Error::Usage("this octolod was built without the `view` feature (cargo install octolod --features view)".into())
 }
 
 fn run(cli: Cli) -> Result<ExitCode> {
@@ -519,6 +539,9 @@ fn run(cli: Cli) -> Result<ExitCode> {
             }
             Ok(ExitCode::SUCCESS)
         }
+        #[cfg(not(feature = "view"))]
+        Cmd::Render { .. } | Cmd::View { .. } => Err(no_view()),
+        #[cfg(feature = "view")]
         Cmd::Render { store, camera_path, frames, up, out, width, height, view, full_res, brute_force, settle, wireframe, diff_tolerance } => {
             if frames == 0 {
                 return Err(octolod::Error::Usage("render: --frames must be at least 1".into()));
@@ -571,6 +594,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
             }
             Ok(ExitCode::SUCCESS)
         }
+        #[cfg(feature = "view")]
         Cmd::View { store, view, window } => octolod::view::window::run_window(window.options(store, view.options()?, cli.quiet)?).map(|()| ExitCode::SUCCESS),
         Cmd::PlyInfo { input, header_only } => ply_info(&input, header_only, cli.quiet).map(|()| ExitCode::SUCCESS),
         Cmd::Serve { input, port, bind, open } => {

@@ -3,7 +3,7 @@
 # bundle (web/dist, embedded by `octolod serve`) must be what web/build.mjs
 # makes from web/src and the locked packages, and the page's own tests
 # (web/test/page.test.mjs: a fixture tileset in headless Chromium) pass.
-# The Rust side (tests/web.rs, tests/gltf.rs) runs in `cargo test`.
+# The Rust side (tests/it/web.rs, tests/it/gltf.rs) runs in `cargo test`.
 # OCTOLOD_SKIP_WEB_TESTS=1 skips it, as it does those tests.
 set -euo pipefail
 cd "$(dirname "$0")/.."

@@ -5,14 +5,14 @@
 //! levels) is built once per process; each input is a list of edits to its
 //! files (index `nodes.bin`, manifest `store.json`, `level-L.pack`):
 //! `[op, file, offset u32 LE, len, bytes...]` with op 0 overwrite, 1 XOR,
-//! 2 truncate, 3 insert (see `tests/common/store_mutation.rs`, shared with
-//! the fixed-seed run in `tests/reliability.rs`). The damaged copy is
+//! 2 truncate, 3 insert (see `tests/it/common/store_mutation.rs`, shared with
+//! the fixed-seed run in `tests/it/reliability.rs`). The damaged copy is
 //! written to a per-process directory, opened, read level by level and at
 //! two error cuts, and given one selection step. Any `Err` is an accepted
 //! outcome; a panic, abort, OOM, timeout or garbage accepted is a bug.
 #![no_main]
 
-#[path = "../../tests/common/store_mutation.rs"]
+#[path = "../../tests/it/common/store_mutation.rs"]
 mod store_mutation;
 
 use libfuzzer_sys::fuzz_target;

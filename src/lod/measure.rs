@@ -331,7 +331,7 @@ fn tri_dist2(p: [f64; 3], c: [[f64; 3]; 3]) -> f64 {
 /// vertices merge and the output's triangles can span it (a point over the
 /// hole, half its width from the input) or leave an input face beside it
 /// uncovered, with every vertex still on the other surface. On a grid
-/// with one-cell holes (`tests/lod.rs`,
+/// with one-cell holes (`tests/it/lod.rs`,
 /// `cuts_over_small_holes_stay_within_their_error`) a cut at
 /// `--max-error` E measured up to 8.8 E by metro; with these samples
 /// every cut from level 2 on is within E.

@@ -479,15 +479,30 @@ pub struct CameraPath {
 impl CameraPath {
     /// Reads a path file; `up` is used when the file names none.
     pub fn load(path: &Path, bounds: &Aabb, up: DVec3) -> Result<CameraPath> {
-        let text = read_path_file(path)?;
-        CameraPath::parse(&text, bounds, up).map_err(|m| Error::Usage(format!("{}: {m}", path.display())))
+        CameraPath::load_text(&read_path_file(path)?, path, bounds, up)
+    }
+
+    /// A path file's text, read once (a FIFO works) and bounded: read it
+    /// with this, then count ([`CameraPath::count_text`]) and parse
+    /// ([`CameraPath::load_text`]) the same text.
+    pub fn read_text(path: &Path) -> Result<String> {
+        read_path_file(path)
+    }
+
+    /// [`CameraPath::load`] of text read from `path` (named in errors).
+    pub fn load_text(text: &str, path: &Path, bounds: &Aabb, up: DVec3) -> Result<CameraPath> {
+        CameraPath::parse(text, bounds, up).map_err(|m| Error::Usage(format!("{}: {m}", path.display())))
     }
 
     /// The poses a path file expands to (at most [`MAX_FRAMES`]), without
     /// making them: `render` checks its counts with it before any work.
     pub fn count_file(path: &Path) -> Result<usize> {
-        let text = read_path_file(path)?;
-        let f: PathFile = serde_json::from_str(&text)
+        CameraPath::count_text(&read_path_file(path)?, path)
+    }
+
+    /// [`CameraPath::count_file`] of text read from `path`.
+    pub fn count_text(text: &str, path: &Path) -> Result<usize> {
+        let f: PathFile = serde_json::from_str(text)
             .map_err(|e| Error::Usage(format!("{}: not a valid camera path: {e}", path.display())))?;
         f.pose_count().map_err(|m| Error::Usage(format!("{}: {m}", path.display())))
     }

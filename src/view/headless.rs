@@ -139,14 +139,14 @@ pub fn draw_params(cam: &Camera, origin: glam::DVec3, w: u32, h: u32, wireframe:
 /// Checks the run's counts before any work: the path's poses (the orbit's
 /// `--frames`, or the path file's after expansion, counted without making
 /// them) and `--settle`, at most [`MAX_FRAMES`] together.
-fn check_counts(o: &RenderOptions) -> Result<()> {
+fn check_counts(o: &RenderOptions, path_text: Option<&str>) -> Result<()> {
     use crate::error::Error;
     if o.orbit_frames > MAX_FRAMES {
         return Err(Error::Usage(format!("render: --frames {} is more than {MAX_FRAMES} frames", o.orbit_frames)));
     }
-    let poses = match &o.camera_path {
-        Some(p) => CameraPath::count_file(p)?,
-        None => o.orbit_frames.max(1),
+    let poses = match (&o.camera_path, path_text) {
+        (Some(p), Some(t)) => CameraPath::count_text(t, p)?,
+        _ => o.orbit_frames.max(1),
     };
     if o.settle > MAX_FRAMES - poses {
         return Err(Error::Usage(format!(
@@ -159,7 +159,9 @@ fn check_counts(o: &RenderOptions) -> Result<()> {
 
 /// Renders the path; see the module doc.
 pub fn render(o: &RenderOptions) -> Result<RenderReport> {
-    check_counts(o)?;
+    // The camera path is read once (a FIFO works), counted, later parsed.
+    let path_text = o.camera_path.as_deref().map(CameraPath::read_text).transpose()?;
+    check_counts(o, path_text.as_deref())?;
     // The store and the camera path are never replaced by this output.
     let _inputs = [Some(&o.store), o.camera_path.as_ref()].map(|p| p.map(|p| crate::io::protect(p)));
     let out = AtomicDir::create(&o.out, crate::io::OutputKind::Frames, o.force)?;
@@ -168,7 +170,7 @@ pub fn render(o: &RenderOptions) -> Result<RenderReport> {
     let bounds = viewer.bounds();
     let origin = viewer.origin();
     let path = match &o.camera_path {
-        Some(p) => CameraPath::load(p, &bounds, o.up.resolve(&bounds))?,
+        Some(p) => CameraPath::load_text(path_text.as_deref().unwrap_or_default(), p, &bounds, o.up.resolve(&bounds))?,
         None => CameraPath::orbit(&bounds, o.orbit_frames.max(1), 0, o.up.resolve(&bounds)),
     };
     let reference = if o.brute_force {

@@ -15,16 +15,29 @@
 //! * [`headless`] — `octolod render`: camera paths, statistics, reference renders;
 //! * [`window`] — `octolod view`: the interactive window;
 //! * [`quiet`] — keeps libwayland's "no desktop session" line out of successful runs.
+//!
+//! The `view` cargo feature (on by default) holds the parts that need wgpu,
+//! winit and PNG output: `gpu`, `overlay`, `image`, `headless`, `window` and
+//! `quiet`. The rest (camera maths and paths, [`camera::Up`] and
+//! [`camera::guess_up`], selection, cache, the frame loop, [`DrawMesh`],
+//! [`DEFAULT_COLOR`]) is plain CPU code, always built: `tiles` and `gltf`
+//! use it, and a `--no-default-features` build is the headless tool.
 
 pub mod cache;
 pub mod camera;
+#[cfg(feature = "view")]
 pub mod gpu;
+#[cfg(feature = "view")]
 pub mod headless;
+#[cfg(feature = "view")]
 pub mod image;
+#[cfg(feature = "view")]
 pub mod overlay;
+#[cfg(feature = "view")]
 pub mod quiet;
 pub mod select;
 pub mod viewer;
+#[cfg(feature = "view")]
 pub mod window;
 
 pub use viewer::{FrameStats, ViewOptions, Viewer};

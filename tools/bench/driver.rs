@@ -523,6 +523,7 @@ mod tests {
                 note: None,
                 hausdorff: None,
                 tries: 0,
+                verify_samples: None,
             }),
             ..RunOut::new(method, target, 96, target, 22, format!("{}-{target}.ply", method.name()).into(), timed)
         }

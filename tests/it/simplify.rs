@@ -2,9 +2,8 @@
 //! targets checked with metro, attributes carried, hard cases bounded, and
 //! node-by-node results closed.
 
-mod common;
-
-use common::{build_from, edge_counts, gen_ply, weld_positions};
+use crate::common::cli::{bin, err};
+use crate::common::{build_from, edge_counts, gen_ply, this_test_again, weld_positions};
 use octolod::gen::Shape;
 use octolod::mesh::{AttrSet, Vertex};
 use octolod::reduce::{simplify_store, ReduceOptions, ReduceReport, Simplifier, Target};
@@ -51,10 +50,12 @@ fn bbox(v: &[Vertex]) -> octolod::mesh::Aabb {
     b
 }
 
-#[test]
-fn exact_counts_in_memory_from_1e3_to_1e6() {
+/// Simplifies spheres of `tris` triangles in memory to each of `targets`
+/// with both simplifiers: within 1 % of the target, reported reached, and
+/// closed with collapse.
+fn exact_counts_in_memory(cases: &[(u64, &[u64])]) {
     let dir = tempfile::tempdir().unwrap();
-    for (tris, targets) in [(1_000u64, &[500u64, 100][..]), (100_000, &[30_000, 1_000]), (1_000_000, &[250_000, 5_000])] {
+    for &(tris, targets) in cases {
         let (ply, _) = gen_ply(dir.path(), Shape::Sphere, tris, 0);
         let s = build_from(dir.path(), &ply, 16_384);
         for &n in targets {
@@ -71,6 +72,17 @@ fn exact_counts_in_memory_from_1e3_to_1e6() {
             }
         }
     }
+}
+
+#[test]
+fn exact_counts_in_memory_from_1e3_to_1e5() {
+    exact_counts_in_memory(&[(1_000, &[500, 100]), (100_000, &[30_000, 1_000])]);
+}
+
+#[test]
+#[ignore = "slow: 1 M triangles; run with --ignored"]
+fn exact_counts_in_memory_at_1e6() {
+    exact_counts_in_memory(&[(1_000_000, &[250_000, 5_000])]);
 }
 
 #[test]
@@ -213,7 +225,7 @@ fn attributes_survive_both_simplifiers() {
 }
 
 #[test]
-fn hard_cases_stay_finite_and_bounded_with_collapse() {
+fn hard_cases_stay_finite_and_bounded_with_both_simplifiers() {
     let dir = tempfile::tempdir().unwrap();
     for (shape, attrs) in [
         (Shape::Plane, 0),
@@ -250,12 +262,11 @@ fn hard_cases_stay_finite_and_bounded_with_collapse() {
 }
 
 #[test]
-fn cli_targets_and_exit_codes() {
+fn cli_targets_are_met_and_bad_requests_exit_1_or_2() {
     let dir = tempfile::tempdir().unwrap();
     let (ply, _) = gen_ply(dir.path(), Shape::Terrain, 30_000, 0);
-    let bin = env!("CARGO_BIN_EXE_octolod");
     let out = dir.path().join("o.ply");
-    let go = |args: &[&str]| Command::new(bin).arg("--quiet").args(args).output().unwrap();
+    let go = |args: &[&str]| Command::new(bin()).arg("--quiet").args(args).output().unwrap();
     let o = go(&["simplify", ply.to_str().unwrap(), "-o", out.to_str().unwrap(), "--target-ratio", "0.1", "--json"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let j: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
@@ -284,43 +295,22 @@ fn cli_targets_and_exit_codes() {
     assert!(j["triangles"].as_u64().unwrap() < input, "{j}");
 }
 
-/// Runs octolod with `args` and gives its exit code, stdout, stderr and
-/// peak resident set size in bytes. `wait4`'s `ru_maxrss` also counts the
-/// high-water mark of the memory a child execs from — a child of this test
-/// process starts in this process's memory (vfork), which the tests running
-/// alongside take to hundreds of MiB — so the command is started from a
-/// fresh run of this test binary doing nothing else ([`measure_child`]).
-fn run_measured(args: &[&str]) -> (Option<i32>, Vec<u8>, String, u64) {
-    let d = tempfile::tempdir().unwrap();
-    let o = Command::new(std::env::current_exe().unwrap())
-        .args(["--exact", "measure_child", "--nocapture", "--test-threads", "1"])
-        .env(MEASURE, args.join("\u{1f}"))
-        .env(MEASURE_OUT, d.path())
-        .output()
-        .unwrap();
-    let text = String::from_utf8_lossy(&o.stdout);
-    // The harness prints the test's name on the same line first.
-    let line = text.split("measured: ").nth(1).and_then(|r| r.lines().next()).unwrap_or_else(|| panic!("{text}"));
-    let (code, peak) = line.split_once(' ').unwrap();
-    let read = |n: &str| std::fs::read(d.path().join(n)).unwrap();
-    (code.parse().ok(), read("stdout"), String::from_utf8_lossy(&read("stderr")).into_owned(), peak.parse().unwrap())
-}
-
+/// The test [`the_command_writes_an_output_larger_than_mem_within_mem`]
+/// runs `simplify` from a fresh run of this test binary (doing nothing
+/// else) with the arguments in this variable, `\u{1f}`-separated; the
+/// child's output files go to the directory in [`MEASURE_OUT`].
 const MEASURE: &str = "OCTOLOD_TEST_MEASURE";
 const MEASURE_OUT: &str = "OCTOLOD_TEST_MEASURE_OUT";
 
-/// For [`run_measured`] only (does nothing otherwise): runs octolod with
-/// the arguments in `$OCTOLOD_TEST_MEASURE`, its output into files, and
-/// prints `measured: CODE PEAK_BYTES`.
-#[test]
-fn measure_child() {
+/// The measuring child's part: runs octolod with the arguments in
+/// `$OCTOLOD_TEST_MEASURE`, its output into files, and prints `measured:
+/// CODE PEAK_BYTES` (its peak resident set size, from `wait4`).
+fn measure(args: &str, dir: &Path) {
     use std::process::Stdio;
-    let (Ok(args), Ok(dir)) = (std::env::var(MEASURE), std::env::var(MEASURE_OUT)) else { return };
-    let dir = Path::new(&dir);
     let file = |n: &str| Stdio::from(std::fs::File::create(dir.join(n)).unwrap());
     // Reaped below by wait4 (which gives its rusage), not by `wait()`.
     #[allow(clippy::zombie_processes)]
-    let child = Command::new(env!("CARGO_BIN_EXE_octolod")).args(args.split('\u{1f}')).stdout(file("stdout")).stderr(file("stderr")).spawn().unwrap();
+    let child = Command::new(bin()).args(args.split('\u{1f}')).stdout(file("stdout")).stderr(file("stderr")).spawn().unwrap();
     let mut status = 0;
     // SAFETY: plain structs the kernel fills; the child is ours and not yet reaped.
     let mut ru: libc::rusage = unsafe { std::mem::zeroed() };
@@ -330,27 +320,39 @@ fn measure_child() {
     println!("measured: {code} {}", ru.ru_maxrss as u64 * 1024);
 }
 
+/// Runs octolod with `args` and gives its exit code, stdout, stderr and
+/// peak resident set size in bytes. `wait4`'s `ru_maxrss` also counts the
+/// high-water mark of the memory a child execs from — a child of this test
+/// process starts in this process's memory (vfork), which the tests running
+/// alongside take to hundreds of MiB — so the command is started from a
+/// fresh run of this test (`test`, of this module) doing nothing else:
+/// [`measure`].
+fn run_measured(test: &str, args: &[&str]) -> (Option<i32>, Vec<u8>, String, u64) {
+    let d = tempfile::tempdir().unwrap();
+    let o = this_test_again(module_path!(), test).env(MEASURE, args.join("\u{1f}")).env(MEASURE_OUT, d.path()).output().unwrap();
+    let text = String::from_utf8_lossy(&o.stdout);
+    // The harness prints the test's name on the same line first.
+    let line = text.split("measured: ").nth(1).and_then(|r| r.lines().next()).unwrap_or_else(|| panic!("{text}{}", err(&o)));
+    let (code, peak) = line.split_once(' ').unwrap();
+    let read = |n: &str| std::fs::read(d.path().join(n)).unwrap();
+    (code.parse().ok(), read("stdout"), String::from_utf8_lossy(&read("stderr")).into_owned(), peak.parse().unwrap())
+}
+
 #[test]
 fn the_command_writes_an_output_larger_than_mem_within_mem() {
+    // In the measuring child (see `run_measured`): only the measurement.
+    if let (Ok(args), Ok(dir)) = (std::env::var(MEASURE), std::env::var(MEASURE_OUT)) {
+        return measure(&args, Path::new(&dir));
+    }
     let dir = tempfile::tempdir().unwrap();
     let (ply, _) = gen_ply(dir.path(), Shape::Sphere, 200_000, 0);
     let out = dir.path().join("o.ply");
     let (n, mem) = (100_000u64, 16u64 << 20);
     assert!(n * Simplifier::Collapse.bytes_per_triangle() > mem);
-    let (code, stdout, stderr, peak) = run_measured(&[
-        "--quiet",
-        "simplify",
-        ply.to_str().unwrap(),
-        "-o",
-        out.to_str().unwrap(),
-        "--target-tris",
-        &n.to_string(),
-        "--mem",
-        "16M",
-        "--leaf-tris",
-        "4096",
-        "--json",
-    ]);
+    let (code, stdout, stderr, peak) = run_measured(
+        "the_command_writes_an_output_larger_than_mem_within_mem",
+        &["--quiet", "simplify", ply.to_str().unwrap(), "-o", out.to_str().unwrap(), "--target-tris", &n.to_string(), "--mem", "16M", "--leaf-tris", "4096", "--json"],
+    );
     assert_eq!(code, Some(0), "{stderr}");
     let r: ReduceReport = serde_json::from_slice(&stdout).unwrap();
     assert_eq!(r.route, "per-node", "{r:?}");

@@ -2,7 +2,8 @@
 //! every triangle exactly once (level 0 round-trips exactly), and does not
 //! depend on the memory budget.
 
-use octolod::gen::{GenOptions, Generator, Shape};
+use crate::common::gen_mesh;
+use octolod::gen::Shape;
 use octolod::mesh::{AttrSet, Vertex};
 use octolod::octree::{build_octree, FirstCount, OctreeOptions};
 use octolod::ply::write::{write_ply, PlyWriteOptions};
@@ -12,10 +13,9 @@ use octolod::lod::partition::{LevelCube, KEY_DEPTH};
 use std::path::Path;
 
 fn make_soup(dir: &Path, shape: Shape, tris: u64, attrs: u32) -> std::path::PathBuf {
-    let g = Generator::new(&GenOptions { shape, tris, seed: 3, attrs: AttrSet(attrs) });
-    let (v, f) = g.mesh();
+    let m = gen_mesh(shape, tris, attrs, 3);
     let ply = dir.join("in.ply");
-    write_ply(&ply, &PlyWriteOptions { attrs: AttrSet(attrs), ..Default::default() }, &v, &f).unwrap();
+    write_ply(&ply, &PlyWriteOptions { attrs: AttrSet(attrs), ..Default::default() }, &m.vertices, &m.triangles).unwrap();
     let soup = dir.join("in.soup");
     build_soup(&ply, &soup, &SoupOptions::default()).unwrap();
     soup
@@ -187,8 +187,7 @@ fn duplicate_triangles_stay_duplicated() {
 #[test]
 fn a_stray_vertex_outside_the_faces_falls_back_to_the_written_soup() {
     let dir = tempfile::tempdir().unwrap();
-    let g = Generator::new(&GenOptions { shape: Shape::Sphere, tris: 20_000, seed: 5, attrs: AttrSet(0) });
-    let (mut v, f) = g.mesh();
+    let octolod::store::IndexedMesh { vertices: mut v, triangles: f } = gen_mesh(Shape::Sphere, 20_000, 0, 5);
     v.push(Vertex { pos: [40.0, -3.0, 7.0], ..Default::default() });
     let ply = dir.path().join("stray.ply");
     write_ply(&ply, &PlyWriteOptions::default(), &v, &f).unwrap();

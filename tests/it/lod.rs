@@ -3,9 +3,8 @@
 //! halve; seams of one level are free at the next; level 0 is the input;
 //! node errors are measured deviations; normals agree across seams.
 
-mod common;
-
-use common::{build_with, crack_report, random_cut, Rng, SIMPLIFIERS};
+use crate::common;
+use crate::common::{build_with, crack_report, random_cut, Rng, SIMPLIFIERS};
 use octolod::gen::Shape;
 use octolod::mesh::{AttrSet, Vertex};
 use octolod::pipeline::{extract, CutSpec};

@@ -1,5 +1,8 @@
-//! Fixtures shared by the integration tests: generated meshes written as
-//! PLY, stores built from them, and the crack checks for cuts.
+//! The harness every test module shares: the fixture set (the hand-made
+//! PLYs in `fixtures/`, generated meshes written as PLY, stores built from
+//! them), running the binaries ([`cli`]), the crack checks for cuts, image
+//! masks, reading JSON reports, and re-running one test of this binary in
+//! a child process.
 #![allow(dead_code)]
 
 use octolod::gen::{GenOptions, Generator, Shape};
@@ -13,7 +16,21 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 pub mod cli;
+#[cfg(feature = "view")]
+pub mod gpu;
 pub mod store_mutation;
+
+/// A hand-made PLY of `fixtures/` (see fixtures/make_fixtures.py), or one
+/// of the fuzzer's findings (`fuzz/NAME`: fixtures/fuzz/).
+pub fn fixture(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures").join(name)
+}
+
+/// The generator's mesh: `shape` with `tris` triangles, `attrs`, `seed`.
+pub fn gen_mesh(shape: Shape, tris: u64, attrs: u32, seed: u64) -> IndexedMesh {
+    let (vertices, triangles) = Generator::new(&GenOptions { shape, tris, seed, attrs: AttrSet(attrs) }).mesh();
+    IndexedMesh { vertices, triangles }
+}
 
 /// Generates `shape` with `tris` triangles and `attrs`, writes it as
 /// `dir/NAME.ply`; gives the path and the mesh.
@@ -23,11 +40,10 @@ pub fn gen_ply(dir: &Path, shape: Shape, tris: u64, attrs: u32) -> (PathBuf, Ind
 
 /// [`gen_ply`] with the generator's seed given.
 pub fn gen_ply_seeded(dir: &Path, shape: Shape, tris: u64, attrs: u32, seed: u64) -> (PathBuf, IndexedMesh) {
-    let g = Generator::new(&GenOptions { shape, tris, seed, attrs: AttrSet(attrs) });
-    let (v, f) = g.mesh();
+    let m = gen_mesh(shape, tris, attrs, seed);
     let ply = dir.join(format!("{}-{tris}-{attrs}.ply", shape.name()));
-    write_ply(&ply, &PlyWriteOptions { attrs: AttrSet(attrs), ..Default::default() }, &v, &f).unwrap();
-    (ply, IndexedMesh { vertices: v, triangles: f })
+    write_ply(&ply, &PlyWriteOptions { attrs: AttrSet(attrs), ..Default::default() }, &m.vertices, &m.triangles).unwrap();
+    (ply, m)
 }
 
 /// Both node simplifiers of the hierarchy, for tests run on each.
@@ -273,4 +289,75 @@ pub fn corrupt_packs_below_top(store: &Path) {
         }
         std::fs::write(&p, b).unwrap();
     }
+}
+
+/// This test binary run again for the one test `name` of module `module`
+/// (its `module_path!()`), alone and with its output shown: how a test
+/// runs part of itself in a fresh process (another environment, a small
+/// address space).
+pub fn this_test_again(module: &str, name: &str) -> std::process::Command {
+    // libtest names a test by its path below the crate (`gpu::x`, not `it::gpu::x`).
+    let below = module.split_once("::").map_or("", |(_, m)| m);
+    let mut c = std::process::Command::new(std::env::current_exe().unwrap());
+    c.args(["--exact", &format!("{below}::{name}"), "--nocapture", "--test-threads=1"]);
+    c
+}
+
+/// Runs `f` on a thread of its own; fails the test when it is still
+/// running after `secs` seconds (a hang), or when it panics.
+pub fn finishes<T: Send + 'static>(secs: u64, what: &str, f: impl FnOnce() -> T + Send + 'static) -> T {
+    let (tx, rx) = std::sync::mpsc::channel();
+    let worker = std::thread::spawn(move || {
+        let r = f();
+        let _ = tx.send(());
+        r
+    });
+    match rx.recv_timeout(std::time::Duration::from_secs(secs)) {
+        Ok(()) | Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => worker.join().unwrap_or_else(|p| std::panic::resume_unwind(p)),
+        Err(std::sync::mpsc::RecvTimeoutError::Timeout) => panic!("{what} still running after {secs} s"),
+    }
+}
+
+/// Whether GPU tests are skipped explicitly (OCTOLOD_SKIP_GPU_TESTS=1,
+/// for machines without a Vulkan or GL adapter); says so when they are.
+pub fn gpu_tests_skipped() -> bool {
+    let skip = std::env::var("OCTOLOD_SKIP_GPU_TESTS").as_deref() == Ok("1");
+    if skip {
+        eprintln!("OCTOLOD_SKIP_GPU_TESTS=1: skipping a GPU test");
+    }
+    skip
+}
+
+/// sRGB to linear, for a channel in [0, 1]: the transfer function's
+/// inverse written out here, independently of the library's.
+pub fn srgb_to_linear(c: f64) -> f64 {
+    if c <= 0.04045 {
+        c / 12.92
+    } else {
+        ((c + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+/// Which pixels of an RGBA8 image are not the background `bg` (by colour).
+pub fn mask(img: &[u8], bg: [u8; 4]) -> Vec<bool> {
+    img.chunks_exact(4).map(|p| p[..3] != bg[..3]).collect()
+}
+
+/// The pixels of a `w` x `h` mask whose every neighbour within `r` (a
+/// square) is in the mask too.
+pub fn eroded(m: &[bool], w: u32, h: u32, r: i64) -> Vec<bool> {
+    let at = |x: i64, y: i64| x >= 0 && y >= 0 && x < w as i64 && y < h as i64 && m[(y * w as i64 + x) as usize];
+    (0..(w * h) as i64).map(|i| (-r..=r).all(|dy| (-r..=r).all(|dx| at(i % w as i64 + dx, i / w as i64 + dy)))).collect()
+}
+
+/// Parses a command's JSON output; panics with the text when it is not JSON.
+pub fn json(text: &[u8]) -> serde_json::Value {
+    serde_json::from_slice(text).unwrap_or_else(|e| panic!("{e}: {}", String::from_utf8_lossy(text)))
+}
+
+/// Whether two figures are equal up to `serde_json`'s float parsing (an
+/// ulp or two off the nearest double without its `float_roundtrip`
+/// feature): for a figure read from JSON against one computed here.
+pub fn same_figure(a: f64, b: f64) -> bool {
+    (a - b).abs() <= 4.0 * f64::EPSILON * a.abs().max(b.abs())
 }

@@ -1,6 +1,6 @@
 //! Store mutation harness, shared by the store fuzz target
 //! (`fuzz/fuzz_targets/store_open.rs`, which includes this file) and
-//! `tests/reliability.rs` (a fixed-seed run of the same mutations, plus the
+//! `tests/it/reliability.rs` (a fixed-seed run of the same mutations, plus the
 //! fuzzer's regressions).
 //!
 //! Takes: a small store's files and bytes saying how to damage them. Gives:

@@ -4,8 +4,7 @@
 //! refinement converges, and the hysteresis keeps the cut still when the
 //! camera jitters at a threshold.
 
-mod common;
-
+use crate::common;
 use glam::DVec3;
 use octolod::gen::Shape;
 use octolod::view::camera::{Camera, CameraPath};

@@ -6,12 +6,9 @@ use octolod::mesh::{AttrSet, Vertex, VertexLayout};
 use octolod::ply::read::read_all;
 use octolod::soup::format::SoupReader;
 use octolod::soup::{build_soup, SoupOptions};
+use crate::common::fixture;
 use std::io::Write;
-use std::path::{Path, PathBuf};
-
-fn fixture(name: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures").join(name)
-}
+use std::path::Path;
 
 /// The mesh every fixture encodes (see fixtures/make_fixtures.py).
 fn expected_vertex(i: u32) -> Vertex {

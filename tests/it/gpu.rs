@@ -3,24 +3,13 @@
 //! They fail when no adapter exists, so a missing driver cannot pass for
 //! working rendering; set OCTOLOD_SKIP_GPU_TESTS=1 to skip them explicitly.
 
+use crate::common::gpu::{renderer as renderer_with, without_desktop_session};
+use crate::common::{srgb_to_linear, this_test_again};
 use glam::{Mat4, Vec3};
 use octolod::view::gpu::{clear_rgba8, DrawParams, GpuMesh, Renderer, RendererOptions, WireframeMode, AMBIENT};
 use octolod::view::image::{background_fraction, compare};
 use octolod::view::overlay::{overlay_text, OverlayImage};
 use octolod::view::{DrawMesh, GpuBytes, GpuVertex};
-
-fn renderer_with(w: u32, h: u32, opts: RendererOptions) -> Option<Renderer> {
-    // As `view` and `render` do: no libwayland "XDG_RUNTIME_DIR" noise in the logs.
-    octolod::view::quiet::quiet_wayland_probes();
-    match Renderer::headless_with(w, h, opts) {
-        Ok(r) => Some(r),
-        Err(e) if std::env::var("OCTOLOD_SKIP_GPU_TESTS").as_deref() == Ok("1") => {
-            eprintln!("skipping GPU test (OCTOLOD_SKIP_GPU_TESTS=1): {e}");
-            None
-        }
-        Err(e) => panic!("{e} (set OCTOLOD_SKIP_GPU_TESTS=1 to skip GPU tests)"),
-    }
-}
 
 fn renderer(w: u32, h: u32) -> Option<Renderer> {
     renderer_with(w, h, RendererOptions::default())
@@ -70,13 +59,6 @@ fn near(a: [u8; 4], b: [u8; 4], tol: u8) -> bool {
     a.iter().zip(&b).all(|(x, y)| x.abs_diff(*y) <= tol)
 }
 
-fn srgb_to_linear(c: f64) -> f64 {
-    if c <= 0.04045 {
-        c / 12.92
-    } else {
-        ((c + 0.055) / 1.055).powf(2.4)
-    }
-}
 fn linear_to_srgb(c: f64) -> f64 {
     if c <= 0.0031308 {
         c * 12.92
@@ -187,7 +169,7 @@ fn wireframe_covers_fewer_pixels_than_fill() {
 }
 
 #[test]
-fn readback_of_widths_that_are_not_multiples_of_64() {
+fn widths_that_are_not_multiples_of_64_read_back_without_row_padding() {
     for (w, h) in [(250u32, 130u32), (67, 33)] {
         let Some(mut r) = renderer(w, h) else { return };
         // Identity transform: a quad over the left half of clip space.
@@ -286,7 +268,7 @@ fn renderer_prints_no_wayland_error_line_without_a_desktop_session() {
                 println!("NO-GL-ADAPTER: {e}");
                 return;
             }
-            Err(e) if std::env::var("OCTOLOD_SKIP_GPU_TESTS").as_deref() == Ok("1") => {
+            Err(e) if crate::common::gpu_tests_skipped() => {
                 println!("SKIPPED: {e}");
                 return;
             }
@@ -298,17 +280,10 @@ fn renderer_prints_no_wayland_error_line_without_a_desktop_session() {
         println!("CHILD-RENDERED on {:?}", r.adapter_info().backend);
         return;
     }
-    let exe = std::env::current_exe().unwrap();
     for backend in ["default", "gl"] {
-        let mut cmd = std::process::Command::new(&exe);
-        cmd.args(["--exact", "renderer_prints_no_wayland_error_line_without_a_desktop_session", "--nocapture", "--test-threads=1"]);
+        let mut cmd = this_test_again(module_path!(), "renderer_prints_no_wayland_error_line_without_a_desktop_session");
         cmd.env(WAYLAND_CHILD, backend);
-        for v in ["XDG_RUNTIME_DIR", "WAYLAND_DISPLAY", "WAYLAND_SOCKET", "NODEVICE_SELECT", "MESA_VK_DEVICE_SELECT", "WGPU_BACKEND"] {
-            cmd.env_remove(v);
-        }
-        if backend == "gl" {
-            cmd.env("WGPU_BACKEND", "gl");
-        }
+        without_desktop_session(&mut cmd, backend);
         let o = cmd.output().unwrap();
         let (out, err) = (String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr));
         assert!(o.status.success(), "{backend}: {out}\n{err}");

@@ -3,20 +3,22 @@
 //! against the PLY it was built from; and the command line (JSON, thresholds
 //! and exit codes, determinism).
 
-use octolod::gen::{GenOptions, Generator, Shape};
+use crate::common::cli::{err as text_err, octolod, out as text_out};
+use crate::common::{build_options, build_store_at, gen_mesh, json, same_figure, BuildParams};
+use octolod::gen::Shape;
 use octolod::mesh::{AttrSet, Vertex};
 use octolod::metro::{compare, Mesh, Options};
 use octolod::ply::write::{write_ply, PlyWriteOptions};
-use std::collections::{BTreeMap, HashMap};
+use serde_json::Value;
+use std::collections::HashMap;
 use std::path::Path;
-use std::process::{Command, Output};
 
 // ---------------------------------------------------------------------------
 // Helpers.
 
 fn generated(shape: Shape, tris: u64) -> Mesh {
-    let (v, t) = Generator::new(&GenOptions { shape, tris, seed: 3, attrs: AttrSet::POSITION_ONLY }).mesh();
-    Mesh::from_vertices(&v, t)
+    let m = gen_mesh(shape, tris, 0, 3);
+    Mesh::from_vertices(&m.vertices, m.triangles)
 }
 
 /// A subdivided icosahedron with every vertex on the unit sphere.
@@ -96,162 +98,15 @@ fn write_mesh(path: &Path, m: &Mesh) {
     write_ply(path, &o, &v, &m.triangles).unwrap();
 }
 
-fn octolod(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_octolod")).args(args).output().unwrap()
+/// The value at `path` (keys joined by dots) of a JSON report.
+fn get<'a>(j: &'a Value, path: &str) -> &'a Value {
+    path.split('.').fold(j, |v, k| v.get(k).unwrap_or_else(|| panic!("no '{k}' in {path}: {j}")))
 }
 
-fn text(b: &[u8]) -> String {
-    String::from_utf8_lossy(b).into_owned()
-}
-
-/// A minimal JSON reader (enough to check the report is one valid object).
-#[derive(Debug, Clone, PartialEq)]
-enum Json {
-    Null,
-    Bool(bool),
-    Num(f64),
-    Str(String),
-    Arr(Vec<Json>),
-    Obj(BTreeMap<String, Json>),
-}
-
-impl Json {
-    fn parse(s: &str) -> Result<Json, String> {
-        let b = s.trim().as_bytes();
-        let mut i = 0;
-        let v = Self::value(b, &mut i)?;
-        if i != b.len() {
-            return Err(format!("trailing bytes at {i}"));
-        }
-        Ok(v)
-    }
-    fn ws(b: &[u8], i: &mut usize) {
-        while *i < b.len() && b[*i].is_ascii_whitespace() {
-            *i += 1;
-        }
-    }
-    fn value(b: &[u8], i: &mut usize) -> Result<Json, String> {
-        Self::ws(b, i);
-        let lit = |i: &mut usize, w: &str, v: Json| {
-            if b[*i..].starts_with(w.as_bytes()) {
-                *i += w.len();
-                Ok(v)
-            } else {
-                Err(format!("bad literal at {i}"))
-            }
-        };
-        match b.get(*i) {
-            Some(b'{') => {
-                *i += 1;
-                let mut m = BTreeMap::new();
-                Self::ws(b, i);
-                if b.get(*i) == Some(&b'}') {
-                    *i += 1;
-                    return Ok(Json::Obj(m));
-                }
-                loop {
-                    Self::ws(b, i);
-                    let Json::Str(k) = Self::value(b, i)? else { return Err(format!("key expected at {i}")) };
-                    Self::ws(b, i);
-                    if b.get(*i) != Some(&b':') {
-                        return Err(format!("':' expected at {i}"));
-                    }
-                    *i += 1;
-                    let v = Self::value(b, i)?;
-                    if m.insert(k.clone(), v).is_some() {
-                        return Err(format!("duplicate key {k}"));
-                    }
-                    Self::ws(b, i);
-                    match b.get(*i) {
-                        Some(b',') => *i += 1,
-                        Some(b'}') => {
-                            *i += 1;
-                            return Ok(Json::Obj(m));
-                        }
-                        _ => return Err(format!("',' or '}}' expected at {i}")),
-                    }
-                }
-            }
-            Some(b'[') => {
-                *i += 1;
-                let mut v = Vec::new();
-                Self::ws(b, i);
-                if b.get(*i) == Some(&b']') {
-                    *i += 1;
-                    return Ok(Json::Arr(v));
-                }
-                loop {
-                    v.push(Self::value(b, i)?);
-                    Self::ws(b, i);
-                    match b.get(*i) {
-                        Some(b',') => *i += 1,
-                        Some(b']') => {
-                            *i += 1;
-                            return Ok(Json::Arr(v));
-                        }
-                        _ => return Err(format!("',' or ']' expected at {i}")),
-                    }
-                }
-            }
-            Some(b'"') => {
-                *i += 1;
-                let mut s = String::new();
-                while let Some(&c) = b.get(*i) {
-                    *i += 1;
-                    match c {
-                        b'"' => return Ok(Json::Str(s)),
-                        b'\\' => {
-                            let e = *b.get(*i).ok_or("eof in escape")?;
-                            *i += 1;
-                            match e {
-                                b'"' | b'\\' | b'/' => s.push(e as char),
-                                b'n' => s.push('\n'),
-                                b't' => s.push('\t'),
-                                b'r' => s.push('\r'),
-                                b'u' => {
-                                    let h = std::str::from_utf8(&b[*i..*i + 4]).map_err(|e| e.to_string())?;
-                                    s.push(char::from_u32(u32::from_str_radix(h, 16).map_err(|e| e.to_string())?).unwrap_or('?'));
-                                    *i += 4;
-                                }
-                                _ => return Err(format!("bad escape at {i}")),
-                            }
-                        }
-                        c if c < 0x20 => return Err("control character in string".into()),
-                        c => s.push(c as char),
-                    }
-                }
-                Err("unterminated string".into())
-            }
-            Some(b't') => lit(i, "true", Json::Bool(true)),
-            Some(b'f') => lit(i, "false", Json::Bool(false)),
-            Some(b'n') => lit(i, "null", Json::Null),
-            Some(c) if *c == b'-' || c.is_ascii_digit() => {
-                let s0 = *i;
-                while *i < b.len() && (b[*i].is_ascii_digit() || b"+-.eE".contains(&b[*i])) {
-                    *i += 1;
-                }
-                let t = std::str::from_utf8(&b[s0..*i]).unwrap();
-                t.parse::<f64>().map(Json::Num).map_err(|_| format!("bad number '{t}'"))
-            }
-            _ => Err(format!("unexpected byte at {i}")),
-        }
-    }
-    fn get(&self, path: &str) -> &Json {
-        let mut v = self;
-        for k in path.split('.') {
-            v = match v {
-                Json::Obj(m) => m.get(k).unwrap_or_else(|| panic!("no '{k}' in {path}")),
-                _ => panic!("'{path}': not an object at '{k}'"),
-            };
-        }
-        v
-    }
-    fn num(&self, path: &str) -> f64 {
-        match self.get(path) {
-            Json::Num(x) => *x,
-            o => panic!("{path} is {o:?}, not a number"),
-        }
-    }
+/// The number at `path` of a JSON report.
+fn num(j: &Value, path: &str) -> f64 {
+    let v = get(j, path);
+    v.as_f64().unwrap_or_else(|| panic!("{path} is {v}, not a number"))
 }
 
 // ---------------------------------------------------------------------------
@@ -344,41 +199,42 @@ fn thresholds_set_the_exit_code_and_json_has_the_fields() {
     let (a, b) = (a.to_str().unwrap(), b.to_str().unwrap());
 
     let o = octolod(&["metro", a, b, "--json", "--max-hausdorff", "1%"]);
-    assert_eq!(o.status.code(), Some(0), "{}", text(&o.stderr));
-    let j = Json::parse(&text(&o.stdout)).unwrap_or_else(|e| panic!("{e}: {}", text(&o.stdout)));
+    assert_eq!(o.status.code(), Some(0), "{}", text_err(&o));
+    let j = json(&o.stdout);
     for k in ["a_to_b", "b_to_a", "combined"] {
         for f in ["max", "mean", "rms", "max_rel", "mean_rel", "rms_rel", "samples", "vertex_samples", "edge_samples", "face_samples"] {
-            let _ = j.num(&format!("{k}.{f}"));
+            let _ = num(&j, &format!("{k}.{f}"));
         }
-        assert_eq!(j.num(&format!("{k}.max_rel")), j.num(&format!("{k}.max")) / j.num("diagonal"));
+        let (rel, max, diag) = (num(&j, &format!("{k}.max_rel")), num(&j, &format!("{k}.max")), num(&j, "diagonal"));
+        assert!(same_figure(rel, max / diag), "{k}: max_rel {rel}, max / diagonal {}", max / diag);
     }
     for k in ["a", "b"] {
-        let _ = (j.num(&format!("{k}.faces")), j.num(&format!("{k}.vertices")), j.num(&format!("{k}.diagonal")));
-        assert!(matches!(j.get(&format!("{k}.bbox.min")), Json::Arr(v) if v.len() == 3));
+        let _ = (num(&j, &format!("{k}.faces")), num(&j, &format!("{k}.vertices")), num(&j, &format!("{k}.diagonal")));
+        assert_eq!(get(&j, &format!("{k}.bbox.min")).as_array().map(Vec::len), Some(3));
     }
-    assert_eq!(j.num("a.faces"), 1280.0);
-    assert_eq!(j.num("b.faces"), 320.0);
-    assert_eq!(j.num("samples_target"), 12800.0);
-    assert_eq!(j.get("diagonal_of"), &Json::Str("a".into()));
-    assert_eq!(j.get("pass"), &Json::Bool(true));
-    let h = j.num("hausdorff");
-    assert_eq!(h, j.num("combined.max"));
-    assert_eq!(h, j.num("a_to_b.max").max(j.num("b_to_a.max")));
-    let diag = j.num("diagonal");
+    assert_eq!(num(&j, "a.faces"), 1280.0);
+    assert_eq!(num(&j, "b.faces"), 320.0);
+    assert_eq!(num(&j, "samples_target"), 12800.0);
+    assert_eq!(get(&j, "diagonal_of"), "a");
+    assert_eq!(get(&j, "pass"), &true);
+    let h = num(&j, "hausdorff");
+    assert_eq!(h, num(&j, "combined.max"));
+    assert_eq!(h, num(&j, "a_to_b.max").max(num(&j, "b_to_a.max")));
+    let diag = num(&j, "diagonal");
     assert!((diag - 2.0 * 3f64.sqrt()).abs() < 1e-3, "{diag}");
     // A 1 % limit passes, so the distance is below 3.46e-2; but it is not tiny.
     assert!(h > 1e-3 && h < 0.01 * diag, "{h}");
-    assert!(text(&o.stderr).is_empty(), "{}", text(&o.stderr));
-    let Json::Arr(th) = j.get("thresholds") else { panic!() };
+    assert!(text_err(&o).is_empty(), "{}", text_err(&o));
+    let th = get(&j, "thresholds").as_array().unwrap();
     assert_eq!(th.len(), 1);
-    assert_eq!(th[0].get("exceeded"), &Json::Bool(false));
-    assert!((th[0].num("limit") - 0.01 * diag).abs() < 1e-15);
+    assert_eq!(get(&th[0], "exceeded"), &false);
+    assert!((num(&th[0], "limit") - 0.01 * diag).abs() < 1e-15);
 
     // An absolute limit below the distance fails with exit 3, naming it.
     let o = octolod(&["metro", a, b, "--max-hausdorff", "0.0001"]);
-    assert_eq!(o.status.code(), Some(3), "{}", text(&o.stderr));
-    assert!(text(&o.stderr).contains("--max-hausdorff"), "{}", text(&o.stderr));
-    assert!(text(&o.stdout).contains("A -> B") && text(&o.stdout).contains("B -> A"), "{}", text(&o.stdout));
+    assert_eq!(o.status.code(), Some(3), "{}", text_err(&o));
+    assert!(text_err(&o).contains("--max-hausdorff"), "{}", text_err(&o));
+    assert!(text_out(&o).contains("A -> B") && text_out(&o).contains("B -> A"), "{}", text_out(&o));
     // Percentages: just above and just below the measured relative figure.
     let pct = 100.0 * h / diag;
     let above = format!("{}%", pct * 1.01);
@@ -386,22 +242,22 @@ fn thresholds_set_the_exit_code_and_json_has_the_fields() {
     assert_eq!(octolod(&["metro", a, b, "--max-hausdorff", &above]).status.code(), Some(0));
     let o = octolod(&["metro", a, b, "--max-hausdorff", &below, "--json"]);
     assert_eq!(o.status.code(), Some(3));
-    let j = Json::parse(&text(&o.stdout)).unwrap();
-    assert_eq!(j.get("pass"), &Json::Bool(false));
+    let j = json(&o.stdout);
+    assert_eq!(get(&j, "pass"), &false);
     // RMS and mean limits, only the exceeded one reported.
-    let (rms, mean) = (j.num("combined.rms"), j.num("combined.mean"));
+    let (rms, mean) = (num(&j, "combined.rms"), num(&j, "combined.mean"));
     let o = octolod(&["metro", a, b, "--max-rms", &format!("{}", rms * 0.9), "--max-mean", &format!("{}", mean * 1.1)]);
     assert_eq!(o.status.code(), Some(3));
-    let e = text(&o.stderr);
+    let e = text_err(&o);
     assert!(e.contains("--max-rms") && !e.contains("--max-mean"), "{e}");
     let o = octolod(&["metro", a, b, "--max-rms", &format!("{}", rms * 1.1), "--max-mean", &format!("{}", mean * 1.1)]);
-    assert_eq!(o.status.code(), Some(0), "{}", text(&o.stderr));
+    assert_eq!(o.status.code(), Some(0), "{}", text_err(&o));
 
     // Bad thresholds and arguments are usage errors: exit 1.
     for bad in [["--max-hausdorff", "abc"], ["--max-rms", "1%%"], ["--max-mean", "nan"], ["--samples", "0"]] {
         let o = octolod(&["metro", a, b, bad[0], bad[1]]);
-        assert_eq!(o.status.code(), Some(1), "{bad:?}: {}", text(&o.stderr));
-        assert!(text(&o.stdout).is_empty());
+        assert_eq!(o.status.code(), Some(1), "{bad:?}: {}", text_err(&o));
+        assert!(text_out(&o).is_empty());
     }
     let o = octolod(&["metro", a, d.path().join("missing.ply").to_str().unwrap()]);
     assert_eq!(o.status.code(), Some(1));
@@ -416,61 +272,55 @@ fn same_seed_same_json_and_the_seed_matters() {
     let (a, b) = (a.to_str().unwrap(), b.to_str().unwrap());
     let run = |seed: &str| {
         let o = octolod(&["metro", a, b, "--json", "--seed", seed, "--samples", "30000"]);
-        assert!(o.status.success(), "{}", text(&o.stderr));
-        text(&o.stdout)
+        assert!(o.status.success(), "{}", text_err(&o));
+        text_out(&o)
     };
     let (x, y, z) = (run("7"), run("7"), run("8"));
     assert_eq!(x, y);
     assert_ne!(x, z);
-    let j = Json::parse(&x).unwrap();
-    assert_eq!(j.num("seed"), 7.0);
-    assert!((j.num("a_to_b.samples") - 30000.0).abs() <= 1.0);
+    let j = json(x.as_bytes());
+    assert_eq!(num(&j, "seed"), 7.0);
+    assert!((num(&j, "a_to_b.samples") - 30000.0).abs() <= 1.0);
 }
 
 #[test]
-fn store_level_against_the_ply_it_was_built_from() {
+fn a_store_level_measures_zero_at_level_0_and_as_the_library_does_above() {
     let d = tempfile::tempdir().unwrap();
     let ply = d.path().join("s.ply");
     let m = generated(Shape::Sphere, 6000);
     write_mesh(&ply, &m);
-    let store = d.path().join("s.octolod");
-    octolod::pipeline::build_store(
-        &ply,
-        &store,
-        &octolod::pipeline::BuildOptions { params: octolod::store::BuildParams { mem: 4 << 20, leaf_tris: 500, ..Default::default() }, ..Default::default() },
-    )
-    .unwrap();
+    let store = small_leaves_store(d.path(), &ply);
     let (p, s) = (ply.to_str().unwrap(), store.to_str().unwrap());
 
     // Level 0 is the input, bit-exact: distance 0 both ways.
     let o = octolod(&["metro", p, &format!("{s}@0"), "--json"]);
-    assert!(o.status.success(), "{}", text(&o.stderr));
-    let j = Json::parse(&text(&o.stdout)).unwrap();
-    assert_eq!(j.num("a.faces"), j.num("b.faces"));
-    assert_eq!(j.num("a.vertices"), j.num("b.vertices"), "store vertices are welded back");
-    assert!(j.num("hausdorff_rel") < 1e-12, "{}", j.num("hausdorff_rel"));
-    assert_eq!(j.get("b.source"), &Json::Str(format!("{s}@0")));
+    assert!(o.status.success(), "{}", text_err(&o));
+    let j = json(&o.stdout);
+    assert_eq!(num(&j, "a.faces"), num(&j, "b.faces"));
+    assert_eq!(num(&j, "a.vertices"), num(&j, "b.vertices"), "store vertices are welded back");
+    assert!(num(&j, "hausdorff_rel") < 1e-12, "{}", num(&j, "hausdorff_rel"));
+    assert_eq!(get(&j, "b.source"), format!("{s}@0").as_str());
 
     // A simplified level: a real, bounded distance, and the same answer
     // through the library.
     let top = octolod::store::Store::open(&store).unwrap().top_level();
     assert!(top >= 2);
     let o = octolod(&["metro", &format!("{s}@1"), p, "--json"]);
-    assert!(o.status.success(), "{}", text(&o.stderr));
-    let j = Json::parse(&text(&o.stdout)).unwrap();
-    let h = j.num("hausdorff_rel");
+    assert!(o.status.success(), "{}", text_err(&o));
+    let j = json(&o.stdout);
+    let h = num(&j, "hausdorff_rel");
     assert!(h > 1e-5 && h < 0.05, "{h}");
     let lvl = octolod::metro::load_store_level(&store, 1).unwrap();
     let lib = compare(&lvl, &octolod::metro::load_ply(&ply).unwrap(), &opts(None)).unwrap();
-    assert_eq!(lib.combined.max, j.num("hausdorff"));
+    assert!(same_figure(lib.combined.max, num(&j, "hausdorff")), "library {}, command {}", lib.combined.max, num(&j, "hausdorff"));
 
     // A level that does not exist, and a bare store directory: usage errors.
     let o = octolod(&["metro", p, &format!("{s}@{}", top + 1)]);
     assert_eq!(o.status.code(), Some(1));
-    assert!(text(&o.stderr).contains("does not exist"), "{}", text(&o.stderr));
+    assert!(text_err(&o).contains("does not exist"), "{}", text_err(&o));
     let o = octolod(&["metro", p, s]);
     assert_eq!(o.status.code(), Some(1));
-    assert!(text(&o.stderr).contains("@L"), "{}", text(&o.stderr));
+    assert!(text_err(&o).contains("@L"), "{}", text_err(&o));
 }
 
 // ---------------------------------------------------------------------------
@@ -480,14 +330,13 @@ fn store_level_against_the_ply_it_was_built_from() {
 fn small_store(dir: &Path) -> (std::path::PathBuf, std::path::PathBuf) {
     let ply = dir.join("s.ply");
     write_mesh(&ply, &generated(Shape::Sphere, 20_000));
-    let store = dir.join("s.octolod");
-    octolod::pipeline::build_store(
-        &ply,
-        &store,
-        &octolod::pipeline::BuildOptions { params: octolod::store::BuildParams { mem: 4 << 20, leaf_tris: 500, ..Default::default() }, ..Default::default() },
-    )
-    .unwrap();
+    let store = small_leaves_store(dir, &ply);
     (ply, store)
+}
+
+/// `dir/STEM.octolod` built from `ply` with 500-triangle leaves under 4 MiB.
+fn small_leaves_store(dir: &Path, ply: &Path) -> std::path::PathBuf {
+    build_store_at(dir, ply, &build_options(BuildParams { mem: 4 << 20, leaf_tris: 500, ..Default::default() }))
 }
 
 fn close_rel(x: f64, y: f64) -> bool {
@@ -561,40 +410,40 @@ fn paged_cli_reports_the_cache_streams_big_plys_and_rejects_budgets_it_cannot_ke
     let (s0, s1) = (format!("{s}@0"), format!("{s}@1"));
     let run = |mem: &str| {
         let o = octolod(&["metro", &s0, &s1, "--json", "--mem", mem]);
-        assert!(o.status.success(), "{}", text(&o.stderr));
-        Json::parse(&text(&o.stdout)).unwrap()
+        assert!(o.status.success(), "{}", text_err(&o));
+        json(&o.stdout)
     };
     let (small, big) = (run("2M"), run("1G"));
     for j in [&small, &big] {
         for f in ["budget", "cache_budget", "peak_resident", "loads", "hits", "evictions", "bytes_read", "scan_bytes", "parts.a", "parts.b"] {
-            let _ = j.num(&format!("paging.{f}"));
+            let _ = num(j, &format!("paging.{f}"));
         }
-        assert!(j.num("paging.peak_resident") <= j.num("paging.cache_budget"));
-        assert_eq!(j.num("paging.overcommits"), 0.0);
+        assert!(num(j, "paging.peak_resident") <= num(j, "paging.cache_budget"));
+        assert_eq!(num(j, "paging.overcommits"), 0.0);
     }
-    assert_eq!(small.num("paging.budget"), (2 << 20) as f64);
-    assert!(small.num("paging.evictions") > 0.0);
-    assert_eq!(big.num("paging.evictions"), 0.0, "1 GiB holds this store");
+    assert_eq!(num(&small, "paging.budget"), (2 << 20) as f64);
+    assert!(num(&small, "paging.evictions") > 0.0);
+    assert_eq!(num(&big, "paging.evictions"), 0.0, "1 GiB holds this store");
     // The budget changes how often nodes are read, never the figures.
     for k in ["a_to_b", "b_to_a", "combined"] {
         for f in ["samples", "vertex_samples", "edge_samples", "face_samples", "max", "mean", "rms"] {
-            assert_eq!(small.num(&format!("{k}.{f}")), big.num(&format!("{k}.{f}")), "{k}.{f}");
+            assert_eq!(num(&small, &format!("{k}.{f}")), num(&big, &format!("{k}.{f}")), "{k}.{f}");
         }
     }
     // A budget below two nodes' worth: a usage error naming what would do.
     let o = octolod(&["metro", &s0, &s1, "--mem", "800K"]);
     assert_eq!(o.status.code(), Some(1));
-    assert!(text(&o.stderr).contains("give --mem at least"), "{}", text(&o.stderr));
-    assert!(text(&o.stdout).is_empty());
+    assert!(text_err(&o).contains("give --mem at least"), "{}", text_err(&o));
+    assert!(text_out(&o).is_empty());
     // A PLY operand over an explicit budget is streamed into a scratch store
     // of its level 0 (exact input) and paged: same distances as the store's
     // level 0 up to sampling (vertex order differs), no scratch left behind.
     let o = octolod(&["metro", p, &s1, "--json", "--mem", "2M"]);
-    assert!(o.status.success(), "{}", text(&o.stderr));
-    let streamed = Json::parse(&text(&o.stdout)).unwrap();
-    assert!(streamed.num("paging.peak_resident") <= streamed.num("paging.cache_budget"));
+    assert!(o.status.success(), "{}", text_err(&o));
+    let streamed = json(&o.stdout);
+    assert!(num(&streamed, "paging.peak_resident") <= num(&streamed, "paging.cache_budget"));
     for f in ["max", "mean", "rms"] {
-        let (x, y) = (streamed.num(&format!("combined.{f}")), small.num(&format!("combined.{f}")));
+        let (x, y) = (num(&streamed, &format!("combined.{f}")), num(&small, &format!("combined.{f}")));
         assert!((x - y).abs() <= 0.05 * y, "combined.{f}: streamed PLY {x} vs store level 0 {y}");
     }
     let left: Vec<_> = std::fs::read_dir(d.path()).unwrap().filter_map(|e| e.ok()).filter(|e| e.file_name().to_string_lossy().starts_with(".octolod-scratch")).collect();
@@ -602,5 +451,5 @@ fn paged_cli_reports_the_cache_streams_big_plys_and_rejects_budgets_it_cannot_ke
     // PLYs only: no paging object, the JSON stays a pure function of the inputs.
     let o = octolod(&["metro", p, p, "--json", "--samples", "1000"]);
     assert!(o.status.success());
-    assert!(!text(&o.stdout).contains("paging"));
+    assert!(!text_out(&o).contains("paging"));
 }

@@ -12,9 +12,8 @@
 //! Needs `tools/ci-deps.sh` (chromium, node, `npm ci --prefix web`) and a
 //! Vulkan adapter for `render`; skipped only with OCTOLOD_SKIP_WEB_TESTS=1.
 
-mod common;
-
-use common::cli::{err, octolod, s};
+use crate::common::cli::{bin, err, gen_with, octolod, s};
+use crate::common::{eroded, mask};
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -47,7 +46,7 @@ struct Server {
 
 impl Server {
     fn start(dir: &Path) -> Server {
-        let mut child = Command::new(env!("CARGO_BIN_EXE_octolod"))
+        let mut child = Command::new(bin())
             .args(["serve", s(dir), "--port", "0", "--quiet"])
             .stdout(Stdio::piped())
             .stderr(Stdio::inherit())
@@ -71,17 +70,6 @@ impl Drop for Server {
     }
 }
 
-/// Pixels that are not `bg`.
-fn mask(img: &[u8], bg: [u8; 4]) -> Vec<bool> {
-    img.chunks_exact(4).map(|p| p[..3] != bg[..3]).collect()
-}
-
-/// Pixels whose every neighbour within `r` (a square) is in `m`.
-fn eroded(m: &[bool], w: u32, h: u32, r: i64) -> Vec<bool> {
-    let at = |x: i64, y: i64| x >= 0 && y >= 0 && x < w as i64 && y < h as i64 && m[(y * w as i64 + x) as usize];
-    (0..(w * h) as i64).map(|i| (-r..=r).all(|dy| (-r..=r).all(|dx| at(i % w as i64 + dx, i / w as i64 + dy)))).collect()
-}
-
 fn psnr(a: &[u8], b: &[u8]) -> f64 {
     let mse = a.iter().zip(b).map(|(&x, &y)| (x as f64 - y as f64).powi(2)).sum::<f64>() / a.len() as f64;
     if mse == 0.0 {
@@ -95,11 +83,7 @@ fn psnr(a: &[u8], b: &[u8]) -> f64 {
 fn browser_matches_render(shape: &str, tris: u64, extra_gen: &[&str], cameras: &serde_json::Value, error_px: f64) {
     let d = tempfile::tempdir().unwrap();
     let ply = d.path().join("in.ply");
-    let n = tris.to_string();
-    let mut args = vec!["--shape", shape, "--tris", &n, "--quiet", "-o", s(&ply)];
-    args.extend_from_slice(extra_gen);
-    let o = Command::new(env!("CARGO_BIN_EXE_octolod-gen")).args(&args).output().unwrap();
-    assert!(o.status.success(), "{}", err(&o));
+    gen_with(shape, tris, &ply, extra_gen);
     let st = d.path().join("s.octolod");
     let o = octolod(&["build", s(&ply), "-o", s(&st), "--quiet", "--leaf-tris", "4096"]);
     assert!(o.status.success(), "{}", err(&o));

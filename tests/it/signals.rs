@@ -8,28 +8,18 @@
 //! The `render` case needs a Vulkan (or GL) adapter (Mesa lavapipe in CI);
 //! it is skipped only with OCTOLOD_SKIP_GPU_TESTS=1.
 
-mod common;
-
-use common::cli::{names, s};
+use crate::common::cli::{bin, gen_with, names, octolod_ok, s, wait_or_fail};
 use std::os::unix::process::ExitStatusExt;
 use std::path::Path;
 use std::process::{Command, Stdio};
-use std::time::{Duration, Instant};
-
-fn bin() -> &'static str {
-    env!("CARGO_BIN_EXE_octolod")
-}
-
-fn run_ok(args: &[&str]) {
-    let o = Command::new(bin()).args(args).output().unwrap();
-    assert!(o.status.success(), "{args:?}: {}", String::from_utf8_lossy(&o.stderr));
-}
+use std::time::Instant;
 
 /// How one command's output is checked when it exists.
 #[derive(Clone, Copy)]
 enum Out {
     Store,
     Ply(u64),
+    #[cfg(feature = "view")]
     Frames(usize),
 }
 
@@ -52,6 +42,7 @@ fn complete(out: &Path, kind: Out) -> Result<(), String> {
             }
             Ok(())
         }
+        #[cfg(feature = "view")]
         Out::Frames(n) => {
             let frames = names(out).iter().filter(|n| n.starts_with("frame-") && n.ends_with(".png")).count();
             let stats: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("stats.json")).map_err(|e| e.to_string())?).map_err(|e| e.to_string())?;
@@ -68,7 +59,7 @@ fn complete(out: &Path, kind: Out) -> Result<(), String> {
 /// moments spread from 0 to 1.2 × that time; checks every outcome.
 fn sweep(dir: &Path, args: &[&str], out: &Path, kind: Out, runs: usize) -> (usize, usize) {
     let t = Instant::now();
-    run_ok(args);
+    octolod_ok(args);
     let full = t.elapsed();
     complete(out, kind).unwrap_or_else(|e| panic!("{args:?}: the uninterrupted output is incomplete: {e}"));
     let rm = |p: &Path| if p.is_dir() { std::fs::remove_dir_all(p).unwrap() } else if p.exists() { std::fs::remove_file(p).unwrap() };
@@ -82,14 +73,8 @@ fn sweep(dir: &Path, args: &[&str], out: &Path, kind: Out, runs: usize) -> (usiz
         std::thread::sleep(at);
         // SAFETY: signalling our own child.
         unsafe { libc::kill(child.id() as i32, sig) };
-        let t = Instant::now();
-        let o = loop {
-            if child.try_wait().unwrap().is_some() {
-                break child.wait_with_output().unwrap();
-            }
-            assert!(t.elapsed() < Duration::from_secs(60), "{args:?}: still running 60 s after SIG{name}");
-            std::thread::sleep(Duration::from_millis(5));
-        };
+        wait_or_fail(&mut child, 60, &format!("{args:?}, SIG{name},"));
+        let o = child.wait_with_output().unwrap();
         let err = String::from_utf8_lossy(&o.stderr);
         let what = format!("{args:?}, SIG{name} at {:.0} ms of {:.0}: {:?} {err}", at.as_secs_f64() * 1e3, full.as_secs_f64() * 1e3, o.status);
         assert!(!err.contains("panicked"), "{what}");
@@ -120,11 +105,7 @@ const RUNS: usize = 12;
 
 fn input(dir: &Path, tris: u64) -> std::path::PathBuf {
     let ply = dir.join("in.ply");
-    let o = Command::new(env!("CARGO_BIN_EXE_octolod-gen"))
-        .args(["--shape", "sphere", "--tris", &tris.to_string(), "--normals", "--quiet", "-o", s(&ply)])
-        .output()
-        .unwrap();
-    assert!(o.status.success());
+    gen_with("sphere", tris, &ply, &["--normals"]);
     ply
 }
 
@@ -150,7 +131,7 @@ fn extract_interrupted_anywhere_leaves_a_complete_output_or_none() {
     let d = tempfile::tempdir().unwrap();
     let ply = input(d.path(), 600_000);
     let st = d.path().join("s.octolod");
-    run_ok(&["build", s(&ply), "-o", s(&st), "--quiet"]);
+    octolod_ok(&["build", s(&ply), "-o", s(&st), "--quiet"]);
     let out = d.path().join("l0.ply");
     let store = octolod::store::Store::open(&st).unwrap();
     let tris = store.level_cut(0).triangles(&store);
@@ -160,15 +141,15 @@ fn extract_interrupted_anywhere_leaves_a_complete_output_or_none() {
 }
 
 #[test]
+#[cfg(feature = "view")]
 fn render_interrupted_anywhere_leaves_a_complete_output_or_none() {
-    if std::env::var("OCTOLOD_SKIP_GPU_TESTS").as_deref() == Ok("1") {
-        eprintln!("OCTOLOD_SKIP_GPU_TESTS=1: skipping a GPU test");
+    if crate::common::gpu_tests_skipped() {
         return;
     }
     let d = tempfile::tempdir().unwrap();
     let ply = input(d.path(), 200_000);
     let st = d.path().join("s.octolod");
-    run_ok(&["build", s(&ply), "-o", s(&st), "--quiet"]);
+    octolod_ok(&["build", s(&ply), "-o", s(&st), "--quiet"]);
     let out = d.path().join("shots");
     let r = sweep(
         d.path(),

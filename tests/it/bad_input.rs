@@ -2,8 +2,8 @@
 //! record and byte offset (or header line), a non-zero exit, and nothing left
 //! under the output name.
 
-use std::path::Path;
-use std::process::Command;
+use crate::common::cli::{err, octolod, octolod_ok, out, s};
+use crate::common::fixture;
 
 fn ascii_cube(vertex_decl: usize, face_decl: usize, vertex_lines: &[&str], face_lines: &[&str]) -> String {
     let mut s = format!(
@@ -24,27 +24,24 @@ const V: [&str; 4] = ["0 0 0", "1 0 0", "0 1 0", "0 0 1"];
 const F: [&str; 4] = ["3 0 1 2", "3 0 1 3", "3 0 2 3", "3 1 2 3"];
 
 /// Runs `octolod soup` on `bytes`; returns (exit ok, stderr) and checks no output remains on failure.
-fn soup(bytes: &[u8]) -> (bool, String, String) {
+fn soup(bytes: &[u8]) -> (bool, String) {
     let dir = tempfile::tempdir().unwrap();
     let input = dir.path().join("bad.ply");
     std::fs::write(&input, bytes).unwrap();
     let out = dir.path().join("out.soup");
-    let o = Command::new(env!("CARGO_BIN_EXE_octolod"))
-        .args(["soup", input.to_str().unwrap(), "-o", out.to_str().unwrap(), "--quiet"])
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&o.stderr).into_owned();
+    let o = octolod(&["soup", s(&input), "-o", s(&out), "--quiet"]);
+    let e = err(&o);
     if !o.status.success() {
         assert!(!out.exists(), "failed run left output behind");
         let left: Vec<_> = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
         assert_eq!(left.len(), 1, "failed run left files behind: {left:?}");
-        assert!(err.contains(input.to_str().unwrap()), "error does not name the file: {err}");
+        assert!(e.contains(s(&input)), "error does not name the file: {e}");
     }
-    (o.status.success(), err, input.display().to_string())
+    (o.status.success(), e)
 }
 
 fn expect_error(bytes: &[u8], needles: &[&str]) {
-    let (ok, err, _) = soup(bytes);
+    let (ok, err) = soup(bytes);
     assert!(!ok, "expected failure for input:\n{}", String::from_utf8_lossy(bytes));
     for n in needles {
         assert!(err.contains(n), "error '{}' lacks '{n}'", err.trim());
@@ -52,13 +49,13 @@ fn expect_error(bytes: &[u8], needles: &[&str]) {
 }
 
 #[test]
-fn good_tetrahedron_passes() {
-    let (ok, err, _) = soup(ascii_cube(4, 4, &V, &F).as_bytes());
+fn a_good_tetrahedron_converts() {
+    let (ok, err) = soup(ascii_cube(4, 4, &V, &F).as_bytes());
     assert!(ok, "{err}");
 }
 
 #[test]
-fn out_of_range_index() {
+fn an_out_of_range_index_is_an_error_at_its_record_and_offset() {
     let bad = ascii_cube(4, 4, &V, &["3 0 1 2", "3 0 1 3", "3 0 2 99", "3 1 2 3"]);
     let offset = bad.find("3 0 2 99").unwrap();
     expect_error(
@@ -68,13 +65,13 @@ fn out_of_range_index() {
 }
 
 #[test]
-fn negative_index() {
+fn a_negative_index_is_an_error_at_its_record() {
     let bad = ascii_cube(4, 4, &V, &["3 0 1 2", "3 0 -1 3", "3 0 2 3", "3 1 2 3"]);
     expect_error(bad.as_bytes(), &["element 'face' record 1", "negative vertex index -1"]);
 }
 
 #[test]
-fn non_finite_coordinates() {
+fn non_finite_coordinates_are_errors_at_their_record_and_offset() {
     for v in ["nan 0 0", "0 inf 0", "0 0 -inf"] {
         let bad = ascii_cube(4, 4, &["0 0 0", "1 0 0", v, "0 0 1"], &F);
         let offset = bad.find(v).unwrap();
@@ -94,8 +91,8 @@ fn non_finite_coordinates() {
 }
 
 #[test]
-fn truncated_body() {
-    let good = std::fs::read(Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/cube_le_attrs.ply")).unwrap();
+fn a_truncated_body_is_an_unexpected_end_at_the_cut_record() {
+    let good = std::fs::read(fixture("cube_le_attrs.ply")).unwrap();
     // Cut inside the last face record.
     expect_error(&good[..good.len() - 5], &["element 'face' record 7", "unexpected end of file", "byte offset"]);
     // Cut inside the vertices: records are 35 bytes (xyz, normal, rgb, uv), so byte 100 is in record 2.
@@ -104,20 +101,20 @@ fn truncated_body() {
 }
 
 #[test]
-fn wrong_counts() {
+fn declared_counts_the_body_disagrees_with_are_errors() {
     // More faces declared than present: truncated at the missing record.
     expect_error(ascii_cube(4, 5, &V, &F).as_bytes(), &["element 'face' record 4", "unexpected end of file"]);
     // Fewer declared than present: trailing data.
     expect_error(ascii_cube(4, 3, &V, &F).as_bytes(), &["after the last element", "counts are too small"]);
     // Binary with trailing bytes.
-    let mut good = std::fs::read(Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/cube_le_attrs.ply")).unwrap();
+    let mut good = std::fs::read(fixture("cube_le_attrs.ply")).unwrap();
     let len = good.len();
     good.extend_from_slice(&[0u8; 13]);
     expect_error(&good, &["13 unexpected bytes", &format!("byte offset {len}")]);
 }
 
 #[test]
-fn unsupported_header_lines() {
+fn unsupported_header_lines_are_errors_naming_the_line() {
     let bad = ascii_cube(4, 4, &V, &F).replacen("element face", "frobnicate 3\nelement face", 1);
     expect_error(bad.as_bytes(), &["header line 7", "unsupported or malformed header line"]);
     let bad = ascii_cube(4, 4, &V, &F).replacen("property float z", "property quaternion z", 1);
@@ -129,7 +126,7 @@ fn unsupported_header_lines() {
 }
 
 #[test]
-fn zero_faces_and_degenerate_faces() {
+fn no_faces_short_faces_and_only_degenerate_faces_are_errors() {
     expect_error(ascii_cube(4, 0, &V, &[]).as_bytes(), &["element 'face'", "declares no faces"]);
     let two = ascii_cube(4, 4, &V, &["3 0 1 2", "2 0 1", "3 0 2 3", "3 1 2 3"]);
     expect_error(two.as_bytes(), &["element 'face' record 1", "face with 2 vertex index(es)"]);
@@ -143,15 +140,10 @@ fn degenerate_triangles_are_dropped_and_counted() {
     let dir = tempfile::tempdir().unwrap();
     let input = dir.path().join("d.ply");
     std::fs::write(&input, some).unwrap();
-    let out = dir.path().join("d.soup");
-    let o = Command::new(env!("CARGO_BIN_EXE_octolod"))
-        .args(["soup", input.to_str().unwrap(), "-o", out.to_str().unwrap(), "--json"])
-        .output()
-        .unwrap();
-    assert!(o.status.success());
-    let s = String::from_utf8_lossy(&o.stdout);
-    assert!(s.contains("\"triangles\":4") && s.contains("\"degenerate\":1"), "{s}");
-    assert_eq!(std::fs::metadata(&out).unwrap().len(), 128 + 4 * 36);
+    let soup = dir.path().join("d.soup");
+    let text = out(&octolod_ok(&["soup", s(&input), "-o", s(&soup), "--json"]));
+    assert!(text.contains("\"triangles\":4") && text.contains("\"degenerate\":1"), "{text}");
+    assert_eq!(std::fs::metadata(&soup).unwrap().len(), 128 + 4 * 36);
 }
 
 #[test]
@@ -160,18 +152,15 @@ fn bad_budget_is_a_usage_error() {
     let input = dir.path().join("t.ply");
     std::fs::write(&input, ascii_cube(4, 4, &V, &F)).unwrap();
     for mem in ["12X", "1K"] {
-        let o = Command::new(env!("CARGO_BIN_EXE_octolod"))
-            .args(["soup", input.to_str().unwrap(), "-o", dir.path().join("o.soup").to_str().unwrap(), "--mem", mem])
-            .output()
-            .unwrap();
+        let o = octolod(&["soup", s(&input), "-o", s(&dir.path().join("o.soup")), "--mem", mem]);
         assert!(!o.status.success());
-        assert!(String::from_utf8_lossy(&o.stderr).contains("octolod: error:"));
+        assert!(err(&o).contains("octolod: error:"), "--mem {mem}: {}", err(&o));
     }
 }
 
 #[test]
 fn missing_input_names_the_path() {
-    let o = Command::new(env!("CARGO_BIN_EXE_octolod")).args(["soup", "/nonexistent/x.ply", "-o", "/tmp/x.soup"]).output().unwrap();
+    let o = octolod(&["soup", "/nonexistent/x.ply", "-o", "/tmp/x.soup"]);
     assert!(!o.status.success());
-    assert!(String::from_utf8_lossy(&o.stderr).contains("/nonexistent/x.ply: open"));
+    assert!(err(&o).contains("/nonexistent/x.ply: open"), "{}", err(&o));
 }

@@ -7,24 +7,21 @@
 //! These tests need a Vulkan (or GL) adapter; they fail without one unless
 //! OCTOLOD_SKIP_GPU_TESTS=1 is set.
 
-mod common;
-
+use crate::common;
 use octolod::gen::Shape;
 use octolod::mesh::AttrSet;
 use octolod::view::headless::{render, RenderOptions, RenderReport};
 use octolod::view::ViewOptions;
 use std::path::{Path, PathBuf};
+use crate::common::cli::bin;
+use crate::common::gpu::without_desktop_session;
 use std::process::Command;
 
 fn skip() -> bool {
     // As `view` and `render` do: no libwayland "XDG_RUNTIME_DIR" noise in
     // the logs of the in-process renders.
     octolod::view::quiet::quiet_wayland_probes();
-    if std::env::var("OCTOLOD_SKIP_GPU_TESTS").as_deref() == Ok("1") {
-        eprintln!("OCTOLOD_SKIP_GPU_TESTS=1: skipping a GPU test");
-        return true;
-    }
-    false
+    crate::common::gpu_tests_skipped()
 }
 
 fn store(dir: &Path, shape: Shape, tris: u64, leaf: u64, attrs: u32) -> PathBuf {
@@ -149,7 +146,7 @@ fn render_cli_writes_frames_and_rejects_bad_paths() {
     }
     let dir = tempfile::tempdir().unwrap();
     let s = store(dir.path(), Shape::Terrain, 30_000, 2048, 0);
-    let exe = env!("CARGO_BIN_EXE_octolod");
+    let exe = bin();
     let out = dir.path().join("r");
     let o = Command::new(exe)
         .args(["render", s.to_str().unwrap(), "--out", out.to_str().unwrap(), "--frames", "3", "--width", "64", "--height", "48"])
@@ -240,7 +237,7 @@ fn render_fails_when_node_loads_fail() {
 /// libwayland's display probes (the GL backend's EGL probe; Mesa's
 /// device-select layer is off for `render`). A successful run prints no
 /// line starting with "error", on the default backends and on GL. (`view`
-/// needs a display, so it cannot run here: `tests/gpu.rs` covers the
+/// needs a display, so it cannot run here: the `gpu` module covers the
 /// renderer set-up it shares, with the device-select layer on.)
 #[test]
 fn render_without_a_desktop_session_prints_no_error_line() {
@@ -249,17 +246,12 @@ fn render_without_a_desktop_session_prints_no_error_line() {
     }
     let dir = tempfile::tempdir().unwrap();
     let s = store(dir.path(), Shape::Sphere, 20_000, 2048, 0);
-    let exe = env!("CARGO_BIN_EXE_octolod");
+    let exe = bin();
     for backend in ["default", "gl"] {
         let out = dir.path().join(format!("r-{backend}"));
         let mut cmd = Command::new(exe);
         cmd.args(["render", s.to_str().unwrap(), "-o", out.to_str().unwrap(), "--frames", "2", "--width", "64", "--height", "48"]);
-        for v in ["XDG_RUNTIME_DIR", "WAYLAND_DISPLAY", "WAYLAND_SOCKET", "NODEVICE_SELECT", "MESA_VK_DEVICE_SELECT", "WGPU_BACKEND"] {
-            cmd.env_remove(v);
-        }
-        if backend == "gl" {
-            cmd.env("WGPU_BACKEND", "gl");
-        }
+        without_desktop_session(&mut cmd, backend);
         let o = cmd.output().unwrap();
         let err = String::from_utf8_lossy(&o.stderr);
         if backend == "gl" && !o.status.success() && err.contains("no GPU adapter") {
@@ -283,7 +275,7 @@ fn render_warns_when_the_triangle_budget_holds_the_cut_back() {
     }
     let dir = tempfile::tempdir().unwrap();
     let s = store(dir.path(), Shape::Sphere, 60_000, 1024, 0);
-    let exe = env!("CARGO_BIN_EXE_octolod");
+    let exe = bin();
     let run = |budget: &str, out: &str| {
         let out = dir.path().join(out);
         let o = Command::new(exe)

@@ -1,11 +1,9 @@
 //! Reliability v2 (issue 37): each test reproduces one way a hostile
 //! user's run lost data, hung, ran away with memory or misreported, as
 //! found against README "What octolod promises" (items 1-4 and 7-13; the
-//! signal sweep of item 5 is tests/signals.rs).
+//! signal sweep of item 5 is the `signals` module).
 
-mod common;
-
-use common::cli::{err, gen, names, octolod, run_limited, s};
+use crate::common::cli::{bin, err, gen, names, octolod, run_limited, s};
 use std::os::unix::fs::PermissionsExt;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -47,6 +45,7 @@ fn build_force_onto_the_store_holding_its_input_keeps_the_input() {
 /// Item 2: `mv s.octolod shots/; render shots/s.octolod -o shots --force`
 /// deleted the store with the old render directory.
 #[test]
+#[cfg(feature = "view")]
 fn render_force_onto_the_directory_holding_its_store_keeps_the_store() {
     let d = tempfile::tempdir().unwrap();
     let ply = d.path().join("in.ply");
@@ -229,7 +228,7 @@ fn simplify_leaves_no_scratch_on_exit_3_or_a_closed_pipe() {
     assert_eq!(o.status.code(), Some(3), "{}", err(&o));
     assert_eq!(names(d.path()), ["in.ply", "o.ply"], "exit 3 left scratch");
     std::fs::remove_file(&out).unwrap();
-    let mut child = Command::new(env!("CARGO_BIN_EXE_octolod"))
+    let mut child = Command::new(bin())
         .args(["simplify", s(&ply), "-o", s(&out), "--target-tris", "2000"])
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
@@ -263,10 +262,10 @@ fn metro_works_on_an_input_in_a_read_only_directory() {
     // Root writes anywhere: run as nobody then, which cannot write `ro/`.
     let mut cmd = if unsafe { libc::geteuid() } == 0 {
         let mut c = Command::new("setpriv");
-        c.args(["--reuid=65534", "--regid=65534", "--clear-groups", env!("CARGO_BIN_EXE_octolod")]);
+        c.args(["--reuid=65534", "--regid=65534", "--clear-groups", bin()]);
         c
     } else {
-        Command::new(env!("CARGO_BIN_EXE_octolod"))
+        Command::new(bin())
     };
     // --mem below what the PLY needs in memory: it goes through a scratch store.
     let o = cmd.args(["metro", s(&ply), s(&ply), "--mem", "24M", "--samples", "20000", "--json"]).env("TMPDIR", &tmp).output().unwrap();
@@ -335,12 +334,12 @@ fn a_damaged_header_box_or_node_counts_are_errors_at_open() {
     let counts = copy("counts.octolod");
     patch(&counts.join("nodes.bin"), 128 + 116, &50_000_000u32.to_le_bytes());
     for (st, want) in [(&nan, "bounding box"), (&inverted, "bounding box"), (&counts, "node 0")] {
-        let out = d.path().join("x.ply");
-        for args in [
-            vec!["info", s(st)],
-            vec!["extract", s(st), "--max-error", "1%", "-o", s(&out)],
-            vec!["render", s(st), "-o", s(&d.path().join("f")), "--frames", "2"],
-        ] {
+        let (out, frames) = (d.path().join("x.ply"), d.path().join("f"));
+        let mut runs = vec![vec!["info", s(st)], vec!["extract", s(st), "--max-error", "1%", "-o", s(&out)]];
+        if cfg!(feature = "view") {
+            runs.push(vec!["render", s(st), "-o", s(&frames), "--frames", "2"]);
+        }
+        for args in runs {
             let (code, e) = run_limited(&args, 60);
             assert_eq!(code, Some(1), "{args:?}: {e}");
             assert!(e.contains("nodes.bin") && e.contains(want), "{args:?}: {e}");
@@ -381,9 +380,9 @@ fn long_output_names_work_and_a_slash_after_a_file_name_is_refused_at_once() {
 /// for a store whose damaged counts no budget could hold. It now settles
 /// as soon as nothing more fits, and warns naming `--ram`.
 #[test]
+#[cfg(feature = "view")]
 fn a_cut_held_back_by_the_ram_budget_settles_and_is_reported() {
-    if std::env::var("OCTOLOD_SKIP_GPU_TESTS").as_deref() == Ok("1") {
-        eprintln!("OCTOLOD_SKIP_GPU_TESTS=1: skipping a GPU test");
+    if crate::common::gpu_tests_skipped() {
         return;
     }
     let d = tempfile::tempdir().unwrap();
@@ -402,10 +401,11 @@ fn a_cut_held_back_by_the_ram_budget_settles_and_is_reported() {
     assert!(err(&o).contains("--ram 100.0 KiB"), "{}", err(&o));
 }
 
-/// Item 9: a camera path is read once (a FIFO works) and bounded: a link
-/// to /dev/zero is an error, not an endless read.
+/// Item 9: a camera path is bounded: a link to /dev/zero is an error, not
+/// an endless read.
 #[test]
-fn a_camera_path_is_read_once_and_bounded() {
+#[cfg(feature = "view")]
+fn a_camera_path_linked_to_dev_zero_is_an_error_not_an_endless_read() {
     let d = tempfile::tempdir().unwrap();
     let ply = d.path().join("in.ply");
     gen("sphere", 3000, &ply);
@@ -418,4 +418,31 @@ fn a_camera_path_is_read_once_and_bounded() {
     assert_eq!(code, Some(1), "{e}");
     assert!(e.contains("zero.json") && e.contains("camera path over"), "{e}");
     assert!(!out.exists());
+}
+
+/// Item 9: a camera path is read once, so a FIFO works (render read it to
+/// count its frames, then opened it again and waited for ever).
+#[test]
+#[cfg(feature = "view")]
+fn a_camera_path_from_a_fifo_is_read_once() {
+    if crate::common::gpu_tests_skipped() {
+        return;
+    }
+    let d = tempfile::tempdir().unwrap();
+    let ply = d.path().join("in.ply");
+    gen("sphere", 3000, &ply);
+    let st = d.path().join("s.octolod");
+    build(&ply, &st);
+    let fifo = d.path().join("path.json");
+    mkfifo(&fifo);
+    let writer = {
+        let fifo = fifo.clone();
+        // Opening for writing waits for the reader; one write, then EOF.
+        std::thread::spawn(move || std::fs::write(&fifo, r#"{"space": "bbox", "frames": [{"eye": [2, 2, 2], "target": [0.5, 0.5, 0.5]}]}"#))
+    };
+    let out = d.path().join("f");
+    let (code, e) = run_limited(&["render", s(&st), "-o", s(&out), "--camera-path", s(&fifo), "--width", "64", "--height", "48", "--quiet"], 60);
+    assert_eq!(code, Some(0), "{e}");
+    writer.join().unwrap().unwrap();
+    assert!(out.join("frame-00000.png").is_file());
 }

@@ -3,9 +3,8 @@
 //! decoded with the `meshopt` crate) checks every variant against the
 //! store's cut, and the Khronos glTF validator must find no error in any.
 
-mod common;
-
-use common::cli::{names, octolod, s};
+use crate::common::cli::{err, names, octolod, s};
+use crate::common::{self, srgb_to_linear};
 use octolod::gen::Shape;
 use octolod::gltf::{encode_glb, is_octolod_gltf, write_parts, GltfOptions};
 use octolod::mesh::{AttrSet, Vertex};
@@ -301,16 +300,6 @@ fn decode(g: &Gltf) -> Decoded {
         d.prims.push((nv, ict));
     }
     d
-}
-
-/// The sRGB transfer function's inverse, written out here independently
-/// of the writer's.
-fn srgb_to_linear(c: f64) -> f64 {
-    if c <= 0.04045 {
-        c / 12.92
-    } else {
-        ((c + 0.055) / 1.055).powf(2.4)
-    }
 }
 
 /// An sRGB-encoded colour with linear alpha, as glTF's linear COLOR_0.
@@ -721,23 +710,23 @@ fn the_cli_picks_the_format_by_extension_and_refuses_gltf_flags_for_ply() {
     let store = st.dir.clone();
     let out = d.path().join("cli.glb");
     let o = octolod(&["extract", s(&store), "--level", "1", "--quantize", "--compress", "-o", s(&out)]);
-    assert!(o.status.success(), "{}", common::cli::err(&o));
+    assert!(o.status.success(), "{}", err(&o));
     let dec = decode(&read(&out));
     assert_eq!(dec.tris.len() as u64, st.level_triangles(1));
     let out = d.path().join("cli.gltf");
     let o = octolod(&["extract", s(&store), "--max-error", "1%", "--no-weld", "-o", s(&out)]);
-    assert!(o.status.success(), "{}", common::cli::err(&o));
+    assert!(o.status.success(), "{}", err(&o));
     assert!(out.with_extension("bin").is_file());
     let ply = d.path().join("cli.ply");
     for flag in ["--quantize", "--compress"] {
         let o = octolod(&["extract", s(&store), "--level", "1", flag, "-o", s(&ply)]);
         assert_eq!(o.status.code(), Some(1));
-        let e = common::cli::err(&o);
+        let e = err(&o);
         assert!(e.contains("glTF") && e.contains(flag), "{e}");
         assert!(!ply.exists());
     }
     let o = octolod(&["extract", s(&store), "--level", "1", "-o", s(&ply)]);
-    assert!(o.status.success(), "{}", common::cli::err(&o));
+    assert!(o.status.success(), "{}", err(&o));
     assert!(std::fs::read(&ply).unwrap().starts_with(b"ply\n"));
 }
 
@@ -943,8 +932,8 @@ fn extract_into_an_opened_store_cannot_replace_its_files() {
     let store = st.dir.clone();
     drop(st);
     let o = octolod(&["extract", s(&store), "--level", "1", "-o", s(&inside), "--force"]);
-    assert_eq!(o.status.code(), Some(1), "{}", common::cli::err(&o));
-    assert!(common::cli::err(&o).contains("an input of this command"), "{}", common::cli::err(&o));
+    assert_eq!(o.status.code(), Some(1), "{}", err(&o));
+    assert!(err(&o).contains("an input of this command"), "{}", err(&o));
     assert_eq!(snapshot(&store), before);
     Store::open(&store).unwrap();
 }

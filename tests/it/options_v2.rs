@@ -4,9 +4,7 @@
 //! reached (the coarsest level, an empty top level, a mesh against itself)
 //! give what the commands promise.
 
-mod common;
-
-use common::cli::{gen, names, octolod, run_limited, s};
+use crate::common::cli::{gen, names, octolod, run_limited, s};
 use std::path::Path;
 
 fn build(ply: &Path, st: &Path, extra: &[&str]) {
@@ -37,6 +35,7 @@ fn root_and_top(st: &Path) -> (u64, u64) {
 /// memory until abort. Now each is a usage error naming the option or the
 /// field and the limit, before the output directory exists.
 #[test]
+#[cfg(feature = "view")]
 fn render_counts_are_bounded_before_any_work() {
     let d = tempfile::tempdir().unwrap();
     let ply = d.path().join("a.ply");
