@@ -11,10 +11,7 @@ use std::time::Instant;
 
 fn main() {
     println!("size_of::<Quadric>() = {} bytes", std::mem::size_of::<Quadric>());
-    for (attrs, iters) in [
-        (AttrSet::POSITION_ONLY, 2_000_000usize),
-        (AttrSet(AttrSet::UV | AttrSet::NORMAL | AttrSet::COLOR), 400_000),
-    ] {
+    for (attrs, iters) in [(AttrSet::POSITION_ONLY, 2_000_000usize), (AttrSet(AttrSet::UV | AttrSet::NORMAL | AttrSet::COLOR), 400_000)] {
         let s = QuadricSpace::new(attrs, AttrWeights::for_extent(1.0), [0.0; 3]);
         // The unit tests' generator and start: the same points.
         let mut rng = octolod::geom::Rng::from_state(1);

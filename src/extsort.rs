@@ -121,10 +121,8 @@ impl ExtSorter {
     fn sorted_order(&self) -> Vec<(u64, u64)> {
         let rec = self.rec;
         let n = self.buf.len() / rec;
-        let mut idx: Vec<(u64, u64)> = (0..n)
-            .into_par_iter()
-            .map(|i| (u64::from_le_bytes(self.buf[i * rec..i * rec + 8].try_into().unwrap()), i as u64))
-            .collect();
+        let mut idx: Vec<(u64, u64)> =
+            (0..n).into_par_iter().map(|i| (u64::from_le_bytes(self.buf[i * rec..i * rec + 8].try_into().unwrap()), i as u64)).collect();
         idx.par_sort_unstable();
         idx
     }
@@ -161,7 +159,7 @@ impl ExtSorter {
         }
         self.spill()?;
         self.buf = Vec::new(); // release the run buffer before merging
-        // As many runs per merge as the budget gives good-sized read buffers for.
+                               // As many runs per merge as the budget gives good-sized read buffers for.
         let fan_in = (self.merge_mem / GOOD_RUN_BUF).clamp(2, 1024).min(self.max_fan_in);
         let mut runs = std::mem::take(&mut self.runs);
         let mut pass = 0u32;
@@ -245,8 +243,7 @@ fn key_of(r: &[u8]) -> u64 {
 fn merge(runs: &[Run], rec: usize, buf_bytes: usize, mut out: impl FnMut(&[u8]) -> Result<()>) -> Result<()> {
     let per = (buf_bytes.max(MIN_RUN_BUF) / rec).max(1) * rec;
     let mut arena = vec![0u8; per * runs.len()];
-    let mut readers =
-        runs.iter().zip(arena.chunks_mut(per)).map(|(r, b)| RunReader::open(r, rec, b)).collect::<Result<Vec<_>>>()?;
+    let mut readers = runs.iter().zip(arena.chunks_mut(per)).map(|(r, b)| RunReader::open(r, rec, b)).collect::<Result<Vec<_>>>()?;
     let mut heap = BinaryHeap::with_capacity(readers.len());
     for (i, r) in readers.iter_mut().enumerate() {
         if let Some(b) = r.current()? {

@@ -12,10 +12,10 @@ use octolod::view::viewer::ViewOptions;
 #[cfg(feature = "view")]
 use octolod::view::window::WindowOptions;
 use octolod::{mem, ply, soup, Result};
-#[cfg(feature = "view")]
-use std::time::Duration;
 use std::path::PathBuf;
 use std::process::ExitCode;
+#[cfg(feature = "view")]
+use std::time::Duration;
 
 /// `println!` for the commands' reports: a closed stdout is
 /// [`octolod::Error::ClosedOutput`] (returned with `?`), never a panic.
@@ -701,7 +701,12 @@ fn run(cli: Cli) -> Result<ExitCode> {
                     "simplify: {} from {} ({} triangles, {:?}, {}): {} vertices, {} triangles -> {}",
                     match rep.target_triangles {
                         Some(n) => format!("{n} triangles asked"),
-                        None => format!("error <= {:e} asked, measured {:e} after {} tries", rep.target_error.unwrap_or(f64::NAN), rep.hausdorff.unwrap_or(f64::NAN), rep.tries),
+                        None => format!(
+                            "error <= {:e} asked, measured {:e} after {} tries",
+                            rep.target_error.unwrap_or(f64::NAN),
+                            rep.hausdorff.unwrap_or(f64::NAN),
+                            rep.tries
+                        ),
                     },
                     rep.start,
                     rep.start_triangles,
@@ -759,7 +764,15 @@ fn info(dir: &std::path::Path) -> Result<()> {
     let ml = |level: u8| manifest.as_ref().and_then(|m| m.levels.iter().find(|l| l.level == level).cloned());
     out!(
         "{:>5} {:>8} {:>14} {:>14} {:>12} {:>12} {:>8} {:>9} {:>9}",
-        "level", "nodes", "triangles", "bytes", "err min", "err max", "locked", "prev.lock", "time"
+        "level",
+        "nodes",
+        "triangles",
+        "bytes",
+        "err min",
+        "err max",
+        "locked",
+        "prev.lock",
+        "time"
     );
     for level in 0..=s.top_level() {
         let ids = s.level_nodes(level);
@@ -777,7 +790,9 @@ fn info(dir: &std::path::Path) -> Result<()> {
             m.as_ref().map(|m| format!("{:.2} s", m.seconds)).unwrap_or_else(|| "n/a".into()),
         );
     }
-    out!("locked: share of the level's vertex positions locked when it was simplified; prev.lock: share of the level below's locked positions still locked here");
+    out!(
+        "locked: share of the level's vertex positions locked when it was simplified; prev.lock: share of the level below's locked positions still locked here"
+    );
     Ok(())
 }
 
@@ -828,10 +843,7 @@ fn ply_info(input: &std::path::Path, header_only: bool, quiet: bool) -> Result<(
     if b.is_empty() {
         out!("bbox: empty");
     } else {
-        out!(
-            "bbox: min [{}, {}, {}] max [{}, {}, {}] diagonal {}",
-            b.min[0], b.min[1], b.min[2], b.max[0], b.max[1], b.max[2], b.diagonal()
-        );
+        out!("bbox: min [{}, {}, {}] max [{}, {}, {}] diagonal {}", b.min[0], b.min[1], b.min[2], b.max[0], b.max[1], b.max[2], b.diagonal());
     }
     Ok(())
 }

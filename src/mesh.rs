@@ -64,9 +64,7 @@ impl AttrSet {
     /// Dimension of the generalized quadric for this attribute set:
     /// 3 for position, +2 for uv, +3 for normal, +3 for color.
     pub fn quadric_dim(self) -> usize {
-        3 + if self.uv() { 2 } else { 0 }
-            + if self.normal() { 3 } else { 0 }
-            + if self.color() { 3 } else { 0 }
+        3 + if self.uv() { 2 } else { 0 } + if self.normal() { 3 } else { 0 } + if self.color() { 3 } else { 0 }
     }
 
     /// Human-readable list, e.g. `position(f32)+normal+color`.
@@ -257,12 +255,7 @@ mod tests {
         for bits in 0..32u32 {
             let Some(a) = AttrSet::from_bits(bits) else { continue };
             let l = VertexLayout::new(a);
-            let v = Vertex {
-                pos: [1.0e6 + 1.0e-3, -2.5, 3.25],
-                normal: [0.0, 0.6, 0.8],
-                color: [1, 2, 3, if a.alpha() { 4 } else { 255 }],
-                uv: [0.25, 0.75],
-            };
+            let v = Vertex { pos: [1.0e6 + 1.0e-3, -2.5, 3.25], normal: [0.0, 0.6, 0.8], color: [1, 2, 3, if a.alpha() { 4 } else { 255 }], uv: [0.25, 0.75] };
             let mut buf = vec![0u8; l.size];
             l.encode(&v, &mut buf);
             let w = l.decode(&buf);

@@ -10,14 +10,14 @@
 use crate::error::{IoContext, Result};
 use crate::gltf::GltfOptions;
 use crate::io::{AtomicDir, OutputKind};
+use crate::lod::Level0Source;
 use crate::lod::{LevelReport, LodOptions};
+use crate::mesh::{AttrSet, Vertex, VertexLayout};
+use crate::octree::FirstCount;
 use crate::octree::OctreeReport;
 use crate::ply::write::{PlyEncoder, PlyWriteOptions, PlyWriter};
-use crate::octree::FirstCount;
-use crate::lod::Level0Source;
 use crate::soup::{build_soup_tapped, SoupOptions, SoupReport};
 use crate::store::{write_index, BuildParams, Cut, IndexedMesh, Manifest, ManifestSeconds, Store};
-use crate::mesh::{AttrSet, Vertex, VertexLayout};
 use rustc_hash::FxHashMap;
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
@@ -105,9 +105,7 @@ pub fn build_store(input: &Path, output: &Path, opts: &BuildOptions) -> Result<B
 }
 
 fn dir_bytes(d: &Path) -> u64 {
-    std::fs::read_dir(d)
-        .map(|it| it.filter_map(|e| e.ok()).filter_map(|e| e.metadata().ok()).map(|m| m.len()).sum())
-        .unwrap_or(0)
+    std::fs::read_dir(d).map(|it| it.filter_map(|e| e.ok()).filter_map(|e| e.metadata().ok()).map(|m| m.len()).sum()).unwrap_or(0)
 }
 
 /// Which cut to extract.
@@ -426,7 +424,10 @@ mod tests {
     /// each holding a duplicate vertex of its own.
     fn parts() -> Vec<IndexedMesh> {
         let a = IndexedMesh { vertices: vec![v(0.0, 0.0, 1), v(1.0, 0.0, 1), v(0.0, 1.0, 1), v(0.0, 0.0, 1)], triangles: vec![[0, 1, 2], [3, 2, 1]] };
-        let b = IndexedMesh { vertices: vec![v(1.0, 0.0, 1), v(0.0, 1.0, 9), v(1.0, 1.0, 1), v(1.0, 1.0, 1), v(7.0, 7.0, 1)], triangles: vec![[0, 2, 1], [3, 1, 0]] };
+        let b = IndexedMesh {
+            vertices: vec![v(1.0, 0.0, 1), v(0.0, 1.0, 9), v(1.0, 1.0, 1), v(1.0, 1.0, 1), v(7.0, 7.0, 1)],
+            triangles: vec![[0, 2, 1], [3, 1, 0]],
+        };
         vec![a, b]
     }
 

@@ -88,7 +88,6 @@ use std::fs::File;
 use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
 
-
 pub use crate::store::Simplifier;
 
 /// What `simplify` needs to know of each simplifier.
@@ -197,10 +196,7 @@ pub fn check_options(target_tris: Option<u64>, target_ratio: Option<f64>, verify
         return Err(Error::Usage("simplify: --verify-samples must be at least 1".into()));
     }
     if let Some(n) = verify_samples.filter(|&n| n > metro::MAX_SAMPLES) {
-        return Err(Error::Usage(format!(
-            "simplify: --verify-samples {n} is more than {} per direction (hours of work); ask fewer",
-            metro::MAX_SAMPLES
-        )));
+        return Err(Error::Usage(format!("simplify: --verify-samples {n} is more than {} per direction (hours of work); ask fewer", metro::MAX_SAMPLES)));
     }
     Ok(())
 }
@@ -257,8 +253,7 @@ fn reduce_to_count(store: &Store, n: u64, out: &Path, o: &ReduceOptions) -> Resu
         return Ok((Reduced::Mesh(load_cut(store, &cut, o)?), rep));
     }
     // Levels with at least n triangles (level 0 always is one).
-    let levels: Vec<(u8, u64)> =
-        (0..=store.top_level()).map(|l| (l, store.level_cut(l).triangles(store))).filter(|&(_, t)| t >= n).collect();
+    let levels: Vec<(u8, u64)> = (0..=store.top_level()).map(|l| (l, store.level_cut(l).triangles(store))).filter(|&(_, t)| t >= n).collect();
     let fits = |t: u64| t.saturating_mul(o.simplifier.bytes_per_triangle()) <= o.mem;
     let (level, tris) = match levels.iter().find(|&&(_, t)| fits(t)) {
         Some(&lt) => {

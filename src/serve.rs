@@ -86,10 +86,7 @@ pub fn bind(input: &Path, o: &ServeOptions) -> Result<Server> {
         (dir, Some(scratch))
     } else if meta.is_dir() {
         if !input.join("tileset.json").is_file() {
-            return Err(Error::Usage(format!(
-                "serve: {}: neither a store nor a 3D Tiles directory (no tileset.json)",
-                input.display()
-            )));
+            return Err(Error::Usage(format!("serve: {}: neither a store nor a 3D Tiles directory (no tileset.json)", input.display())));
         }
         (input.to_path_buf(), None)
     } else {
@@ -143,11 +140,7 @@ impl Server {
     /// Answers requests until a signal asks the process to stop; then gives
     /// [`Error::Interrupted`] (after at most [`DRAIN`] for open connections).
     pub fn run(self) -> Result<()> {
-        let rt = tokio::runtime::Builder::new_current_thread()
-            .enable_io()
-            .enable_time()
-            .build()
-            .map_err(|e| Error::io("tokio runtime", "start", e))?;
+        let rt = tokio::runtime::Builder::new_current_thread().enable_io().enable_time().build().map_err(|e| Error::io("tokio runtime", "start", e))?;
         let addr = self.addr;
         let listen_err = |e| Error::io(format!("{addr}"), "listen on", e);
         self.listener.set_nonblocking(true).map_err(listen_err)?;
@@ -179,9 +172,7 @@ fn router(tiles: PathBuf) -> axum::Router {
     use axum::http::{header, HeaderValue};
     use tower_http::cors::CorsLayer;
     use tower_http::set_header::SetResponseHeaderLayer;
-    let tiles = ServeDir::with_backend(&tiles, Confined { root: tiles.clone() })
-        .append_index_html_on_directories(false)
-        .redirect_to_trailing_slash(false);
+    let tiles = ServeDir::with_backend(&tiles, Confined { root: tiles.clone() }).append_index_html_on_directories(false).redirect_to_trailing_slash(false);
     let page = ServeDir::with_backend("", Embedded).append_index_html_on_directories(true).redirect_to_trailing_slash(false);
     axum::Router::new()
         .nest_service(TILES_PREFIX, tiles)

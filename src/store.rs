@@ -466,9 +466,7 @@ impl Store {
     /// Every node's payload lies inside its level's pack file (so no read
     /// asks for more than the file holds, whatever the record says).
     fn check_pack_ranges(&self) -> Result<()> {
-        let len = (0..self.packs.len())
-            .map(|l| Ok(self.packs[l].metadata().ctx(self.pack_path(l), "open pack file")?.len()))
-            .collect::<Result<Vec<u64>>>()?;
+        let len = (0..self.packs.len()).map(|l| Ok(self.packs[l].metadata().ctx(self.pack_path(l), "open pack file")?.len())).collect::<Result<Vec<u64>>>()?;
         for (i, n) in self.nodes.iter().enumerate() {
             let l = n.level as usize;
             // The record's counts give the payload's exact size (see the
@@ -479,7 +477,10 @@ impl Store {
             if want != n.bytes as u64 {
                 return Err(Error::input(
                     Location { file: self.dir.join("nodes.bin"), ..Default::default() },
-                    format!("node {i}: its record's {} vertices, {} triangles and {patches} patches need a payload of {want} bytes, the record says {}", n.verts, n.tris, n.bytes),
+                    format!(
+                        "node {i}: its record's {} vertices, {} triangles and {patches} patches need a payload of {want} bytes, the record says {}",
+                        n.verts, n.tris, n.bytes
+                    ),
                 ));
             }
             if n.offset.checked_add(n.bytes as u64).is_none_or(|e| e > len[l]) {
@@ -937,7 +938,10 @@ impl Manifest {
         let path = dir.join("store.json");
         let (f, len) = crate::io::open_regular(&path, "open")?;
         if len > MAX_MANIFEST {
-            return Err(Error::input(Location { file: path.clone(), ..Default::default() }, format!("a manifest of {len} bytes (at most {MAX_MANIFEST} are read)")));
+            return Err(Error::input(
+                Location { file: path.clone(), ..Default::default() },
+                format!("a manifest of {len} bytes (at most {MAX_MANIFEST} are read)"),
+            ));
         }
         let mut text = String::new();
         f.take(MAX_MANIFEST).read_to_string(&mut text).ctx(&path, "read")?;

@@ -174,14 +174,9 @@ fn run(args: Args) -> anyhow::Result<()> {
         float_colors: args.float_colors,
         uv_names: args.uv_names.into(),
         index_type,
-        comments: std::iter::once(format!(
-            "octolod-gen shape {} tris {} seed {}",
-            shape.name(),
-            args.tris,
-            args.seed
-        ))
-        .chain(args.comment.iter().cloned())
-        .collect(),
+        comments: std::iter::once(format!("octolod-gen shape {} tris {} seed {}", shape.name(), args.tris, args.seed))
+            .chain(args.comment.iter().cloned())
+            .collect(),
         extra_vertex_quality: args.quality,
     };
     let start = Instant::now();

@@ -26,8 +26,8 @@ pub use write::{write, write_to};
 use crate::geom::dot;
 use crate::mesh::{AttrSet, Vertex};
 use portable::{fcos, fsin, hash_unit, round, Rng};
-use std::f64::consts::{PI, TAU};
 use shapes::{box_dims, grid_dims, BoxLattice, Torus, Waves};
+use std::f64::consts::{PI, TAU};
 
 /// Which procedural mesh to generate; [`Shape::about`] describes each
 /// (octolod-gen's `--help` shows the same text).
@@ -126,21 +126,58 @@ pub const MAX_TRIS: u64 = 4_000_000_000;
 #[derive(Clone, Debug)]
 enum Kind {
     /// Sphere, Open, Duplicates, Offset.
-    Sphere { lat: BoxLattice, waves: Waves, radius: f64, center: [f64; 3], open: bool, dup: bool },
+    Sphere {
+        lat: BoxLattice,
+        waves: Waves,
+        radius: f64,
+        center: [f64; 3],
+        open: bool,
+        dup: bool,
+    },
     /// Terrain and Plane: a (w+1)×(h+1) vertex grid over [0,1]².
-    Grid { w: u64, h: u64, waves: Waves },
-    Cylinder { s: u64, h: u64 },
-    Sheets { w: u64, h: u64 },
+    Grid {
+        w: u64,
+        h: u64,
+        waves: Waves,
+    },
+    Cylinder {
+        s: u64,
+        h: u64,
+    },
+    Sheets {
+        w: u64,
+        h: u64,
+    },
     /// `w` columns of sliver quads per row, `dg` collinear triangles per row.
-    Slivers { w: u64, h: u64, dg: u64 },
-    Instances { torus: Torus, count: u64 },
+    Slivers {
+        w: u64,
+        h: u64,
+        dg: u64,
+    },
+    Instances {
+        torus: Torus,
+        count: u64,
+    },
     /// `p` pages on the spine edge, `q` triangles in the fan disc.
-    Fan { p: u64, q: u64 },
+    Fan {
+        p: u64,
+        q: u64,
+    },
     /// A (w+1)×(h+1) vertex grid; the kept cells follow an mx × my coarse
     /// mask: `prefix[cy * (mx+1) + cx]` kept fine cells left of coarse
     /// column cx in a fine row of coarse row cy; `col_first[cx]` the first
     /// fine column of cx; `row_off[t]` kept cells before fine row t.
-    Scan { w: u64, h: u64, waves: Waves, noise: f64, mx: u64, my: u64, col_first: Vec<u64>, prefix: Vec<u64>, row_off: Vec<u64> },
+    Scan {
+        w: u64,
+        h: u64,
+        waves: Waves,
+        noise: f64,
+        mx: u64,
+        my: u64,
+        col_first: Vec<u64>,
+        prefix: Vec<u64>,
+        row_off: Vec<u64>,
+    },
     Single,
 }
 
@@ -189,8 +226,7 @@ impl Generator {
             }
             Shape::Terrain | Shape::Plane => {
                 let (w, h) = grid_dims(t / 2.0, 1.0, 1);
-                let waves =
-                    if opts.shape == Shape::Terrain { Waves::octaves(&mut rng, 5, 2, TAU * 1.5, 0.12) } else { Waves::none() };
+                let waves = if opts.shape == Shape::Terrain { Waves::octaves(&mut rng, 5, 2, TAU * 1.5, 0.12) } else { Waves::none() };
                 Kind::Grid { w, h, waves }
             }
             Shape::Cylinder => {
@@ -239,8 +275,9 @@ impl Generator {
                 // Which cells the scanner saw, on a coarse mask grid (so
                 // building is O(rows + mask), whatever the triangle count).
                 let m = SCAN_MASK;
-                let coarse: Vec<bool> =
-                    (0..m * m).map(|i| scan_keeps((i % m) as f64 / m as f64 + 0.5 / m as f64, (i / m) as f64 / m as f64 + 0.5 / m as f64, &holes, phase)).collect();
+                let coarse: Vec<bool> = (0..m * m)
+                    .map(|i| scan_keeps((i % m) as f64 / m as f64 + 0.5 / m as f64, (i / m) as f64 / m as f64 + 0.5 / m as f64, &holes, phase))
+                    .collect();
                 let share = (coarse.iter().filter(|&&k| k).count() as f64 / (m * m) as f64).max(0.01);
                 let (w, h) = grid_dims(t / 2.0 / share, 1.0, 4);
                 let (mx, my) = (m.min(w), m.min(h));
@@ -496,21 +533,12 @@ impl Generator {
         if a.normal() {
             let n = normal();
             let l = dot(n, n).sqrt();
-            v.normal = if l.is_finite() && l > 1e-300 {
-                [(n[0] / l) as f32, (n[1] / l) as f32, (n[2] / l) as f32]
-            } else {
-                [0.0, 0.0, 1.0]
-            };
+            v.normal = if l.is_finite() && l > 1e-300 { [(n[0] / l) as f32, (n[1] / l) as f32, (n[2] / l) as f32] } else { [0.0, 0.0, 1.0] };
         }
         if a.color() {
             let c = |x: f64| round(255.0 * (0.5 + 0.5 * fsin(x))).clamp(0.0, 255.0) as u8;
             let [x, y, z] = cpos;
-            v.color = [
-                c(3.0 * x),
-                c(3.0 * y + 1.0),
-                c(3.0 * z + 2.0),
-                if a.alpha() { c(2.0 * (x + y + z) + 0.5) } else { 255 },
-            ];
+            v.color = [c(3.0 * x), c(3.0 * y + 1.0), c(3.0 * z + 2.0), if a.alpha() { c(2.0 * (x + y + z) + 0.5) } else { 255 }];
         }
         if a.uv() {
             let t = uv();

@@ -111,11 +111,7 @@ pub(super) fn box_dims(target: u64, count: impl Fn(u64, u64, u64) -> u64) -> [u6
         for a in r - 2..=r + 1 {
             let base = count(a, a, a);
             let step = count(a, a, a + 1) - base;
-            let c = if target >= base {
-                a + (target - base + step / 2) / step
-            } else {
-                a.saturating_sub((base - target + step / 2) / step).max(1)
-            };
+            let c = if target >= base { a + (target - base + step / 2) / step } else { a.saturating_sub((base - target + step / 2) / step).max(1) };
             for cc in c.saturating_sub(1).max(1)..=c + 1 {
                 consider(a, a, cc);
             }
@@ -308,4 +304,3 @@ impl Torus {
         }
     }
 }
-

@@ -107,10 +107,7 @@ fn vertices_finite_indices_valid_attributes_sane() {
         assert!(fs.iter().flatten().all(|&i| (i as u64) < g.vertex_count()), "{shape:?}");
         // A scan keeps the vertices of its dropped cells, as scanners write them.
         assert_eq!(all_referenced(g.vertex_count(), &fs), shape != Shape::Scan, "{shape:?}: unreferenced vertices");
-        if matches!(
-            shape,
-            Shape::Sphere | Shape::Terrain | Shape::Plane | Shape::Cylinder | Shape::Sheets | Shape::Open | Shape::Instances
-        ) {
+        if matches!(shape, Shape::Sphere | Shape::Terrain | Shape::Plane | Shape::Cylinder | Shape::Sheets | Shape::Open | Shape::Instances) {
             assert!(fs.iter().all(|f| f[0] != f[1] && f[1] != f[2] && f[0] != f[2]), "{shape:?} repeats an index");
         }
         // Alpha varies when requested, and is 255 otherwise.
@@ -183,10 +180,7 @@ fn hard_cases_are_what_they_claim() {
         if area2 == 0.0 {
             degenerate += 1;
         } else {
-            let longest = [(a, b), (b, c), (c, a)]
-                .iter()
-                .map(|(p, q)| ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2)).sqrt())
-                .fold(0.0, f64::max);
+            let longest = [(a, b), (b, c), (c, a)].iter().map(|(p, q)| ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2)).sqrt()).fold(0.0, f64::max);
             min_aspect = min_aspect.min(area2 / (longest * longest));
         }
     }
@@ -262,8 +256,7 @@ fn streamed_file_matches_in_memory_mesh() {
         assert_eq!(n as usize, bytes.len());
         let (vs, fs) = Generator::new(&opts).mesh();
         let mut expect = Vec::new();
-        crate::ply::write::write_ply(&d.path().join("m.ply"), &PlyWriteOptions { attrs: opts.attrs, ..wopts.clone() }, &vs, &fs)
-            .unwrap();
+        crate::ply::write::write_ply(&d.path().join("m.ply"), &PlyWriteOptions { attrs: opts.attrs, ..wopts.clone() }, &vs, &fs).unwrap();
         expect.extend(std::fs::read(d.path().join("m.ply")).unwrap());
         assert!(bytes == expect, "{encoding:?}");
     }

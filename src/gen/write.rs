@@ -63,13 +63,7 @@ pub fn write_to<W: Write + Send>(g: &Generator, wopts: &PlyWriteOptions, w: W, q
     stream(g, wopts, w, quiet, CHUNK_BYTES)
 }
 
-pub(super) fn stream<W: Write + Send>(
-    g: &Generator,
-    wopts: &PlyWriteOptions,
-    w: W,
-    quiet: bool,
-    chunk_bytes: usize,
-) -> io::Result<u64> {
+pub(super) fn stream<W: Write + Send>(g: &Generator, wopts: &PlyWriteOptions, w: W, quiet: bool, chunk_bytes: usize) -> io::Result<u64> {
     let (nv, nf) = (g.vertex_count(), g.face_count());
     let mut pw = PlyWriter::new(w, wopts, nv, nf)?;
     let enc = pw.encoder().clone();
@@ -110,8 +104,7 @@ pub(super) fn stream<W: Write + Send>(
         });
         let mut encoded = Ok(());
         'outer: for group in jobs.chunks(window) {
-            let mut next: Vec<(Job, Vec<u8>)> =
-                group.iter().map(|&j| (j, spare.try_recv().unwrap_or_default())).collect();
+            let mut next: Vec<(Job, Vec<u8>)> = group.iter().map(|&j| (j, spare.try_recv().unwrap_or_default())).collect();
             // Each window is a safe point for signals.
             if crate::io::signal::interrupted().is_some() {
                 encoded = Err(io::Error::new(io::ErrorKind::Interrupted, "interrupted by a signal"));

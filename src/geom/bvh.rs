@@ -81,8 +81,7 @@ impl Bvh {
             ([0, 1, 2].map(|k| (c[0][k] + c[1][k] + c[2][k]) / 3.0), t as u32)
         };
         let n = mesh.triangles.len();
-        let mut items: Vec<(P3, u32)> =
-            if parallel { (0..n).into_par_iter().map(centroid).collect() } else { (0..n).map(centroid).collect() };
+        let mut items: Vec<(P3, u32)> = if parallel { (0..n).into_par_iter().map(centroid).collect() } else { (0..n).map(centroid).collect() };
         let nodes = if items.is_empty() {
             Vec::new()
         } else if parallel {
@@ -129,8 +128,7 @@ impl Bvh {
     /// 4), so there are at most `f` nodes.
     pub(crate) fn bytes_bound(f: u64) -> u64 {
         let node = size_of::<Node>() as u64;
-        node * f.max(1) + (size_of::<[P3; 3]>() + size_of::<TriKind>() + size_of::<u32>()) as u64 * f
-            + size_of::<(P3, u32)>() as u64 * f
+        node * f.max(1) + (size_of::<[P3; 3]>() + size_of::<TriKind>() + size_of::<u32>()) as u64 * f + size_of::<(P3, u32)>() as u64 * f
     }
     /// The exact closest point of the mesh to `p` (None for an empty mesh).
     pub fn closest(&self, p: P3) -> Option<Closest> {
@@ -228,8 +226,7 @@ pub(crate) struct BoxTree {
 impl BoxTree {
     /// Over the non-empty `boxes`.
     pub(crate) fn new(boxes: &[Aabb]) -> BoxTree {
-        let mut items: Vec<(P3, u32)> =
-            boxes.iter().enumerate().filter(|(_, b)| !b.is_empty()).map(|(i, b)| (b.center(), i as u32)).collect();
+        let mut items: Vec<(P3, u32)> = boxes.iter().enumerate().filter(|(_, b)| !b.is_empty()).map(|(i, b)| (b.center(), i as u32)).collect();
         let mut nodes = Vec::with_capacity(2 * items.len());
         if !items.is_empty() {
             box_build(boxes, &mut items, 0, &mut nodes);
@@ -437,11 +434,9 @@ mod tests {
             let mut got = Vec::new();
             tree.overlapping(&q, |i| got.push(i));
             got.sort_unstable();
-            let want: Vec<usize> = (0..boxes.len())
-                .filter(|&i| !boxes[i].is_empty() && (0..3).all(|k| boxes[i].min[k] <= q.max[k] && q.min[k] <= boxes[i].max[k]))
-                .collect();
+            let want: Vec<usize> =
+                (0..boxes.len()).filter(|&i| !boxes[i].is_empty() && (0..3).all(|k| boxes[i].min[k] <= q.max[k] && q.min[k] <= boxes[i].max[k])).collect();
             assert_eq!(got, want);
         }
     }
-
 }

@@ -69,9 +69,7 @@ pub(crate) fn closest_point_triangle_kind(p: P3, a: P3, b: P3, c: P3, kind: TriK
         TriKind::Regular => ericson(p, a, b, c),
         TriKind::Thin => {
             let n = cross(sub(b, a), sub(c, a));
-            let inside = dot(cross(sub(b, a), sub(p, a)), n) >= 0.0
-                && dot(cross(sub(c, b), sub(p, b)), n) >= 0.0
-                && dot(cross(sub(a, c), sub(p, c)), n) >= 0.0;
+            let inside = dot(cross(sub(b, a), sub(p, a)), n) >= 0.0 && dot(cross(sub(c, b), sub(p, b)), n) >= 0.0 && dot(cross(sub(a, c), sub(p, c)), n) >= 0.0;
             if inside {
                 let t = dot(sub(p, a), n) / dot(n, n);
                 sub(p, scale(n, t))
@@ -183,14 +181,14 @@ mod tests {
         let (a, b, c) = ([0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]);
         assert_eq!(TriKind::of(a, b, c), TriKind::Regular);
         let cases: [(P3, P3); 8] = [
-            ([-1.0, -1.0, 1.0], a),             // vertex a
-            ([2.0, -0.5, -3.0], b),             // vertex b
-            ([-0.2, 3.0, 0.5], c),              // vertex c
-            ([0.5, -1.0, 0.0], [0.5, 0.0, 0.0]), // edge ab
-            ([-2.0, 0.25, 1.0], [0.0, 0.25, 0.0]), // edge ca
-            ([1.0, 1.0, 0.0], [0.5, 0.5, 0.0]), // edge bc
+            ([-1.0, -1.0, 1.0], a),                 // vertex a
+            ([2.0, -0.5, -3.0], b),                 // vertex b
+            ([-0.2, 3.0, 0.5], c),                  // vertex c
+            ([0.5, -1.0, 0.0], [0.5, 0.0, 0.0]),    // edge ab
+            ([-2.0, 0.25, 1.0], [0.0, 0.25, 0.0]),  // edge ca
+            ([1.0, 1.0, 0.0], [0.5, 0.5, 0.0]),     // edge bc
             ([0.25, 0.25, 3.0], [0.25, 0.25, 0.0]), // face, above
-            ([0.1, 0.2, -2.0], [0.1, 0.2, 0.0]), // face, below
+            ([0.1, 0.2, -2.0], [0.1, 0.2, 0.0]),    // face, below
         ];
         for (p, want) in cases {
             let q = closest_point_triangle(p, a, b, c);

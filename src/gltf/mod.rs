@@ -591,10 +591,7 @@ fn document(s: &Survey, l: &Layout, opts: &GltfOptions, name: Option<&str>, plac
         exts.push("EXT_meshopt_compression");
     }
     let mut doc = Map::new();
-    doc.insert(
-        "asset".into(),
-        json!({"version": "2.0", "generator": concat!("octolod ", env!("CARGO_PKG_VERSION")), "extras": {MARKER_KEY: MARKER_VALUE}}),
-    );
+    doc.insert("asset".into(), json!({"version": "2.0", "generator": concat!("octolod ", env!("CARGO_PKG_VERSION")), "extras": {MARKER_KEY: MARKER_VALUE}}));
     if !exts.is_empty() {
         doc.insert("extensionsUsed".into(), json!(exts));
         doc.insert("extensionsRequired".into(), json!(exts));
@@ -635,9 +632,7 @@ fn json_bytes(doc: &Value) -> Vec<u8> {
 fn glb_head(json: &[u8], bin_len: u64, what: &str) -> Result<Vec<u8>> {
     let total = glb_total(json.len() as u64, bin_len);
     if total > u32::MAX as u64 {
-        return Err(Error::Usage(format!(
-            "{what}: the GLB would be {total} bytes, over the format's 4 GiB limit; write a .gltf (JSON + .bin) instead"
-        )));
+        return Err(Error::Usage(format!("{what}: the GLB would be {total} bytes, over the format's 4 GiB limit; write a .gltf (JSON + .bin) instead")));
     }
     let mut h = Vec::with_capacity(28 + json.len());
     h.extend_from_slice(GLB_MAGIC);
@@ -701,8 +696,7 @@ where
     I: Iterator<Item = Result<M>>,
     F: FnMut() -> I,
 {
-    let container = Container::of(out)
-        .ok_or_else(|| Error::Usage(format!("{}: a glTF output ends in .glb or .gltf", out.display())))?;
+    let container = Container::of(out).ok_or_else(|| Error::Usage(format!("{}: a glTF output ends in .glb or .gltf", out.display())))?;
     check_output(out, force)?;
     let mut s = Survey::new(group_vertices);
     for m in parts() {

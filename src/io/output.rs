@@ -166,7 +166,9 @@ impl OwnEntries {
             OwnEntries::All => true,
             OwnEntries::RenderNames => {
                 let s = rel.to_string_lossy();
-                let frame = |n: &str| n.strip_prefix("frame-").and_then(|r| r.strip_suffix(".png")).is_some_and(|d| !d.is_empty() && d.bytes().all(|c| c.is_ascii_digit()));
+                let frame = |n: &str| {
+                    n.strip_prefix("frame-").and_then(|r| r.strip_suffix(".png")).is_some_and(|d| !d.is_empty() && d.bytes().all(|c| c.is_ascii_digit()))
+                };
                 match s.strip_prefix("reference/") {
                     Some(r) => frame(r),
                     None => frame(&s) || s == "stats.csv" || s == "stats.json" || s == FRAMES_MARKER,
@@ -318,9 +320,7 @@ fn gltf_names_bin(gltf: &Path, bin: &Path) -> bool {
     let Some(name) = bin.file_name() else { return false };
     gltf_json(gltf).is_some_and(|v| {
         gltf_is_ours(&v)
-            && v["buffers"].as_array().is_some_and(|bufs| {
-                bufs.iter().any(|b| b["uri"].as_str().and_then(uri_file_name).is_some_and(|n| n == name.as_bytes()))
-            })
+            && v["buffers"].as_array().is_some_and(|bufs| bufs.iter().any(|b| b["uri"].as_str().and_then(uri_file_name).is_some_and(|n| n == name.as_bytes())))
     })
 }
 
@@ -403,10 +403,7 @@ pub fn check_output(dest: &Path, kind: OutputKind, force: bool) -> Result<()> {
             needs_force(dest, kind, force)?;
         }
         if old_bin && !force {
-            return Err(Error::Usage(format!(
-                "{} already exists (the buffer of a glTF written by octolod); pass --force to replace it",
-                bin.display()
-            )));
+            return Err(Error::Usage(format!("{} already exists (the buffer of a glTF written by octolod); pass --force to replace it", bin.display())));
         }
         return Ok(());
     }

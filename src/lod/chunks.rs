@@ -285,13 +285,7 @@ impl ChunkEncoder {
 /// proportion to its triangles in each (so sums over chunks are kept).
 /// `leaf_of[t]` is triangle t's target. Returns (target, mesh, a, locked)
 /// per chunk, in target order.
-pub fn split_by_target(
-    m: &IndexedMesh,
-    a: &[f64],
-    a_len: usize,
-    locked: &[bool],
-    leaf_of: &[u32],
-) -> Vec<(u32, IndexedMesh, Vec<f32>, Vec<bool>)> {
+pub fn split_by_target(m: &IndexedMesh, a: &[f64], a_len: usize, locked: &[bool], leaf_of: &[u32]) -> Vec<(u32, IndexedMesh, Vec<f32>, Vec<bool>)> {
     let nv = m.vertices.len();
     let mut order: Vec<usize> = (0..m.triangles.len()).collect();
     order.sort_by_key(|&t| leaf_of[t]);

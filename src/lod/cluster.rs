@@ -127,14 +127,7 @@ impl<'a> Splits<'a> {
     /// [`Quadric::at_point`]), or None to take the sum of its triangles'.
     /// Splitting stops at `max_clusters` clusters or when the largest
     /// priority left is ≤ `min_priority`.
-    pub fn new(
-        mesh: &'a IndexedMesh,
-        vertex_a: Option<&[f64]>,
-        locked: &[bool],
-        attrs: AttrSet,
-        max_clusters: usize,
-        min_priority: f64,
-    ) -> Splits<'a> {
+    pub fn new(mesh: &'a IndexedMesh, vertex_a: Option<&[f64]>, locked: &[bool], attrs: AttrSet, max_clusters: usize, min_priority: f64) -> Splits<'a> {
         Self::grow(mesh, vertex_a, locked, attrs, max_clusters, min_priority, true)
     }
 
@@ -235,7 +228,8 @@ impl<'a> Splits<'a> {
         // cell order, each cell's members contiguous: a split reads and
         // swaps them in two sequential sweeps instead of gathering them
         // through an index (which cost a cache miss per member and level).
-        let mut rows = Rows { q: vq, pts: sp.free.iter().map(|&v| sp.space.to_local(mesh.vertices[v as usize].pos)).collect(), ids: (0..nf as u32).collect(), cl };
+        let mut rows =
+            Rows { q: vq, pts: sp.free.iter().map(|&v| sp.space.to_local(mesh.vertices[v as usize].pos)).collect(), ids: (0..nf as u32).collect(), cl };
         let (rlo, rhi) = sp.space.local_bounds(&root);
         sp.cells.reserve(2 * nf);
         sp.cells.push(Cell { lo: rlo, hi: rhi, start: 0, end: nf as u32, created: 0, parent: u32::MAX });
@@ -448,9 +442,10 @@ impl<'a> Splits<'a> {
         // edge collapse does (colours are clamped by `unembed`, normals
         // renormalised).
         let uv_range = self.space.attrs.uv().then(|| {
-            self.mesh.vertices.iter().fold(([f32::MAX; 2], [f32::MIN; 2]), |(lo, hi), v| {
-                ([lo[0].min(v.uv[0]), lo[1].min(v.uv[1])], [hi[0].max(v.uv[0]), hi[1].max(v.uv[1])])
-            })
+            self.mesh
+                .vertices
+                .iter()
+                .fold(([f32::MAX; 2], [f32::MIN; 2]), |(lo, hi), v| ([lo[0].min(v.uv[0]), lo[1].min(v.uv[1])], [hi[0].max(v.uv[0]), hi[1].max(v.uv[1])]))
         });
         if !self.free.is_empty() {
             let a = self.assign(s);
@@ -740,16 +735,7 @@ impl Rows {
     /// sums then unroll), 0 for any other (`self.cl`). Same sums in the
     /// same order either way.
     #[allow(clippy::too_many_arguments)]
-    fn partition<const CL: usize>(
-        &mut self,
-        start: usize,
-        end: usize,
-        axis: usize,
-        mid: f64,
-        q0: &mut [f64],
-        q1: &mut [f64],
-        mo: &mut [[f64; 6]; 2],
-    ) -> usize {
+    fn partition<const CL: usize>(&mut self, start: usize, end: usize, axis: usize, mid: f64, q0: &mut [f64], q1: &mut [f64], mo: &mut [[f64; 6]; 2]) -> usize {
         let cl = if CL > 0 { CL } else { self.cl };
         let (q0, q1) = (&mut q0[..cl], &mut q1[..cl]);
         let (mut i, mut j) = (start, end);

@@ -86,8 +86,7 @@ pub fn collapse(mesh: &IndexedMesh, locked: &[bool], attrs: AttrSet, target_tris
         }
     }
     let attr0 = attr.clone();
-    let lock: Vec<meshopt::SimplifyVertex> =
-        locked.iter().map(|&l| if l { meshopt::SimplifyVertex::Lock } else { meshopt::SimplifyVertex::None }).collect();
+    let lock: Vec<meshopt::SimplifyVertex> = locked.iter().map(|&l| if l { meshopt::SimplifyVertex::Lock } else { meshopt::SimplifyVertex::None }).collect();
     let mut idx: Vec<u32> = mesh.triangles.iter().flatten().copied().collect();
     let (count, err, opts) = match max_error {
         None => (3 * target_tris, f32::MAX, meshopt::SimplifyOptions::None),
@@ -274,8 +273,8 @@ pub fn compact(vertices: &[Vertex], tris: &[[u32; 3]]) -> (IndexedMesh, Vec<u32>
 /// [`super::measure::node_error`] does, for
 /// [`super::measure::remeasure_far`].
 pub fn collapse_error(input: &IndexedMesh, locked: &[bool], output: &IndexedMesh, from: &[u32]) -> super::NodeError {
-    use crate::geom::{Bvh, Mesh};
     use super::measure::{Farthest, NodeError};
+    use crate::geom::{Bvh, Mesh};
     if input.triangles.is_empty() {
         return NodeError::default();
     }

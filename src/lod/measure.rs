@@ -19,8 +19,8 @@
 //! pass's CPU (4.2 of 22 s on the 12 M sphere, README "Costs").
 
 use super::chunks::ChunkFile;
-use super::{cluster, tri_centroid, vertex_triangles, LeafStats};
 use super::cluster::Prio;
+use super::{cluster, tri_centroid, vertex_triangles, LeafStats};
 use crate::error::Result;
 use crate::mesh::Aabb;
 use crate::store::IndexedMesh;
@@ -115,7 +115,10 @@ pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> NodeError {
     // corners (numbered after the vertices).
     for (k, &(p, t)) in border.input.iter().enumerate() {
         let t = input.triangles[t as usize];
-        let around = t.iter().flat_map(|&w| in_around[in_first[w as usize] as usize..in_first[w as usize + 1] as usize].iter()).flat_map(|&x| input.triangles[x as usize]);
+        let around = t
+            .iter()
+            .flat_map(|&w| in_around[in_first[w as usize] as usize..in_first[w as usize + 1] as usize].iter())
+            .flat_map(|&x| input.triangles[x as usize]);
         let best = fans.nearest(p, t.into_iter().chain(around), &mut met, (nv + k) as u32, top.floor());
         if let Some(d) = if best.is_finite() { Some(best) } else { exact(p) } {
             top.push(d, (nv + k) as u32);
@@ -168,7 +171,10 @@ pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> NodeError {
             // The corners' member nearest to p first: the search mostly
             // stops in its fan.
             let groups = t.map(|o| members(o as usize));
-            let near = groups.iter().flat_map(|g| g.iter()).min_by(|&&a, &&b| crate::geom::dist2(p, input.vertices[a as usize].pos).total_cmp(&crate::geom::dist2(p, input.vertices[b as usize].pos)));
+            let near = groups
+                .iter()
+                .flat_map(|g| g.iter())
+                .min_by(|&&a, &&b| crate::geom::dist2(p, input.vertices[a as usize].pos).total_cmp(&crate::geom::dist2(p, input.vertices[b as usize].pos)));
             let first = near.map_or(&[][..], std::slice::from_ref);
             let best = in_fans.nearest(p, &[first, groups[0], groups[1], groups[2]], &mut met_in, (no + k) as u32, low);
             push(best, no + k, &mut r2, top_r);
@@ -519,21 +525,25 @@ pub(super) fn remeasure_far(levels: [(&ChunkFile, &[LeafStats]); 2], errors: &mu
             let close: Vec<&(_, f64)> = pts.iter().filter(|&&(p, d)| near(&leaves[l].bounds, p, d)).collect();
             let off = mesh.positions.len() as u32;
             mesh.positions.extend(g.mesh.vertices.iter().map(|v| v.pos));
-            mesh.triangles.extend(g.mesh.triangles.iter().filter(|t| {
-                let mut b = Aabb::EMPTY;
-                for &x in t.iter() {
-                    b.add(g.mesh.vertices[x as usize].pos);
-                }
-                close.iter().any(|&&(p, d)| near(&b, p, d))
-            }).map(|t| t.map(|x| x + off)));
+            mesh.triangles.extend(
+                g.mesh
+                    .triangles
+                    .iter()
+                    .filter(|t| {
+                        let mut b = Aabb::EMPTY;
+                        for &x in t.iter() {
+                            b.add(g.mesh.vertices[x as usize].pos);
+                        }
+                        close.iter().any(|&&(p, d)| near(&b, p, d))
+                    })
+                    .map(|t| t.map(|x| x + off)),
+            );
         }
         let bvh = Bvh::new(&mesh);
         Ok(pts.iter().map(|&(p, d)| bvh.closest(p).map_or(d, |c| c.dist2.sqrt().min(d))).fold(0.0, f64::max))
     };
-    let remeasured: Vec<Result<(usize, f64)>> = picked
-        .par_iter()
-        .map(|f| Ok((f.node, f.base.max(measure(levels[0], &f.far)?).max(measure(levels[1], &f.far_reps)?))))
-        .collect();
+    let remeasured: Vec<Result<(usize, f64)>> =
+        picked.par_iter().map(|f| Ok((f.node, f.base.max(measure(levels[0], &f.far)?).max(measure(levels[1], &f.far_reps)?)))).collect();
     for r in remeasured {
         let (i, e) = r?;
         errors[i] = errors[i].min(e);

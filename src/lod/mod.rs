@@ -118,30 +118,30 @@
 //! next level's leaf size, so nodes merge until nothing is shared.
 
 pub mod chunks;
-pub mod octree;
-pub mod collapse;
 pub mod cluster;
+pub mod collapse;
 pub mod measure;
-pub mod partition;
+pub mod octree;
 pub mod ordered;
+pub mod partition;
 pub mod shared;
 
 use crate::error::{Error, Result};
 use crate::geom::{cross, sub};
 use crate::mesh::{Aabb, AttrSet, VertexLayout};
-use octree::{build_octree, FirstCount, Level0, OctreeOptions, OctreeReport};
 use crate::progress::Progress;
 use crate::store::Simplifier;
-pub use crate::store::{BuildParams, LevelReport};
 use crate::store::{encode_payload, IndexedMesh, NodeRec, PackWriter, StoreHeader, NO_NODE};
+pub use crate::store::{BuildParams, LevelReport};
 use chunks::{split_by_target, ChunkFile, Gathered};
-use measure::{node_error, remeasure_far, FarNode, NodeError};
-use ordered::ordered;
 use cluster::Splits;
+use measure::{node_error, remeasure_far, FarNode, NodeError};
+use octree::{build_octree, FirstCount, Level0, OctreeOptions, OctreeReport};
+use ordered::ordered;
 use partition::{Histogram, LevelCube, Tiling};
 use rayon::prelude::*;
-use shared::{pos_bits, Band, SharedSort, WAS_LOCKED};
 use rustc_hash::FxHashMap;
+use shared::{pos_bits, Band, SharedSort, WAS_LOCKED};
 use std::path::Path;
 use std::time::Instant;
 
@@ -433,8 +433,7 @@ pub fn build(input: Level0Source, dir: &Path, opts: &LodOptions) -> Result<Built
             Tiling::from_histogram(&hist, predicted, leaf, opts.params.max_depth)
         };
         let mut next_leaves = vec![LeafStats::default(); next_tiling.leaves.len()];
-        let mut next_chunks =
-            if is_final { None } else { Some(ChunkFile::create(scratch.path().join(format!("chunks-{}.bin", level + 1)), layout, a_len)?) };
+        let mut next_chunks = if is_final { None } else { Some(ChunkFile::create(scratch.path().join(format!("chunks-{}.bin", level + 1)), layout, a_len)?) };
         rep.tau = tau;
 
         // Pass 2: final normals and payloads, simplification, routing.
@@ -518,8 +517,7 @@ pub fn build(input: Level0Source, dir: &Path, opts: &LodOptions) -> Result<Built
                     };
                     let out = &out;
                     let mut last = 0;
-                    let leaf_of: Vec<u32> =
-                        out.triangles.iter().map(|t| next_tiling.locate_near(nc.key(tri_centroid(out, t)), &mut last) as u32).collect();
+                    let leaf_of: Vec<u32> = out.triangles.iter().map(|t| next_tiling.locate_near(nc.key(tri_centroid(out, t)), &mut last) as u32).collect();
                     p2.simp_tris = out.triangles.len() as u32;
                     let file = encoder.as_ref().expect("a next level");
                     let mut routed = split_by_target(out, &qa, a_len, &out_locked, &leaf_of);
@@ -617,16 +615,19 @@ pub fn build(input: Level0Source, dir: &Path, opts: &LodOptions) -> Result<Built
             c => c,
         };
         reports.push(rep);
-        let old = std::mem::replace(&mut chunks, match next_chunks {
-            Some(mut c) => {
-                c.finish(next_tiling.leaves.len())?;
-                c
-            }
-            None => {
-                chunks.remove();
-                break;
-            }
-        });
+        let old = std::mem::replace(
+            &mut chunks,
+            match next_chunks {
+                Some(mut c) => {
+                    c.finish(next_tiling.leaves.len())?;
+                    c
+                }
+                None => {
+                    chunks.remove();
+                    break;
+                }
+            },
+        );
         remeasure_far([(&chunks, &next_leaves[..]), (&old, &leaves[..])], &mut simp_err[base..], far_nodes)?;
         old.remove();
         if next_total as f64 > 0.9 * total as f64 {

@@ -61,18 +61,18 @@
 //! stage, the larger of the histogram's and the routing's share is taken
 //! from phases 2 and 3 ([`SoupTap::reserve`]).
 
-use crate::error::{Error, Location, Result};
 use super::chunks::ChunkFile;
 use super::partition::{Histogram, LevelCube, Tiling, KEY_DEPTH};
 use super::LeafStats;
+use crate::error::{Error, Location, Result};
 use crate::mesh::{Aabb, VertexLayout};
-use crate::soup::{SoupTap, TapMode};
 use crate::progress::Progress;
 use crate::soup::format::{SoupHeader, SoupReader};
-use std::path::PathBuf;
+use crate::soup::{SoupTap, TapMode};
 use crate::store::NO_NODE;
 use rayon::prelude::*;
 use std::path::Path;
+use std::path::PathBuf;
 
 #[derive(Clone, Debug)]
 pub struct OctreeOptions {
@@ -197,7 +197,12 @@ enum TapState {
     /// Counted for the soup's cube; the partition reads the soup to route.
     Counted(Counted),
     /// Phase 3: triangles routed to their leaves as they are placed.
-    Routing { cube: LevelCube, layout: VertexLayout, routing: Box<Routing>, keys: Vec<u64> },
+    Routing {
+        cube: LevelCube,
+        layout: VertexLayout,
+        routing: Box<Routing>,
+        keys: Vec<u64>,
+    },
 }
 
 struct Counted {
@@ -364,13 +369,7 @@ fn cut_pass(hist: &Histogram, open: &[u64], open_depth: u8, opts: &OctreeOptions
 /// Cuts `soup` into the level-0 leaves; chunks are written to `chunk_path`.
 /// `first`: the first counting pass, done as the soup was written (for
 /// this cube and these options), or None to read the soup for it.
-pub fn build_octree(
-    soup: &Path,
-    chunk_path: std::path::PathBuf,
-    cube: &LevelCube,
-    opts: &OctreeOptions,
-    first: Option<FirstCount>,
-) -> Result<Level0> {
+pub fn build_octree(soup: &Path, chunk_path: std::path::PathBuf, cube: &LevelCube, opts: &OctreeOptions, first: Option<FirstCount>) -> Result<Level0> {
     let t0 = std::time::Instant::now();
     check_options(opts)?;
     let sh = SoupReader::open(soup)?.header;

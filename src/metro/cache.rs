@@ -135,11 +135,7 @@ impl Cache {
     /// bytes fit (or nothing more can go: counted as an overcommit).
     fn make_room(&self, st: &mut CacheState, need: u64) {
         while self.acct.resident() + need > self.budget {
-            let victim = st
-                .lru
-                .iter()
-                .find(|(_, k)| matches!(st.map.get(k), Some(CacheSlot::Ready(e, _)) if Arc::strong_count(e) == 1))
-                .map(|(&t, &k)| (t, k));
+            let victim = st.lru.iter().find(|(_, k)| matches!(st.map.get(k), Some(CacheSlot::Ready(e, _)) if Arc::strong_count(e) == 1)).map(|(&t, &k)| (t, k));
             let Some((t, k)) = victim else {
                 self.overcommits.fetch_add(1, Relaxed);
                 return;
@@ -253,5 +249,4 @@ mod tests {
         assert!(cache.overcommits.load(Relaxed) > 0);
         drop(r);
     }
-
 }

@@ -192,13 +192,8 @@ pub fn one_sided(src: &Mesh, target: &Bvh, samples: u64, seed: u64, progress: &P
 /// [`SNAP_ULPS`] × `f64::EPSILON` × the largest coordinate magnitude of the
 /// boxes (see the module doc).
 pub fn snap_distance(boxes: &[Aabb]) -> f64 {
-    let m = boxes
-        .iter()
-        .filter(|b| !b.is_empty())
-        .flat_map(|b| b.min.iter().chain(b.max.iter()))
-        .map(|x| x.abs())
-        .filter(|x| x.is_finite())
-        .fold(0.0, f64::max);
+    let m =
+        boxes.iter().filter(|b| !b.is_empty()).flat_map(|b| b.min.iter().chain(b.max.iter())).map(|x| x.abs()).filter(|x| x.is_finite()).fold(0.0, f64::max);
     SNAP_ULPS * f64::EPSILON * m
 }
 

@@ -173,8 +173,8 @@ use crate::geom::{mix64, Bvh};
 use crate::progress::Progress;
 use cache::Cache;
 use measure::{measure, Target};
-use paged::PagedLevel;
 use paged::PagedGen;
+use paged::PagedLevel;
 use sample::MemGen;
 use std::fmt;
 use std::io::Write;
@@ -216,9 +216,7 @@ impl Source {
         if let Some((dir, level)) = spec.rsplit_once('@') {
             let numeric = !level.is_empty() && level.bytes().all(|c| c.is_ascii_digit());
             if Path::new(dir).is_dir() || (numeric && !Path::new(spec).exists()) {
-                let l: u8 = level.parse().map_err(|_| {
-                    Error::Usage(format!("'{spec}': the level after '@' must be a number from 0 to 255, not '{level}'"))
-                })?;
+                let l: u8 = level.parse().map_err(|_| Error::Usage(format!("'{spec}': the level after '@' must be a number from 0 to 255, not '{level}'")))?;
                 return Ok(Source::Store(PathBuf::from(dir), l));
             }
         }
@@ -255,10 +253,7 @@ pub fn load_ply(path: &Path) -> Result<Mesh> {
     if sink.vertices.len() as u64 > u32::MAX as u64 + 1 {
         return Err(Error::input(loc(path), format!("{} vertices: metro takes at most 2^32", sink.vertices.len())));
     }
-    let mesh = Mesh {
-        positions: sink.vertices.iter().map(|v| v.pos).collect(),
-        triangles: sink.triangles.iter().map(|t| t.map(|i| i as u32)).collect(),
-    };
+    let mesh = Mesh { positions: sink.vertices.iter().map(|v| v.pos).collect(), triangles: sink.triangles.iter().map(|t| t.map(|i| i as u32)).collect() };
     if mesh.triangles.is_empty() {
         return Err(Error::input(loc(path), "no triangles to measure"));
     }
@@ -390,8 +385,7 @@ pub fn compare_sources(sa: &Source, sb: &Source, opts: &Options, mem: &MemOption
     let (sa, sb) = (&resolved[0], &resolved[1]);
     // An eighth of the budget for batches (up to 1 M samples): a larger
     // batch visits each target part once for more queries.
-    let batch = ((mem.budget / 8 / BATCH_BYTES_PER_SAMPLE) as usize / CHUNK as usize * CHUNK as usize)
-        .clamp(CHUNK as usize, BATCH_MAX);
+    let batch = ((mem.budget / 8 / BATCH_BYTES_PER_SAMPLE) as usize / CHUNK as usize * CHUNK as usize).clamp(CHUNK as usize, BATCH_MAX);
     let batch_bytes = batch as u64 * BATCH_BYTES_PER_SAMPLE;
     let held = if mem.explicit { ply_est } else { 0 };
     let cache_budget = mem.budget.saturating_sub(held).saturating_sub(batch_bytes);
@@ -524,10 +518,7 @@ fn compare_operands(a: &Operand, b: &Operand, opts: &Options, batch: usize, pagi
                 let hold = if let Operand::Paged(s) = src { s.max_src() } else { 0 };
                 let t = ((p.cache.budget.saturating_sub(hold)) / (2 * l.max_tgt()).max(1)).clamp(1, p.threads as u64) as usize;
                 threads_used[k] = t as u64;
-                let pool = rayon::ThreadPoolBuilder::new()
-                    .num_threads(t)
-                    .build()
-                    .map_err(|e| Error::Usage(format!("metro: cannot start {t} threads: {e}")))?;
+                let pool = rayon::ThreadPoolBuilder::new().num_threads(t).build().map_err(|e| Error::Usage(format!("metro: cannot start {t} threads: {e}")))?;
                 Target::Paged { lvl: l, cache: p.cache, pool }
             }
         };
@@ -642,10 +633,7 @@ pub fn run(o: &RunOptions) -> Result<bool> {
     let mut ok = true;
     for c in checks.iter().filter(|c| c.exceeded) {
         ok = false;
-        eprintln!(
-            "octolod: metro: {} {:.6e} exceeds {} {} (limit {:.6e})",
-            c.metric, c.value, c.option, c.threshold, c.limit
-        );
+        eprintln!("octolod: metro: {} {:.6e} exceeds {} {} (limit {:.6e})", c.metric, c.value, c.option, c.threshold, c.limit);
     }
     Ok(ok)
 }
@@ -717,5 +705,4 @@ mod tests {
         }
         assert_eq!(snap_distance(&[crate::mesh::Aabb { min: [-2.0, 0.0, 0.0], max: [1.0, 1.0, 1.0] }]), 2.0 * SNAP_ULPS * f64::EPSILON);
     }
-
 }

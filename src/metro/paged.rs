@@ -46,11 +46,9 @@ impl SrcPart {
     fn build(m: &IndexedMesh) -> SrcPart {
         let (positions, triangles) = weld_first_reference(m);
         let edges = first_occurrence_edges(&triangles, false);
-        let mut sorted: Vec<([u64; 3], u32)> =
-            positions.iter().enumerate().map(|(i, p)| (p.map(f64::to_bits), i as u32)).collect();
+        let mut sorted: Vec<([u64; 3], u32)> = positions.iter().enumerate().map(|(i, p)| (p.map(f64::to_bits), i as u32)).collect();
         sorted.sort_unstable();
-        let mut edge_keys: Vec<u64> =
-            edges.iter().map(|e| ((e[0].min(e[1]) as u64) << 32) | e[0].max(e[1]) as u64).collect();
+        let mut edge_keys: Vec<u64> = edges.iter().map(|e| ((e[0].min(e[1]) as u64) << 32) | e[0].max(e[1]) as u64).collect();
         edge_keys.sort_unstable();
         SrcPart { positions, triangles, edges, sorted, edge_keys }
     }
@@ -148,10 +146,7 @@ impl PagedLevel {
         let costs: Vec<PartCost> = nodes.iter().map(|&i| PartCost::of(&store.nodes[i])).collect();
         let max_load = costs.iter().map(|c| c.load).max().unwrap_or(0).max(1);
         let t = threads.min((cache.budget / max_load).max(1) as usize).max(1);
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(t)
-            .build()
-            .map_err(|e| Error::Usage(format!("metro: cannot start {t} threads: {e}")))?;
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(t).build().map_err(|e| Error::Usage(format!("metro: cannot start {t} threads: {e}")))?;
         let progress = Progress::items(nodes.len() as u64, if op == 0 { "scan A" } else { "scan B" }, quiet);
         let scanned: Vec<(Aabb, u64)> = pool.install(|| {
             (0..nodes.len())
@@ -349,13 +344,7 @@ impl<'a> PagedGen<'a> {
 
     /// Figures of the welded level (valid after the vertex pass).
     pub(super) fn summary(&self) -> MeshSummary {
-        MeshSummary {
-            source: self.lvl.name.clone(),
-            vertices: self.nv,
-            faces: self.lvl.faces(),
-            area: self.area,
-            bbox: self.lvl.bbox,
-        }
+        MeshSummary { source: self.lvl.name.clone(), vertices: self.nv, faces: self.lvl.faces(), area: self.area, bbox: self.lvl.bbox }
     }
 
     fn open_part(&mut self) -> Result<()> {
@@ -650,22 +639,14 @@ impl PagedLevel {
         });
         let q = |p: &P3, k: usize| (((p[k] - b.min[k]) * scale[k]).max(0.0) as u64).min((1 << 21) - 1);
         let answers: Vec<Vec<(u32, f64)>> = pool.install(|| {
-            let mut order: Vec<(u64, u32)> = points
-                .par_iter()
-                .enumerate()
-                .map(|(i, p)| (crate::lod::partition::morton3(q(p, 0), q(p, 1), q(p, 2)), i as u32))
-                .collect();
+            let mut order: Vec<(u64, u32)> =
+                points.par_iter().enumerate().map(|(i, p)| (crate::lod::partition::morton3(q(p, 0), q(p, 1), q(p, 2)), i as u32)).collect();
             order.par_sort_unstable();
             order
                 .par_chunks(PIECE)
                 .map_init(
                     || Worker { home: None, slot: u32::MAX, stack: Vec::new(), near: Vec::new(), near_r: 0.0, near_of: usize::MAX },
-                    |w, piece| {
-                        piece
-                            .iter()
-                            .map(|&(_, i)| Ok((i, self.closest(cache, points[i as usize], w)?)))
-                            .collect::<Result<Vec<_>>>()
-                    },
+                    |w, piece| piece.iter().map(|&(_, i)| Ok((i, self.closest(cache, points[i as usize], w)?))).collect::<Result<Vec<_>>>(),
                 )
                 .collect::<Result<Vec<_>>>()
         })?;

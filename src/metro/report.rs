@@ -176,20 +176,16 @@ impl Report {
     /// Every given threshold, exceeded or not (value > limit exceeds).
     pub fn check(&self, limits: &Limits) -> Vec<Check> {
         let c = &self.combined;
-        [
-            ("hausdorff", "--max-hausdorff", limits.hausdorff, c.max),
-            ("rms", "--max-rms", limits.rms, c.rms),
-            ("mean", "--max-mean", limits.mean, c.mean),
-        ]
-        .into_iter()
-        .filter_map(|(metric, option, t, value)| {
-            t.map(|threshold| {
-                let limit = threshold.limit(self.diagonal);
-                // A figure that is not a number never passes.
-                Check { metric, option, threshold, limit, value, exceeded: !(value <= limit) }
+        [("hausdorff", "--max-hausdorff", limits.hausdorff, c.max), ("rms", "--max-rms", limits.rms, c.rms), ("mean", "--max-mean", limits.mean, c.mean)]
+            .into_iter()
+            .filter_map(|(metric, option, t, value)| {
+                t.map(|threshold| {
+                    let limit = threshold.limit(self.diagonal);
+                    // A figure that is not a number never passes.
+                    Check { metric, option, threshold, limit, value, exceeded: !(value <= limit) }
+                })
             })
-        })
-        .collect()
+            .collect()
     }
 
     fn rel(&self, x: f64) -> f64 {
@@ -263,12 +259,7 @@ impl Report {
     pub fn table(&self) -> String {
         use std::fmt::Write as _;
         let mut s = String::new();
-        let bb = |b: &Aabb| {
-            format!(
-                "[{:.6}, {:.6}, {:.6}] .. [{:.6}, {:.6}, {:.6}]",
-                b.min[0], b.min[1], b.min[2], b.max[0], b.max[1], b.max[2]
-            )
-        };
+        let bb = |b: &Aabb| format!("[{:.6}, {:.6}, {:.6}] .. [{:.6}, {:.6}, {:.6}]", b.min[0], b.min[1], b.min[2], b.max[0], b.max[1], b.max[2]);
         for (name, m) in [("A", &self.a), ("B", &self.b)] {
             let _ = writeln!(
                 s,
@@ -522,9 +513,7 @@ impl serde_json::ser::Formatter for Compact {
 /// `value` as compact JSON with [`Compact`]'s numbers and escapes.
 fn to_json_string<T: Serialize>(value: &T) -> String {
     let mut out = Vec::new();
-    value
-        .serialize(&mut serde_json::Serializer::with_formatter(&mut out, Compact))
-        .expect("serialising plain structs to memory cannot fail");
+    value.serialize(&mut serde_json::Serializer::with_formatter(&mut out, Compact)).expect("serialising plain structs to memory cannot fail");
     String::from_utf8(out).expect("serde_json writes UTF-8")
 }
 
@@ -559,7 +548,18 @@ mod tests {
     /// reads metro's output this way); `null` figures come back as NaN.
     #[test]
     fn json_reads_back() {
-        let d = Distances { samples: 10, vertex_samples: 3, edge_samples: 3, face_samples: 4, max: 0.5, mean: 0.1, rms: 0.2, max_at: [1.0, f64::NAN, 3.0], sum: 1.0, sum2: 0.4 };
+        let d = Distances {
+            samples: 10,
+            vertex_samples: 3,
+            edge_samples: 3,
+            face_samples: 4,
+            max: 0.5,
+            mean: 0.1,
+            rms: 0.2,
+            max_at: [1.0, f64::NAN, 3.0],
+            sum: 1.0,
+            sum2: 0.4,
+        };
         let m = MeshSummary { source: "a.ply".into(), vertices: 3, faces: 1, area: 0.5, bbox: Aabb { min: [0.0; 3], max: [1.0; 3] } };
         let r = Report {
             a: m.clone(),

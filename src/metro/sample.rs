@@ -132,11 +132,8 @@ pub(super) fn first_occurrence_edges(triangles: &[[u32; 3]], parallel: bool) -> 
             (((a.min(b) as u64) << 32) | a.max(b) as u64, 3 * f as u64 + k as u64)
         })
     };
-    let mut keys: Vec<(u64, u64)> = if parallel {
-        triangles.par_iter().enumerate().flat_map_iter(occ).collect()
-    } else {
-        triangles.iter().enumerate().flat_map(occ).collect()
-    };
+    let mut keys: Vec<(u64, u64)> =
+        if parallel { triangles.par_iter().enumerate().flat_map_iter(occ).collect() } else { triangles.iter().enumerate().flat_map(occ).collect() };
     if parallel {
         keys.par_sort_unstable();
     } else {
@@ -349,7 +346,15 @@ mod tests {
                 let p = face_sample(&c, i, n, 0.37, &mut rng);
                 assert!(p[0] >= 0.0 && p[1] >= 0.0 && p[0] + p[1] <= 1.0 + 1e-15 && p[2] == 0.0, "{p:?}");
                 // Which quarter (by the 4 similar sub-triangles).
-                let q = if p[0] >= 0.5 { 1 } else if p[1] >= 0.5 { 2 } else if p[0] + p[1] <= 0.5 { 0 } else { 3 };
+                let q = if p[0] >= 0.5 {
+                    1
+                } else if p[1] >= 0.5 {
+                    2
+                } else if p[0] + p[1] <= 0.5 {
+                    0
+                } else {
+                    3
+                };
                 quad[q] += 1;
             }
             if n == 100 {
@@ -362,10 +367,7 @@ mod tests {
     #[test]
     fn sample_plan_follows_metro_budget() {
         // Unit square of 2 triangles.
-        let m = Mesh::new(
-            vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0], [5.0, 5.0, 5.0]],
-            vec![[0, 1, 2], [0, 2, 3]],
-        );
+        let m = Mesh::new(vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0], [5.0, 5.0, 5.0]], vec![[0, 1, 2], [0, 2, 3]]);
         let plan = Plan::new(&m, 1000, 1);
         let (v, e, f) = plan.counts();
         assert_eq!(v, 4, "the unreferenced vertex is not sampled");
@@ -393,5 +395,4 @@ mod tests {
         assert_eq!(first_occurrence_edges(&m.triangles, true), vec![[2, 0], [0, 1], [1, 2], [1, 4], [4, 2]]);
         assert_eq!(first_occurrence_edges(&m.triangles, false), first_occurrence_edges(&m.triangles, true));
     }
-
 }

@@ -202,9 +202,13 @@ fn check_body_size(path: &Path, h: &PlyHeader, file_len: u64) -> Result<()> {
     for e in &h.elements {
         let per = match h.encoding {
             Encoding::Ascii => 2 * e.props.len() as u128,
-            _ => e.props.iter().map(|p| match p.ty {
-                PropType::Scalar(s) | PropType::List(s, _) => s.size() as u128,
-            }).sum(),
+            _ => e
+                .props
+                .iter()
+                .map(|p| match p.ty {
+                    PropType::Scalar(s) | PropType::List(s, _) => s.size() as u128,
+                })
+                .sum(),
         };
         let before = need;
         need += e.count as u128 * per;
@@ -322,12 +326,7 @@ fn parse_lines(path: &Path, bytes: &[u8]) -> Result<(Encoding, Vec<ElementDef>, 
                     b"ascii" => Encoding::Ascii,
                     b"binary_little_endian" => Encoding::BinaryLe,
                     b"binary_big_endian" => Encoding::BinaryBe,
-                    other => {
-                        return Err(at(
-                            n,
-                            format!("unknown format '{}' (expected ascii, binary_little_endian or binary_big_endian)", text(other)),
-                        ))
-                    }
+                    other => return Err(at(n, format!("unknown format '{}' (expected ascii, binary_little_endian or binary_big_endian)", text(other)))),
                 };
                 if words[2] != b"1.0" {
                     return Err(at(n, format!("PLY format version {} is not supported (only 1.0)", text(words[2]))));
@@ -339,9 +338,10 @@ fn parse_lines(path: &Path, bytes: &[u8]) -> Result<(Encoding, Vec<ElementDef>, 
                     return Err(malformed("element <name> <count>"));
                 }
                 let name = text(words[1]);
-                let count = std::str::from_utf8(words[2]).ok().and_then(|c| c.parse::<u64>().ok()).ok_or_else(|| {
-                    at(n, format!("element '{name}': count '{}' is not a whole number below 2^64", text(words[2])))
-                })?;
+                let count = std::str::from_utf8(words[2])
+                    .ok()
+                    .and_then(|c| c.parse::<u64>().ok())
+                    .ok_or_else(|| at(n, format!("element '{name}': count '{}' is not a whole number below 2^64", text(words[2]))))?;
                 if let Some(first) = element_line.insert(name.clone(), n) {
                     return Err(at(n, format!("element '{name}' declared twice (lines {first} and {n})")));
                 }
@@ -352,10 +352,7 @@ fn parse_lines(path: &Path, bytes: &[u8]) -> Result<(Encoding, Vec<ElementDef>, 
                 let Some(e) = elements.last_mut() else {
                     return Err(at(n, "'property' before any 'element'".into()));
                 };
-                let scalar = |w: &[u8]| {
-                    scalar_named(w)
-                        .ok_or_else(|| at(n, format!("unknown property type '{}' (expected {SCALAR_NAMES})", text(w))))
-                };
+                let scalar = |w: &[u8]| scalar_named(w).ok_or_else(|| at(n, format!("unknown property type '{}' (expected {SCALAR_NAMES})", text(w))));
                 let (ty, name) = match words.len() {
                     3 if words[1] != b"list" => (PropType::Scalar(scalar(words[1])?), words[2]),
                     5 if words[1] == b"list" => {
@@ -403,18 +400,13 @@ pub fn parse_header(path: &Path, bytes: &[u8], body_offset: u64) -> Result<PlyHe
     }
     let (encoding, elements, comments) = parse_lines(path, bytes)?;
     let elem_loc = |name: &str| Location { file: path.to_path_buf(), element: Some(name.to_string()), ..Default::default() };
-    let vertex_elem = elements
-        .iter()
-        .position(|e| e.name == "vertex")
-        .ok_or_else(|| Error::input(loc(path), "no 'vertex' element in the header"))?;
+    let vertex_elem = elements.iter().position(|e| e.name == "vertex").ok_or_else(|| Error::input(loc(path), "no 'vertex' element in the header"))?;
     let face_elem = elements.iter().position(|e| e.name == "face");
     let v = &elements[vertex_elem];
     for axis in ["x", "y", "z"] {
         match v.prop(axis).map(|i| v.props[i].ty) {
             None => return Err(Error::input(elem_loc("vertex"), format!("no '{axis}' property"))),
-            Some(PropType::List(..)) => {
-                return Err(Error::input(elem_loc("vertex"), format!("property '{axis}' is a list, expected a scalar")))
-            }
+            Some(PropType::List(..)) => return Err(Error::input(elem_loc("vertex"), format!("property '{axis}' is a list, expected a scalar"))),
             Some(PropType::Scalar(_)) => {}
         }
     }
@@ -445,19 +437,11 @@ pub fn parse_header(path: &Path, bytes: &[u8], body_offset: u64) -> Result<PlyHe
             Some(i) => {
                 if let PropType::List(c, s) = f.props[i].ty {
                     if c.is_float() || s.is_float() {
-                        return Err(Error::input(
-                            elem_loc("face"),
-                            format!("vertex index list uses a float type (list {} {})", c.name(), s.name()),
-                        ));
+                        return Err(Error::input(elem_loc("face"), format!("vertex index list uses a float type (list {} {})", c.name(), s.name())));
                     }
                 }
             }
-            None => {
-                return Err(Error::input(
-                    elem_loc("face"),
-                    "no 'vertex_indices' or 'vertex_index' list property",
-                ))
-            }
+            None => return Err(Error::input(elem_loc("face"), "no 'vertex_indices' or 'vertex_index' list property")),
         }
     }
     Ok(PlyHeader { encoding, elements, comments, body_offset, vertex_elem, face_elem, attrs })
@@ -465,26 +449,19 @@ pub fn parse_header(path: &Path, bytes: &[u8], body_offset: u64) -> Result<PlyHe
 
 /// The color property names present (`red/green/blue` or `r/g/b` or `diffuse_*`).
 pub(crate) fn color_names(v: &ElementDef) -> Option<[&'static str; 3]> {
-    const SETS: [[&str; 3]; 3] =
-        [["red", "green", "blue"], ["diffuse_red", "diffuse_green", "diffuse_blue"], ["r", "g", "b"]];
-    SETS.into_iter().find(|set| {
-        set.iter().all(|n| v.prop(n).is_some_and(|i| matches!(v.props[i].ty, PropType::Scalar(_))))
-    })
+    const SETS: [[&str; 3]; 3] = [["red", "green", "blue"], ["diffuse_red", "diffuse_green", "diffuse_blue"], ["r", "g", "b"]];
+    SETS.into_iter().find(|set| set.iter().all(|n| v.prop(n).is_some_and(|i| matches!(v.props[i].ty, PropType::Scalar(_)))))
 }
 
 /// The texture-coordinate property names present.
 pub(crate) fn uv_names(v: &ElementDef) -> Option<[&'static str; 2]> {
     const SETS: [[&str; 2]; 4] = [["u", "v"], ["s", "t"], ["texture_u", "texture_v"], ["texture_s", "texture_t"]];
-    SETS.into_iter().find(|set| {
-        set.iter().all(|n| v.prop(n).is_some_and(|i| matches!(v.props[i].ty, PropType::Scalar(_))))
-    })
+    SETS.into_iter().find(|set| set.iter().all(|n| v.prop(n).is_some_and(|i| matches!(v.props[i].ty, PropType::Scalar(_)))))
 }
 
 /// Index of the face's vertex index list property.
 pub(crate) fn face_index_prop(f: &ElementDef) -> Option<usize> {
-    ["vertex_indices", "vertex_index"]
-        .iter()
-        .find_map(|n| f.prop(n).filter(|&i| matches!(f.props[i].ty, PropType::List(..))))
+    ["vertex_indices", "vertex_index"].iter().find_map(|n| f.prop(n).filter(|&i| matches!(f.props[i].ty, PropType::List(..))))
 }
 
 #[cfg(test)]

@@ -241,22 +241,13 @@ struct BodyReader<'a> {
 
 impl BodyReader<'_> {
     fn loc(&self, elem: &str, record: u64, offset: u64) -> Location {
-        Location {
-            file: self.input.path.clone(),
-            element: Some(elem.to_string()),
-            record: Some(record),
-            offset: Some(offset),
-            line: None,
-        }
+        Location { file: self.input.path.clone(), element: Some(elem.to_string()), record: Some(record), offset: Some(offset), line: None }
     }
 
     fn truncated(&self, elem: &ElementDef, record: u64) -> Error {
         Error::input(
             self.loc(&elem.name, record, self.input.offset()),
-            format!(
-                "unexpected end of file: the header declares {} '{}' records but the body ends inside record {record}",
-                elem.count, elem.name
-            ),
+            format!("unexpected end of file: the header declares {} '{}' records but the body ends inside record {record}", elem.count, elem.name),
         )
     }
 
@@ -312,10 +303,7 @@ impl BodyReader<'_> {
 
     fn check_vertex(&self, v: &Vertex, e: &ElementDef, record: u64, offset: u64) -> Result<()> {
         if !(v.pos[0].is_finite() && v.pos[1].is_finite() && v.pos[2].is_finite()) {
-            return Err(Error::input(
-                self.loc(&e.name, record, offset),
-                format!("non-finite coordinate ({}, {}, {})", v.pos[0], v.pos[1], v.pos[2]),
-            ));
+            return Err(Error::input(self.loc(&e.name, record, offset), format!("non-finite coordinate ({}, {}, {})", v.pos[0], v.pos[1], v.pos[2])));
         }
         Ok(())
     }
@@ -331,14 +319,7 @@ impl BodyReader<'_> {
         Ok(())
     }
 
-    fn read_vertices_fixed(
-        &mut self,
-        e: &ElementDef,
-        plan: &VertexPlan,
-        size: usize,
-        be: bool,
-        sink: &mut dyn BodySink,
-    ) -> Result<()> {
+    fn read_vertices_fixed(&mut self, e: &ElementDef, plan: &VertexPlan, size: usize, be: bool, sink: &mut dyn BodySink) -> Result<()> {
         let mut offs = Vec::with_capacity(e.props.len());
         let mut o = 0;
         for p in &e.props {
@@ -400,13 +381,7 @@ impl BodyReader<'_> {
     }
 
     /// Binary vertex element with list properties (rare): decode record by record.
-    fn read_vertices_varying(
-        &mut self,
-        e: &ElementDef,
-        plan: &VertexPlan,
-        be: bool,
-        sink: &mut dyn BodySink,
-    ) -> Result<()> {
+    fn read_vertices_varying(&mut self, e: &ElementDef, plan: &VertexPlan, be: bool, sink: &mut dyn BodySink) -> Result<()> {
         let mut vals = vec![0f64; e.props.len()];
         for rec in 0..e.count {
             let start = self.input.offset();
@@ -431,15 +406,7 @@ impl BodyReader<'_> {
     }
 
     /// Builds the vertex of one record-by-record decoded record, validates and batches it.
-    fn push_assembled(
-        &mut self,
-        plan: &VertexPlan,
-        vals: &[f64],
-        e: &ElementDef,
-        rec: u64,
-        start: u64,
-        sink: &mut dyn BodySink,
-    ) -> Result<()> {
+    fn push_assembled(&mut self, plan: &VertexPlan, vals: &[f64], e: &ElementDef, rec: u64, start: u64, sink: &mut dyn BodySink) -> Result<()> {
         let v = assemble_vertex(plan, vals, e);
         self.check_vertex(&v, e, rec, start)?;
         self.verts.push(v);
@@ -518,7 +485,11 @@ impl BodyReader<'_> {
             let a: [u8; 4] = buf[at..at + 4].try_into().unwrap();
             let v = if be { u32::from_be_bytes(a) } else { u32::from_le_bytes(a) };
             // Negative signed indices become huge and fail the range check.
-            if signed { v as i32 as i64 as u64 } else { v as u64 }
+            if signed {
+                v as i32 as i64 as u64
+            } else {
+                v as u64
+            }
         };
         while n < max && p + 13 <= buf.len() && buf[p] == 3 {
             let t = [idx(p + 1), idx(p + 5), idx(p + 9)];
@@ -538,15 +509,7 @@ impl BodyReader<'_> {
         n
     }
 
-    fn read_face_record(
-        &mut self,
-        e: &ElementDef,
-        rec: u64,
-        idx_prop: usize,
-        be: bool,
-        ascii: bool,
-        sink: &mut dyn BodySink,
-    ) -> Result<()> {
+    fn read_face_record(&mut self, e: &ElementDef, rec: u64, idx_prop: usize, be: bool, ascii: bool, sink: &mut dyn BodySink) -> Result<()> {
         if ascii {
             self.input.skip_ws()?;
         }
@@ -560,11 +523,7 @@ impl BodyReader<'_> {
                 }
                 (PropType::Scalar(s), false) => self.skip_bytes(e, rec, s.size() as u64)?,
                 (PropType::List(c, s), _) => {
-                    let n = if ascii {
-                        self.ascii_count(e, rec, c, &p.name)?
-                    } else {
-                        self.read_bin_count(e, rec, c, be)?
-                    };
+                    let n = if ascii { self.ascii_count(e, rec, c, &p.name)? } else { self.read_bin_count(e, rec, c, be)? };
                     if !want {
                         if ascii {
                             for _ in 0..n {
@@ -576,10 +535,7 @@ impl BodyReader<'_> {
                         continue;
                     }
                     if n < 3 {
-                        return Err(Error::input(
-                            self.loc(&e.name, rec, start),
-                            format!("face with {n} vertex index(es); a face needs at least 3"),
-                        ));
+                        return Err(Error::input(self.loc(&e.name, rec, start), format!("face with {n} vertex index(es); a face needs at least 3")));
                     }
                     if n > 3 {
                         self.stats.polygons += 1;
@@ -615,15 +571,7 @@ impl BodyReader<'_> {
 
     /// Adds one polygon corner: validates it and emits the fan triangle it closes.
     #[inline]
-    fn fan_push(
-        &mut self,
-        fan: &mut Fan,
-        i: i64,
-        e: &ElementDef,
-        rec: u64,
-        start: u64,
-        sink: &mut dyn BodySink,
-    ) -> Result<()> {
+    fn fan_push(&mut self, fan: &mut Fan, i: i64, e: &ElementDef, rec: u64, start: u64, sink: &mut dyn BodySink) -> Result<()> {
         let nv = self.header.vertex_count();
         if i < 0 || i as u64 >= nv {
             return Err(self.bad_index(e, rec, start, i, nv));
@@ -664,11 +612,7 @@ impl BodyReader<'_> {
     }
 
     fn bad_index(&self, e: &ElementDef, rec: u64, start: u64, i: i64, nv: u64) -> Error {
-        let msg = if i < 0 {
-            format!("negative vertex index {i}")
-        } else {
-            format!("vertex index {i} out of range (the file has {nv} vertices)")
-        };
+        let msg = if i < 0 { format!("negative vertex index {i}") } else { format!("vertex index {i} out of range (the file has {nv} vertices)") };
         Error::input(self.loc(&e.name, rec, start), msg)
     }
 
@@ -750,11 +694,7 @@ impl BodyReader<'_> {
             return Err(self.truncated(e, rec));
         };
         let s = std::str::from_utf8(&tok).unwrap_or("");
-        let parsed = if ty.is_float() {
-            s.parse::<f64>().ok()
-        } else {
-            s.parse::<i64>().ok().map(|x| x as f64)
-        };
+        let parsed = if ty.is_float() { s.parse::<f64>().ok() } else { s.parse::<i64>().ok().map(|x| x as f64) };
         match parsed {
             // "inf"/"nan" literals go on to the coordinate checks; a
             // finite token that overflows its type (parsed as ±inf or out
@@ -764,10 +704,9 @@ impl BodyReader<'_> {
                 self.loc(&e.name, rec, off),
                 format!("property '{prop}': '{}' is out of range for {}", String::from_utf8_lossy(&tok), ty.name()),
             )),
-            None => Err(Error::input(
-                self.loc(&e.name, rec, off),
-                format!("property '{prop}': '{}' is not a valid {}", String::from_utf8_lossy(&tok), ty.name()),
-            )),
+            None => {
+                Err(Error::input(self.loc(&e.name, rec, off), format!("property '{prop}': '{}' is not a valid {}", String::from_utf8_lossy(&tok), ty.name())))
+            }
         }
     }
 

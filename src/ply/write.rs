@@ -293,10 +293,7 @@ impl PlyEncoder {
     pub fn face(&self, idx: &[u32], out: &mut Vec<u8>) -> io::Result<()> {
         let n = idx.len();
         if n == 0 || n > 255 {
-            return Err(io::Error::new(
-                io::ErrorKind::InvalidInput,
-                format!("a face has {n} vertices; PLY lists with uchar counts hold 1..=255"),
-            ));
+            return Err(io::Error::new(io::ErrorKind::InvalidInput, format!("a face has {n} vertices; PLY lists with uchar counts hold 1..=255")));
         }
         // Fast path: triangles with 32-bit integer indices.
         if n == 3 && self.encoding != Encoding::Ascii && matches!(self.index, Scalar::I32 | Scalar::U32) {
@@ -406,20 +403,14 @@ impl<W: Write> PlyWriter<W> {
 
     fn check_vertices(&self, n: u64) -> io::Result<()> {
         if self.vertices + n > self.n_vertices {
-            return Err(invalid_data(format!(
-                "more vertices written than the {} announced in the header",
-                self.n_vertices
-            )));
+            return Err(invalid_data(format!("more vertices written than the {} announced in the header", self.n_vertices)));
         }
         Ok(())
     }
 
     fn check_faces(&self, n: u64) -> io::Result<()> {
         if self.vertices != self.n_vertices {
-            return Err(invalid_data(format!(
-                "face written after only {} of the {} vertices",
-                self.vertices, self.n_vertices
-            )));
+            return Err(invalid_data(format!("face written after only {} of the {} vertices", self.vertices, self.n_vertices)));
         }
         if self.faces + n > self.n_faces {
             return Err(invalid_data(format!("more faces written than the {} announced in the header", self.n_faces)));
@@ -508,13 +499,7 @@ pub fn write_ply_polygons(path: &Path, opts: &PlyWriteOptions, vertices: &[Verte
     write_whole(path, opts, vertices, faces.len() as u64, faces.iter().map(|f| &f[..]))
 }
 
-fn write_whole<'a>(
-    path: &Path,
-    opts: &PlyWriteOptions,
-    vertices: &[Vertex],
-    n_faces: u64,
-    faces: impl Iterator<Item = &'a [u32]>,
-) -> Result<()> {
+fn write_whole<'a>(path: &Path, opts: &PlyWriteOptions, vertices: &[Vertex], n_faces: u64, faces: impl Iterator<Item = &'a [u32]>) -> Result<()> {
     let mut file = AtomicFile::create(path, OutputKind::Ply, true)?;
     let res: io::Result<()> = (|| {
         let mut w = PlyWriter::new(file.writer(), opts, vertices.len() as u64, n_faces)?;
@@ -612,14 +597,7 @@ mod tests {
         ];
         for (bits, float_colors, quality, index_type, vsize) in cases {
             for encoding in [Encoding::BinaryLe, Encoding::BinaryBe] {
-                let opts = PlyWriteOptions {
-                    encoding,
-                    attrs: AttrSet(bits),
-                    float_colors,
-                    index_type,
-                    extra_vertex_quality: quality,
-                    ..Default::default()
-                };
+                let opts = PlyWriteOptions { encoding, attrs: AttrSet(bits), float_colors, index_type, extra_vertex_quality: quality, ..Default::default() };
                 let (hl, out) = body(&opts, &verts, &faces);
                 let fsize = 2 * (1 + 3 * index_type.size()) + (1 + 4 * index_type.size());
                 assert_eq!(out.len() - hl, 4 * vsize + fsize, "attrs {bits} {encoding:?}");

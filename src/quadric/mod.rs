@@ -859,15 +859,7 @@ impl Quadric {
     /// interior, 6 faces, 12 edges, 8 corners); the best feasible candidate
     /// wins, with the clamped unconstrained minimiser and the clamped mean as
     /// extra (always feasible) candidates.
-    fn box_minimise(
-        &self,
-        a: &Mat,
-        mean: &[f64; MAX_DIM],
-        xstar: &[f64; MAX_DIM],
-        lo: [f64; 3],
-        hi: [f64; 3],
-        rel_tol: f64,
-    ) -> [f64; MAX_DIM] {
+    fn box_minimise(&self, a: &Mat, mean: &[f64; MAX_DIM], xstar: &[f64; MAX_DIM], lo: [f64; 3], hi: [f64; 3], rel_tol: f64) -> [f64; MAX_DIM] {
         let n = self.dim;
         let na = n - 3;
         let b = self.b();
@@ -999,12 +991,7 @@ impl Quadric {
 
 impl std::fmt::Debug for Quadric {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Quadric")
-            .field("dim", &self.dim)
-            .field("area", &self.area())
-            .field("count", &self.count())
-            .field("coeffs", &self.coeffs())
-            .finish()
+        f.debug_struct("Quadric").field("dim", &self.dim).field("area", &self.area()).field("count", &self.count()).field("coeffs", &self.coeffs()).finish()
     }
 }
 

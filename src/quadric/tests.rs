@@ -108,12 +108,7 @@ fn dimension_follows_attributes_and_embedding_round_trips() {
         (AttrSet(AttrSet::NORMAL | AttrSet::COLOR), 9),
         (AttrSet(AttrSet::UV | AttrSet::NORMAL | AttrSet::COLOR), 11),
     ];
-    let v = Vertex {
-        pos: [1e6 + 0.5, -3.0, 2.25],
-        normal: [0.0, 0.6, 0.8],
-        color: [10, 128, 255, 7],
-        uv: [0.25, 0.75],
-    };
+    let v = Vertex { pos: [1e6 + 0.5, -3.0, 2.25], normal: [0.0, 0.6, 0.8], color: [10, 128, 255, 7], uv: [0.25, 0.75] };
     for (attrs, d) in dims {
         let s = QuadricSpace::new(attrs, AttrWeights { uv: 2.0, normal: 3.0, color: 5.0 }, [1e6, -4.0, 2.0]);
         assert_eq!(s.dim, d);
@@ -347,22 +342,12 @@ fn degenerate_triangles_contribute_nothing_and_never_nan() {
         [[f64::INFINITY, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
         [[1e300, 0.0, 0.0], [-1e300, 1e300, 0.0], [0.0, -1e300, 1e300]],
     ];
-    for attrs in
-        [AttrSet::POSITION_ONLY, AttrSet(AttrSet::COLOR), AttrSet(AttrSet::UV | AttrSet::NORMAL | AttrSet::COLOR)]
-    {
+    for attrs in [AttrSet::POSITION_ONLY, AttrSet(AttrSet::COLOR), AttrSet(AttrSet::UV | AttrSet::NORMAL | AttrSet::COLOR)] {
         let s = QuadricSpace::new(attrs, AttrWeights::uniform(0.3), [0.0; 3]);
         for (ti, t) in bad.iter().enumerate() {
             // Attributes differ per corner: collinear positions still count zero.
-            let vs: Vec<Vertex> = t
-                .iter()
-                .enumerate()
-                .map(|(c, &pos)| Vertex {
-                    pos,
-                    color: [50 * c as u8, 0, 90, 255],
-                    uv: [c as f32, 0.5],
-                    normal: [0.0, 0.0, 1.0],
-                })
-                .collect();
+            let vs: Vec<Vertex> =
+                t.iter().enumerate().map(|(c, &pos)| Vertex { pos, color: [50 * c as u8, 0, 90, 255], uv: [c as f32, 0.5], normal: [0.0, 0.0, 1.0] }).collect();
             let e: Vec<_> = vs.iter().map(|v| s.embed(v)).collect();
             let q = Quadric::from_triangle(&s, &e[0], &e[1], &e[2]);
             assert!(q.coeffs().iter().all(|&c| c == 0.0), "attrs {attrs:?} triangle {ti}: {q:?}");
@@ -487,8 +472,7 @@ fn clamping_minimises_inside_the_box() {
 
     // Fuzz: random near-degenerate clusters and boxes, every cut-off.
     let mut rng = Rng::at(42);
-    let attrsets =
-        [AttrSet::POSITION_ONLY, AttrSet(AttrSet::COLOR), AttrSet(AttrSet::UV | AttrSet::NORMAL | AttrSet::COLOR)];
+    let attrsets = [AttrSet::POSITION_ONLY, AttrSet(AttrSet::COLOR), AttrSet(AttrSet::UV | AttrSet::NORMAL | AttrSet::COLOR)];
     for trial in 0..3000 {
         let attrs = attrsets[trial % 3];
         let s = QuadricSpace::new(attrs, AttrWeights::for_extent(1.0), [0.0; 3]);
@@ -582,8 +566,7 @@ fn color_ramp_is_reproduced() {
     let mut q = m.triangles(&s);
     for v in &m.verts {
         let mut w = *v;
-        w.color =
-            [v.color[0].saturating_add(40), v.color[1].saturating_add(40), v.color[2].saturating_add(40), 255];
+        w.color = [v.color[0].saturating_add(40), v.color[1].saturating_add(40), v.color[2].saturating_add(40), 255];
         q.add_point(&s.embed(&w));
     }
     let sol = q.solve(DEFAULT_REL_TOL, None);
@@ -606,12 +589,7 @@ fn uv_and_full_attribute_ramps_are_reproduced() {
         m.grid(8, 8, |i, j| {
             let (x, y) = (i as f64 / 8.0, j as f64 / 8.0);
             let c = color_ramp(i, j).map(|c| c as u8);
-            Vertex {
-                pos: [x, y, plane_z(x, y)],
-                uv: uv_of(x, y).map(|c| c as f32),
-                normal: nrm.map(|c| c as f32),
-                color: [c[0], c[1], c[2], 255],
-            }
+            Vertex { pos: [x, y, plane_z(x, y)], uv: uv_of(x, y).map(|c| c as f32), normal: nrm.map(|c| c as f32), color: [c[0], c[1], c[2], 255] }
         });
         let mut q = m.triangles(&s);
         for v in &m.verts {
@@ -641,11 +619,7 @@ fn uv_and_full_attribute_ramps_are_reproduced() {
 #[test]
 fn quadrics_add_and_errors_are_nonnegative() {
     let mut rng = Rng::at(3);
-    for attrs in [
-        AttrSet::POSITION_ONLY,
-        AttrSet(AttrSet::NORMAL | AttrSet::COLOR),
-        AttrSet(AttrSet::UV | AttrSet::NORMAL | AttrSet::COLOR),
-    ] {
+    for attrs in [AttrSet::POSITION_ONLY, AttrSet(AttrSet::NORMAL | AttrSet::COLOR), AttrSet(AttrSet::UV | AttrSet::NORMAL | AttrSet::COLOR)] {
         let s = QuadricSpace::new(attrs, AttrWeights::for_extent(2.0), [0.1, 0.2, 0.3]);
         let tri = |rng: &mut Rng| {
             [0; 3].map(|_| {
@@ -709,10 +683,7 @@ fn reorigin_matches_building_in_the_new_frame() {
     let mut rng = Rng::at(5);
     let attrs = AttrSet(AttrSet::UV | AttrSet::COLOR);
     let (o1, o2) = ([1.0, 2.0, 3.0], [1.5, 1.0, 3.25]);
-    let (s1, s2) = (
-        QuadricSpace::new(attrs, AttrWeights::for_extent(1.0), o1),
-        QuadricSpace::new(attrs, AttrWeights::for_extent(1.0), o2),
-    );
+    let (s1, s2) = (QuadricSpace::new(attrs, AttrWeights::for_extent(1.0), o1), QuadricSpace::new(attrs, AttrWeights::for_extent(1.0), o2));
     let mut m = TestMesh::new();
     m.grid(5, 5, |_, _| Vertex {
         pos: add(o1, rng.vec3(-0.5, 0.5)),
@@ -762,11 +733,7 @@ fn eigen_decomposition_reconstructs() {
         assert!(rank <= terms.min(n));
     }
     // Highly repeated eigenvalues: one 11-d triangle quadric (9 equal).
-    let s = QuadricSpace::new(
-        AttrSet(AttrSet::UV | AttrSet::NORMAL | AttrSet::COLOR),
-        AttrWeights::uniform(0.7),
-        [0.0; 3],
-    );
+    let s = QuadricSpace::new(AttrSet(AttrSet::UV | AttrSet::NORMAL | AttrSet::COLOR), AttrWeights::uniform(0.7), [0.0; 3]);
     for _ in 0..100 {
         let v = [0; 3].map(|_| {
             s.embed(&Vertex {

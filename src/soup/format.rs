@@ -172,9 +172,7 @@ impl SoupReader {
         let len = f.metadata().ctx(path, "stat")?.len();
         let mut r = BufReader::with_capacity(SEQ_BUF, f);
         let mut hb = [0u8; HEADER_SIZE];
-        r.read_exact(&mut hb).map_err(|_| {
-            Error::input(Location { file: path.to_path_buf(), ..Default::default() }, "file too short for a soup header")
-        })?;
+        r.read_exact(&mut hb).map_err(|_| Error::input(Location { file: path.to_path_buf(), ..Default::default() }, "file too short for a soup header"))?;
         let header = SoupHeader::from_bytes(path, &hb)?;
         let want = HEADER_SIZE as u64 + header.triangles * header.record_size() as u64;
         if len != want {

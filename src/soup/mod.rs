@@ -249,11 +249,8 @@ pub fn build_soup_tapped(input: &Path, output: &Path, opts: &SoupOptions, tap: O
     let vertices_first = header.face_elem.is_some_and(|f| header.vertex_elem < f);
     let in_memory = !opts.force_external && vertices_first && vertex_table <= opts.mem / 4 * 3;
     let progress = Progress::bytes(input_bytes, "reading", opts.quiet);
-    let mut report = if in_memory {
-        build_in_memory(input, output, &header, opts, &progress)?
-    } else {
-        build_external(input, output, &header, opts, &progress, tap)?
-    };
+    let mut report =
+        if in_memory { build_in_memory(input, output, &header, opts, &progress)? } else { build_external(input, output, &header, opts, &progress, tap)? };
     progress.finish();
     report.input_bytes = input_bytes;
     report.seconds = t0.elapsed().as_secs_f64();
@@ -262,12 +259,7 @@ pub fn build_soup_tapped(input: &Path, output: &Path, opts: &SoupOptions, tap: O
 
 fn check_has_faces(input: &Path, header: &PlyHeader) -> Result<()> {
     if header.face_count() == 0 {
-        let loc = Location {
-            file: input.to_path_buf(),
-            element: Some("face".into()),
-            offset: Some(header.body_offset),
-            ..Default::default()
-        };
+        let loc = Location { file: input.to_path_buf(), element: Some("face".into()), offset: Some(header.body_offset), ..Default::default() };
         return Err(Error::input(loc, "the file declares no faces: nothing to turn into a triangle soup"));
     }
     Ok(())
@@ -275,10 +267,7 @@ fn check_has_faces(input: &Path, header: &PlyHeader) -> Result<()> {
 
 fn no_triangles_error(input: &Path, header: &PlyHeader, body: &BodyStats) -> Error {
     let loc = Location { file: input.to_path_buf(), element: Some("face".into()), ..Default::default() };
-    Error::input(
-        loc,
-        format!("all {} faces are degenerate (repeated vertex indices): no triangle left", header.face_count().max(body.faces)),
-    )
+    Error::input(loc, format!("all {} faces are degenerate (repeated vertex indices): no triangle left", header.face_count().max(body.faces)))
 }
 
 // ------------------------------------------------------------------ in memory
@@ -317,12 +306,8 @@ impl BodySink for InMemorySink<'_> {
 fn build_in_memory(input: &Path, output: &Path, header: &PlyHeader, opts: &SoupOptions, progress: &Progress) -> Result<SoupReport> {
     let layout = VertexLayout::new(header.attrs);
     let mut soup = SoupWriter::create(output, header.attrs, opts.replace, opts.scratch)?;
-    let mut sink = InMemorySink {
-        table: Vec::with_capacity(header.vertex_count() as usize * layout.size),
-        layout,
-        soup: &mut soup,
-        rec: vec![0; 3 * layout.size],
-    };
+    let mut sink =
+        InMemorySink { table: Vec::with_capacity(header.vertex_count() as usize * layout.size), layout, soup: &mut soup, rec: vec![0; 3 * layout.size] };
     let body = read_body(input, header, &mut sink, progress)?;
     drop(sink);
     if body.triangles == 0 {
@@ -557,14 +542,9 @@ fn build_external(
     let h = match soup {
         Some(soup) => soup.commit(body.vertices, body.faces, body.degenerate)?,
         // The header the soup would have had: the same corners' box.
-        None => SoupHeader {
-            attrs: header.attrs,
-            triangles: written,
-            input_vertices: body.vertices,
-            input_faces: body.faces,
-            degenerate: body.degenerate,
-            bbox,
-        },
+        None => {
+            SoupHeader { attrs: header.attrs, triangles: written, input_vertices: body.vertices, input_faces: body.faces, degenerate: body.degenerate, bbox }
+        }
     };
     let phase_seconds = [(t1 - t0).as_secs_f64(), (t2 - t1).as_secs_f64(), t2.elapsed().as_secs_f64()];
     Ok(SoupReport {
@@ -661,13 +641,7 @@ impl BucketFiles {
 
 /// Reads `records` records of `rec` bytes from `path` through `chunk` (a
 /// multiple of `rec` bytes) and hands each to `each`.
-fn read_records(
-    path: &Path,
-    rec: usize,
-    records: u64,
-    chunk: &mut [u8],
-    mut each: impl FnMut(&[u8]) -> Result<()>,
-) -> Result<()> {
+fn read_records(path: &Path, rec: usize, records: u64, chunk: &mut [u8], mut each: impl FnMut(&[u8]) -> Result<()>) -> Result<()> {
     let mut f = File::open(path).ctx(path, "open bucket file")?;
     let mut left = records * rec as u64;
     while left > 0 {

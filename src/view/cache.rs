@@ -280,12 +280,8 @@ impl<M: GpuBytes> Cache<M> {
     /// Uploads loaded units to the GPU, pinned first, up to `max_bytes`
     /// (at least one unit). Returns bytes uploaded.
     pub fn upload(&mut self, max_bytes: u64, upload: &mut dyn FnMut(&DrawMesh) -> M) -> u64 {
-        let mut todo: Vec<(bool, u64, Unit)> = self
-            .entries
-            .iter()
-            .filter(|(_, e)| matches!(e.state, State::Cpu(_)))
-            .map(|(&u, e)| (!e.pinned, u64::MAX - e.last_used, u))
-            .collect();
+        let mut todo: Vec<(bool, u64, Unit)> =
+            self.entries.iter().filter(|(_, e)| matches!(e.state, State::Cpu(_))).map(|(&u, e)| (!e.pinned, u64::MAX - e.last_used, u)).collect();
         todo.sort_unstable();
         let mut done = 0u64;
         for (not_pinned, _, u) in todo {

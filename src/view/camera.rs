@@ -319,12 +319,7 @@ fn look_at_rh(eye: DVec3, target: DVec3, up: DVec3) -> DMat4 {
 fn perspective_rh(fov_y: f64, aspect: f64, near: f64, far: f64) -> DMat4 {
     let h = 1.0 / (0.5 * fov_y).tan();
     let r = far / (near - far);
-    DMat4::from_cols(
-        DVec4::new(h / aspect, 0.0, 0.0, 0.0),
-        DVec4::new(0.0, h, 0.0, 0.0),
-        DVec4::new(0.0, 0.0, r, -1.0),
-        DVec4::new(0.0, 0.0, r * near, 0.0),
-    )
+    DMat4::from_cols(DVec4::new(h / aspect, 0.0, 0.0, 0.0), DVec4::new(0.0, h, 0.0, 0.0), DVec4::new(0.0, 0.0, r, -1.0), DVec4::new(0.0, 0.0, r * near, 0.0))
 }
 
 /// Six inward-facing world-space planes: `n·p + d ≥ 0` inside.
@@ -502,8 +497,7 @@ impl CameraPath {
 
     /// [`CameraPath::count_file`] of text read from `path`.
     pub fn count_text(text: &str, path: &Path) -> Result<usize> {
-        let f: PathFile = serde_json::from_str(text)
-            .map_err(|e| Error::Usage(format!("{}: not a valid camera path: {e}", path.display())))?;
+        let f: PathFile = serde_json::from_str(text).map_err(|e| Error::Usage(format!("{}: not a valid camera path: {e}", path.display())))?;
         f.pose_count().map_err(|m| Error::Usage(format!("{}: {m}", path.display())))
     }
 
@@ -572,7 +566,13 @@ impl CameraPath {
         let r = 0.5 * bounds.diagonal().max(1e-9);
         // (e1, e2, up) right-handed; for +Z exactly (X, Y, Z).
         let up = up.normalize_or(DVec3::Z);
-        let e1 = if up.z.abs() > 0.9 { DVec3::X * up.z.signum() } else if up.y.abs() > 0.9 { DVec3::Z * up.y.signum() } else { up.any_orthonormal_vector() };
+        let e1 = if up.z.abs() > 0.9 {
+            DVec3::X * up.z.signum()
+        } else if up.y.abs() > 0.9 {
+            DVec3::Z * up.y.signum()
+        } else {
+            up.any_orthonormal_vector()
+        };
         let e2 = up.cross(e1);
         let mut poses = Vec::new();
         for i in 0..frames.max(1) {

@@ -62,13 +62,7 @@ pub struct DrawParams {
 
 impl Default for DrawParams {
     fn default() -> Self {
-        DrawParams {
-            view_proj: Mat4::IDENTITY,
-            eye: Vec3::ZERO,
-            light_dir: Vec3::ZERO,
-            wireframe: false,
-            clear: [0.0, 0.0, 0.0, 1.0],
-        }
+        DrawParams { view_proj: Mat4::IDENTITY, eye: Vec3::ZERO, light_dir: Vec3::ZERO, wireframe: false, clear: [0.0, 0.0, 0.0, 1.0] }
     }
 }
 
@@ -210,9 +204,7 @@ pub struct Renderer {
 }
 
 fn no_adapter(detail: &str) -> Error {
-    Error::Usage(format!(
-        "no GPU adapter found: install a Vulkan driver (Mesa lavapipe: apt-get install mesa-vulkan-drivers){detail}"
-    ))
+    Error::Usage(format!("no GPU adapter found: install a Vulkan driver (Mesa lavapipe: apt-get install mesa-vulkan-drivers){detail}"))
 }
 
 /// Backend sets to try in order: `WGPU_BACKEND`'s when set, else the
@@ -315,17 +307,7 @@ impl Renderer {
             if size.width > 0 && size.height > 0 {
                 surface.configure(&device, &config);
             }
-            return Renderer::new(
-                instance,
-                adapter,
-                device,
-                queue,
-                format,
-                size.width.max(1),
-                size.height.max(1),
-                Some((surface, config)),
-                opts,
-            );
+            return Renderer::new(instance, adapter, device, queue, format, size.width.max(1), size.height.max(1), Some((surface, config)), opts);
         }
         Err(no_adapter(&format!(" ({})", errors.join("; "))))
     }
@@ -358,10 +340,7 @@ impl Renderer {
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        let globals_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("globals"),
-            entries: &[uniform_entry(0)],
-        });
+        let globals_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some("globals"), entries: &[uniform_entry(0)] });
         let globals_bind = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("globals"),
             layout: &globals_layout,
@@ -410,11 +389,7 @@ impl Renderer {
                     module: &shader,
                     entry_point: Some("fs_main"),
                     compilation_options: Default::default(),
-                    targets: &[Some(wgpu::ColorTargetState {
-                        format,
-                        blend: None,
-                        write_mask: wgpu::ColorWrites::ALL,
-                    })],
+                    targets: &[Some(wgpu::ColorTargetState { format, blend: None, write_mask: wgpu::ColorWrites::ALL })],
                 }),
                 multiview: None,
                 cache: None,
@@ -722,12 +697,7 @@ impl Renderer {
         }
         let (buf, _) = self.readback.as_ref().expect("readback buffer");
         enc.copy_texture_to_buffer(
-            wgpu::TexelCopyTextureInfo {
-                texture: &color_tex,
-                mip_level: 0,
-                origin: wgpu::Origin3d::ZERO,
-                aspect: wgpu::TextureAspect::All,
-            },
+            wgpu::TexelCopyTextureInfo { texture: &color_tex, mip_level: 0, origin: wgpu::Origin3d::ZERO, aspect: wgpu::TextureAspect::All },
             wgpu::TexelCopyBufferInfo {
                 buffer: buf,
                 layout: wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(padded as u32), rows_per_image: Some(h) },
@@ -803,10 +773,7 @@ fn present_mode(modes: &[wgpu::PresentMode], vsync: bool) -> wgpu::PresentMode {
     if vsync {
         return wgpu::PresentMode::Fifo;
     }
-    [wgpu::PresentMode::Mailbox, wgpu::PresentMode::Immediate]
-        .into_iter()
-        .find(|m| modes.contains(m))
-        .unwrap_or(wgpu::PresentMode::Fifo)
+    [wgpu::PresentMode::Mailbox, wgpu::PresentMode::Immediate].into_iter().find(|m| modes.contains(m)).unwrap_or(wgpu::PresentMode::Fifo)
 }
 
 /// Edges of each triangle as a line list (shared edges appear twice; the
@@ -886,12 +853,7 @@ impl OverlayGpu {
         let pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
             label: Some("overlay"),
             layout: Some(&pl),
-            vertex: wgpu::VertexState {
-                module: &shader,
-                entry_point: Some("vs_overlay"),
-                compilation_options: Default::default(),
-                buffers: &[],
-            },
+            vertex: wgpu::VertexState { module: &shader, entry_point: Some("vs_overlay"), compilation_options: Default::default(), buffers: &[] },
             primitive: wgpu::PrimitiveState { topology: wgpu::PrimitiveTopology::TriangleStrip, ..Default::default() },
             depth_stencil: None,
             multisample: wgpu::MultisampleState::default(),
@@ -899,11 +861,7 @@ impl OverlayGpu {
                 module: &shader,
                 entry_point: Some("fs_overlay"),
                 compilation_options: Default::default(),
-                targets: &[Some(wgpu::ColorTargetState {
-                    format,
-                    blend: Some(wgpu::BlendState::ALPHA_BLENDING),
-                    write_mask: wgpu::ColorWrites::ALL,
-                })],
+                targets: &[Some(wgpu::ColorTargetState { format, blend: Some(wgpu::BlendState::ALPHA_BLENDING), write_mask: wgpu::ColorWrites::ALL })],
             }),
             multiview: None,
             cache: None,
@@ -935,12 +893,7 @@ impl OverlayGpu {
             view_formats: &[],
         });
         queue.write_texture(
-            wgpu::TexelCopyTextureInfo {
-                texture: &texture,
-                mip_level: 0,
-                origin: wgpu::Origin3d::ZERO,
-                aspect: wgpu::TextureAspect::All,
-            },
+            wgpu::TexelCopyTextureInfo { texture: &texture, mip_level: 0, origin: wgpu::Origin3d::ZERO, aspect: wgpu::TextureAspect::All },
             &img.rgba,
             wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(img.width * 4), rows_per_image: Some(img.height) },
             wgpu::Extent3d { width: img.width, height: img.height, depth_or_array_layers: 1 },

@@ -23,8 +23,8 @@
 
 use super::camera::{Camera, CameraPath, Up, MAX_FRAMES};
 use super::gpu::{DrawParams, GpuMesh, Renderer};
-use super::DrawItem;
 use super::viewer::{load_all_originals, FrameStats, ViewOptions, Viewer};
+use super::DrawItem;
 use crate::error::{IoContext, Result};
 use crate::io::AtomicDir;
 use std::io::Write;
@@ -221,12 +221,8 @@ pub fn render(o: &RenderOptions) -> Result<RenderReport> {
         stats.draw_ms = t.elapsed().as_secs_f64() * 1e3;
         let name = format!("frame-{:05}.png", i);
         super::image::write_png(out.path().join(&name), o.width, o.height, &img)?;
-        let mut rec = FrameRecord {
-            background_fraction: super::image::background_fraction(&img, o.width, o.height, clear8),
-            stats,
-            psnr_db: None,
-            diff_fraction: None,
-        };
+        let mut rec =
+            FrameRecord { background_fraction: super::image::background_fraction(&img, o.width, o.height, clear8), stats, psnr_db: None, diff_fraction: None };
         if o.full_res {
             let ref_img = full_res_frame(&mut renderer, &viewer.store, &cam, &p, (o.width, o.height), REFERENCE_BATCH)?;
             super::image::write_png(out.path().join("reference").join(&name), o.width, o.height, &ref_img)?;
@@ -265,7 +261,14 @@ pub fn render(o: &RenderOptions) -> Result<RenderReport> {
 /// Every level-0 (input) triangle in view, drawn in batches of at most
 /// `batch_bytes` (default [`REFERENCE_BATCH`]) read in store order: the full-resolution
 /// reference without holding level 0 in memory.
-pub fn full_res_frame(renderer: &mut Renderer, store: &crate::store::Store, cam: &Camera, p: &DrawParams, size: (u32, u32), batch_bytes: u64) -> Result<Vec<u8>> {
+pub fn full_res_frame(
+    renderer: &mut Renderer,
+    store: &crate::store::Store,
+    cam: &Camera,
+    p: &DrawParams,
+    size: (u32, u32),
+    batch_bytes: u64,
+) -> Result<Vec<u8>> {
     let frustum = cam.frustum(size.0 as f64 / size.1.max(1) as f64);
     let leaves: Vec<usize> = store.level_nodes(0).into_iter().filter(|&i| !frustum.culls(&store.nodes[i].bounds)).collect();
     let ctx = super::viewer::load_ctx(store);

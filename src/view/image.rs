@@ -12,10 +12,7 @@ use std::path::Path;
 fn check_len(rgba: &[u8], width: u32, height: u32) -> Result<()> {
     let want = width as u64 * height as u64 * 4;
     if rgba.len() as u64 != want {
-        return Err(Error::Usage(format!(
-            "image of {width}x{height} pixels needs {want} RGBA bytes, got {}",
-            rgba.len()
-        )));
+        return Err(Error::Usage(format!("image of {width}x{height} pixels needs {want} RGBA bytes, got {}", rgba.len())));
     }
     Ok(())
 }
@@ -31,12 +28,10 @@ pub fn write_png(path: impl AsRef<Path>, width: u32, height: u32, rgba: &[u8]) -
         return Err(Error::Usage(format!("{}: cannot write an empty {width}x{height} PNG", path.display())));
     }
     let mut f = std::io::BufWriter::new(std::fs::File::create(path).ctx(path, "create")?);
-    ::image::codecs::png::PngEncoder::new(&mut f)
-        .write_image(rgba, width, height, ::image::ExtendedColorType::Rgba8)
-        .map_err(|e| match e {
-            ::image::ImageError::IoError(io) => Error::io(path, "write PNG", io),
-            other => Error::Usage(format!("{}: cannot encode PNG: {other}", path.display())),
-        })?;
+    ::image::codecs::png::PngEncoder::new(&mut f).write_image(rgba, width, height, ::image::ExtendedColorType::Rgba8).map_err(|e| match e {
+        ::image::ImageError::IoError(io) => Error::io(path, "write PNG", io),
+        other => Error::Usage(format!("{}: cannot encode PNG: {other}", path.display())),
+    })?;
     std::io::Write::flush(&mut f).ctx(path, "write PNG")
 }
 

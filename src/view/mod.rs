@@ -188,10 +188,8 @@ mod tests {
             assert!(g.normal[2].abs() > 0.999, "{:?}", g.normal);
         }
         // A plain fan: the usual smooth normal, positions relative to the origin.
-        let m = IndexedMesh {
-            vertices: vec![Vertex { pos: [10.0, 10.0, 1.0], ..Vertex::default() }, v(11.0, 10.0), v(10.0, 11.0)],
-            triangles: vec![[0, 1, 2]],
-        };
+        let m =
+            IndexedMesh { vertices: vec![Vertex { pos: [10.0, 10.0, 1.0], ..Vertex::default() }, v(11.0, 10.0), v(10.0, 11.0)], triangles: vec![[0, 1, 2]] };
         let d = draw_mesh(&m, AttrSet::POSITION_ONLY, [10.0, 10.0, 0.0]);
         assert_eq!(d.vertices[0].pos, [0.0, 0.0, 1.0]);
         let n = d.vertices[0].normal;

@@ -33,14 +33,7 @@ pub struct ViewOptions {
 
 impl Default for ViewOptions {
     fn default() -> Self {
-        ViewOptions {
-            ram: 512 << 20,
-            select: SelectOptions::default(),
-            io_threads: 2,
-            io_delay: Duration::ZERO,
-            upload_per_frame: 64 << 20,
-            pin_share: 0.125,
-        }
+        ViewOptions { ram: 512 << 20, select: SelectOptions::default(), io_threads: 2, io_delay: Duration::ZERO, upload_per_frame: 64 << 20, pin_share: 0.125 }
     }
 }
 
@@ -174,17 +167,7 @@ impl<M: GpuBytes> Viewer<M> {
             tier = next;
         }
         cache.pin(&hierarchy, dir, ctx, &pinned)?;
-        Ok(Viewer {
-            store,
-            hierarchy,
-            cache,
-            selector: Selector::new(opts.select.clone()),
-            opts,
-            origin,
-            index_bytes,
-            frame: 0,
-            last: Selection::default(),
-        })
+        Ok(Viewer { store, hierarchy, cache, selector: Selector::new(opts.select.clone()), opts, origin, index_bytes, frame: 0, last: Selection::default() })
     }
 
     pub fn origin(&self) -> glam::DVec3 {
@@ -314,4 +297,3 @@ pub fn load_all_originals<M>(store: &Store, upload: &mut dyn FnMut(&DrawMesh) ->
     }
     Ok((out, tris))
 }
-

@@ -90,11 +90,8 @@ impl Mode {
 /// Opens the store and runs the window until it is closed (or Esc).
 pub fn run_window(opts: WindowOptions) -> Result<()> {
     let viewer: Viewer<GpuMesh> = Viewer::open(&opts.store, opts.view.clone())?;
-    let event_loop = EventLoop::new().map_err(|e| {
-        Error::Usage(format!(
-            "cannot open a window ({e}); without a display use `octolod render` to render offscreen"
-        ))
-    })?;
+    let event_loop =
+        EventLoop::new().map_err(|e| Error::Usage(format!("cannot open a window ({e}); without a display use `octolod render` to render offscreen")))?;
     event_loop.set_control_flow(ControlFlow::Poll);
     let mut app = App::new(opts, viewer);
     event_loop.run_app(&mut app).map_err(|e| Error::Usage(format!("window event loop failed: {e}")))?;
@@ -462,8 +459,7 @@ impl App {
     fn log_line(&self) -> String {
         let s = &self.stats;
         let mb = |b: u64| b as f64 / (1u64 << 20) as f64;
-        let lv: Vec<String> =
-            s.nodes_per_level.iter().enumerate().filter(|(_, &n)| n > 0).map(|(l, n)| format!("L{l}:{n}")).collect();
+        let lv: Vec<String> = s.nodes_per_level.iter().enumerate().filter(|(_, &n)| n > 0).map(|(l, n)| format!("L{l}:{n}")).collect();
         format!(
             "view: {:.1} fps  select {:.2} ms  upload {:.2} ms  draw {:.2} ms  {} tris  {} nodes [{}]  resident {:.1}/{:.1} MB  pending {}  hit {:.1}%  {}",
             self.fps.fps,
@@ -487,9 +483,7 @@ impl ApplicationHandler for App {
         if self.window.is_some() {
             return;
         }
-        let attrs = Window::default_attributes()
-            .with_title("octolod view")
-            .with_inner_size(winit::dpi::PhysicalSize::new(self.opts.width, self.opts.height));
+        let attrs = Window::default_attributes().with_title("octolod view").with_inner_size(winit::dpi::PhysicalSize::new(self.opts.width, self.opts.height));
         let window = match event_loop.create_window(attrs) {
             Ok(w) => Arc::new(w),
             Err(e) => return self.fail(event_loop, Error::Usage(format!("cannot create a window: {e}"))),

@@ -58,10 +58,7 @@ fn a_good_tetrahedron_converts() {
 fn an_out_of_range_index_is_an_error_at_its_record_and_offset() {
     let bad = ascii_cube(4, 4, &V, &["3 0 1 2", "3 0 1 3", "3 0 2 99", "3 1 2 3"]);
     let offset = bad.find("3 0 2 99").unwrap();
-    expect_error(
-        bad.as_bytes(),
-        &["element 'face' record 2", &format!("byte offset {offset}"), "vertex index 99 out of range", "4 vertices"],
-    );
+    expect_error(bad.as_bytes(), &["element 'face' record 2", &format!("byte offset {offset}"), "vertex index 99 out of range", "4 vertices"]);
 }
 
 #[test]

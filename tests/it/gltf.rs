@@ -656,14 +656,16 @@ fn only_our_own_gltf_is_replaced_and_only_with_force() {
     std::fs::create_dir(dir.join("d.glb")).unwrap();
     let ply = dir.join("e.glb");
     std::fs::write(&ply, "ply\nformat ascii 1.0\ncomment octolod-output\nend_header\n").unwrap();
-    let before: Vec<(String, Vec<u8>)> = names(&dir).into_iter().filter(|n| !n.ends_with("d.glb")).map(|n| (n.clone(), std::fs::read(dir.join(&n)).unwrap())).collect();
+    let before: Vec<(String, Vec<u8>)> =
+        names(&dir).into_iter().filter(|n| !n.ends_with("d.glb")).map(|n| (n.clone(), std::fs::read(dir.join(&n)).unwrap())).collect();
     for (out, weld) in [(&theirs, true), (&their_gltf, false), (&dir.join("lone.gltf"), true), (&renamed, true), (&dir.join("d.glb"), true), (&ply, false)] {
         for force in [false, true] {
             let e = extract_as(&s, spec, out, weld, force, &opts).unwrap_err().to_string();
             assert!(e.contains("refusing"), "{}: {e}", out.display());
         }
     }
-    let after: Vec<(String, Vec<u8>)> = names(&dir).into_iter().filter(|n| !n.ends_with("d.glb")).map(|n| (n.clone(), std::fs::read(dir.join(&n)).unwrap())).collect();
+    let after: Vec<(String, Vec<u8>)> =
+        names(&dir).into_iter().filter(|n| !n.ends_with("d.glb")).map(|n| (n.clone(), std::fs::read(dir.join(&n)).unwrap())).collect();
     assert_eq!(before, after, "nothing changed, nothing left behind");
 }
 
@@ -689,13 +691,7 @@ fn errors_leave_nothing_behind() {
             let e = write_parts(&out, AttrSet(ALL), &GltfOptions { quantize: false, compress }, false, "e", 20, || {
                 pass += 1;
                 let p = pass;
-                (0..4).map(move |k| {
-                    if p == 2 && k == 2 {
-                        Err(octolod::Error::Usage("gone".into()))
-                    } else {
-                        Ok(grid(4, 4, [k as f64; 3], false))
-                    }
-                })
+                (0..4).map(move |k| if p == 2 && k == 2 { Err(octolod::Error::Usage("gone".into())) } else { Ok(grid(4, 4, [k as f64; 3], false)) })
             });
             assert_eq!(e.unwrap_err().to_string(), "gone");
         }

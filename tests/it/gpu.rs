@@ -133,8 +133,7 @@ fn depth_test_keeps_the_nearer_surface_in_any_order() {
 fn wireframe_covers_fewer_pixels_than_fill() {
     let (w, h) = (96, 64);
     for line_list in [false, true] {
-        let Some(mut r) = renderer_with(w, h, RendererOptions { line_list_wireframe: line_list, ..Default::default() })
-        else {
+        let Some(mut r) = renderer_with(w, h, RendererOptions { line_list_wireframe: line_list, ..Default::default() }) else {
             return;
         };
         let mode = r.wireframe_mode();
@@ -160,8 +159,8 @@ fn wireframe_covers_fewer_pixels_than_fill() {
                 if px(&wire, w, x, y) == clear {
                     continue;
                 }
-                let filled_nearby = (y.saturating_sub(1)..(y + 2).min(h))
-                    .any(|yy| (x.saturating_sub(1)..(x + 2).min(w)).any(|xx| px(&fill, w, xx, yy) != clear));
+                let filled_nearby =
+                    (y.saturating_sub(1)..(y + 2).min(h)).any(|yy| (x.saturating_sub(1)..(x + 2).min(w)).any(|xx| px(&fill, w, xx, yy) != clear));
                 assert!(filled_nearby, "{mode:?}: wireframe pixel ({x},{y}) away from the filled area");
             }
         }

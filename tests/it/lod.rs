@@ -116,7 +116,12 @@ fn closed_sphere(simp: octolod::reduce::Simplifier) {
     let m = octolod::store::Manifest::read(&s.dir).unwrap();
     for l in &m.levels[1..] {
         if l.nodes >= 8 {
-            assert!(l.prev_locked_still_fraction < 0.12, "{name}: level {}: {:.1}% of the previous seams still locked", l.level, 100.0 * l.prev_locked_still_fraction);
+            assert!(
+                l.prev_locked_still_fraction < 0.12,
+                "{name}: level {}: {:.1}% of the previous seams still locked",
+                l.level,
+                100.0 * l.prev_locked_still_fraction
+            );
         }
     }
 }
@@ -125,27 +130,27 @@ fn closed_sphere(simp: octolod::reduce::Simplifier) {
 fn hard_cases_every_cut_is_crack_free() {
     let d = tempfile::tempdir().unwrap();
     for simp in SIMPLIFIERS {
-    for (shape, attrs, closed) in [
-        (Shape::Duplicates, 0, true),
-        (Shape::Fan, 0, false),
-        (Shape::Sheets, 0, false),
-        (Shape::Offset, AttrSet::POS_F64, true),
-        (Shape::Slivers, 0, false),
-        (Shape::Terrain, AttrSet::NORMAL | AttrSet::COLOR | AttrSet::UV, false),
-        (Shape::Open, AttrSet::COLOR, false),
-        (Shape::Plane, 0, false),
-        (Shape::Cylinder, AttrSet::UV, false),
-        (Shape::Instances, 0, true),
-        (Shape::Single, 0, false),
-    ] {
-        let (s, input) = build_with(d.path(), shape, 12_000, attrs, 400, simp);
-        let name = format!("{} ({})", shape.name(), simp.name());
-        check_dag(&s, &name);
-        check_cuts(&s, &input, &name, closed);
-        if shape != Shape::Single {
-            assert!(s.top_level() >= 2, "{name}: only {} levels", s.top_level() + 1);
+        for (shape, attrs, closed) in [
+            (Shape::Duplicates, 0, true),
+            (Shape::Fan, 0, false),
+            (Shape::Sheets, 0, false),
+            (Shape::Offset, AttrSet::POS_F64, true),
+            (Shape::Slivers, 0, false),
+            (Shape::Terrain, AttrSet::NORMAL | AttrSet::COLOR | AttrSet::UV, false),
+            (Shape::Open, AttrSet::COLOR, false),
+            (Shape::Plane, 0, false),
+            (Shape::Cylinder, AttrSet::UV, false),
+            (Shape::Instances, 0, true),
+            (Shape::Single, 0, false),
+        ] {
+            let (s, input) = build_with(d.path(), shape, 12_000, attrs, 400, simp);
+            let name = format!("{} ({})", shape.name(), simp.name());
+            check_dag(&s, &name);
+            check_cuts(&s, &input, &name, closed);
+            if shape != Shape::Single {
+                assert!(s.top_level() >= 2, "{name}: only {} levels", s.top_level() + 1);
+            }
         }
-    }
     }
 }
 
@@ -168,7 +173,12 @@ fn level_zero_and_max_error_cuts(simp: octolod::reduce::Simplifier) {
             .iter()
             .map(|&i| {
                 let v = vs[i as usize];
-                v.pos.iter().map(|x| (*x as f32).to_bits() as u64).chain(v.normal.iter().map(|x| x.to_bits() as u64)).chain(v.uv.iter().map(|x| x.to_bits() as u64)).collect()
+                v.pos
+                    .iter()
+                    .map(|x| (*x as f32).to_bits() as u64)
+                    .chain(v.normal.iter().map(|x| x.to_bits() as u64))
+                    .chain(v.uv.iter().map(|x| x.to_bits() as u64))
+                    .collect()
             })
             .collect();
         let r = (0..3).min_by_key(|&r| corners[r].clone()).unwrap();
@@ -196,29 +206,29 @@ fn level_zero_and_max_error_cuts(simp: octolod::reduce::Simplifier) {
 fn node_errors_cover_the_measured_deviation() {
     use octolod::geom::{Bvh, Mesh};
     for simp in SIMPLIFIERS {
-    let d = tempfile::tempdir().unwrap();
-    let (s, _) = build_with(d.path(), Shape::Terrain, 30_000, 0, 2000, simp);
-    let mut checked = 0;
-    for i in 0..s.nodes.len() {
-        if s.nodes[i].level == 0 {
-            continue;
-        }
-        let nm = s.read_node(i).unwrap();
-        for p in &nm.patches {
-            let child = s.read_node(p.child as usize).unwrap().mesh;
-            let bvh = Bvh::new(&Mesh::from_vertices(&child.vertices, child.triangles.clone()));
-            let tris = &nm.mesh.triangles[p.first as usize..(p.first + p.count) as usize];
-            let mut worst = 0.0f64;
-            for t in tris {
-                for &v in t {
-                    worst = worst.max(bvh.closest(nm.mesh.vertices[v as usize].pos).unwrap().dist2.sqrt());
-                }
+        let d = tempfile::tempdir().unwrap();
+        let (s, _) = build_with(d.path(), Shape::Terrain, 30_000, 0, 2000, simp);
+        let mut checked = 0;
+        for i in 0..s.nodes.len() {
+            if s.nodes[i].level == 0 {
+                continue;
             }
-            assert!(s.nodes[i].error as f64 >= worst * (1.0 - 1e-6), "{}: node {i}: error {} below the measured {worst}", simp.name(), s.nodes[i].error);
-            checked += 1;
+            let nm = s.read_node(i).unwrap();
+            for p in &nm.patches {
+                let child = s.read_node(p.child as usize).unwrap().mesh;
+                let bvh = Bvh::new(&Mesh::from_vertices(&child.vertices, child.triangles.clone()));
+                let tris = &nm.mesh.triangles[p.first as usize..(p.first + p.count) as usize];
+                let mut worst = 0.0f64;
+                for t in tris {
+                    for &v in t {
+                        worst = worst.max(bvh.closest(nm.mesh.vertices[v as usize].pos).unwrap().dist2.sqrt());
+                    }
+                }
+                assert!(s.nodes[i].error as f64 >= worst * (1.0 - 1e-6), "{}: node {i}: error {} below the measured {worst}", simp.name(), s.nodes[i].error);
+                checked += 1;
+            }
         }
-    }
-    assert!(checked > 10);
+        assert!(checked > 10);
     }
 }
 

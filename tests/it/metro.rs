@@ -161,8 +161,8 @@ fn plane_against_its_offset_copy_is_at_the_offset() {
 fn dense_sphere_against_inscribed_icosphere_matches_the_analytic_maximum() {
     let sphere = icosphere(5); // 20480 faces, vertices on the unit sphere
     let poly = icosphere(1); // 80 faces, inscribed
-    // The sphere's farthest point from the polyhedron lies straight above the
-    // foot of the face plane closest to the centre: 1 - min inradius.
+                             // The sphere's farthest point from the polyhedron lies straight above the
+                             // foot of the face plane closest to the centre: 1 - min inradius.
     let h_min = poly
         .triangles
         .iter()
@@ -358,10 +358,7 @@ fn paged_store_levels_equal_the_in_memory_path_under_a_tiny_budget() {
     // 2 MiB: the batch buffers take 0.75 MiB, the cache gets ~1.2 MiB, a
     // fraction of levels 0 and 1's node meshes and indexes.
     let tiny = MemOptions { budget: 2 << 20, explicit: false };
-    for (k, (a, b)) in [(level(0), level(1)), (Source::Ply(ply.clone()), level(2)), (level(top), Source::Ply(ply.clone()))]
-        .into_iter()
-        .enumerate()
-    {
+    for (k, (a, b)) in [(level(0), level(1)), (Source::Ply(ply.clone()), level(2)), (level(top), Source::Ply(ply.clone()))].into_iter().enumerate() {
         let mem = compare(&load(&a), &load(&b), &opts(None)).unwrap();
         let paged = compare_sources(&a, &b, &opts(None), &tiny).unwrap();
         let what = format!("{a} vs {b}");
@@ -371,11 +368,7 @@ fn paged_store_levels_equal_the_in_memory_path_under_a_tiny_budget() {
         assert_eq!(mem.samples_target, paged.samples_target);
         for (x, y) in [(&mem.a_to_b, &paged.a_to_b), (&mem.b_to_a, &paged.b_to_a)] {
             // The same samples ...
-            assert_eq!(
-                (x.samples, x.vertex_samples, x.edge_samples, x.face_samples),
-                (y.samples, y.vertex_samples, y.edge_samples, y.face_samples),
-                "{what}"
-            );
+            assert_eq!((x.samples, x.vertex_samples, x.edge_samples, x.face_samples), (y.samples, y.vertex_samples, y.edge_samples, y.face_samples), "{what}");
             // ... at the same distances: each the minimum over the same
             // triangles, summed in the same order (bit-identical here; the
             // tolerance allows a near-tie pruned differently by the two
@@ -446,7 +439,8 @@ fn paged_cli_reports_the_cache_streams_big_plys_and_rejects_budgets_it_cannot_ke
         let (x, y) = (num(&streamed, &format!("combined.{f}")), num(&small, &format!("combined.{f}")));
         assert!((x - y).abs() <= 0.05 * y, "combined.{f}: streamed PLY {x} vs store level 0 {y}");
     }
-    let left: Vec<_> = std::fs::read_dir(d.path()).unwrap().filter_map(|e| e.ok()).filter(|e| e.file_name().to_string_lossy().starts_with(".octolod-scratch")).collect();
+    let left: Vec<_> =
+        std::fs::read_dir(d.path()).unwrap().filter_map(|e| e.ok()).filter(|e| e.file_name().to_string_lossy().starts_with(".octolod-scratch")).collect();
     assert!(left.is_empty(), "scratch store left behind");
     // PLYs only: no paging object, the JSON stays a pure function of the inputs.
     let o = octolod(&["metro", p, p, "--json", "--samples", "1000"]);

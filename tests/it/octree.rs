@@ -4,12 +4,12 @@
 
 use crate::common::gen_mesh;
 use octolod::gen::Shape;
+use octolod::lod::partition::{LevelCube, KEY_DEPTH};
 use octolod::mesh::{AttrSet, Vertex};
 use octolod::octree::{build_octree, FirstCount, OctreeOptions};
 use octolod::ply::write::{write_ply, PlyWriteOptions};
 use octolod::soup::format::SoupReader;
 use octolod::soup::{build_soup, build_soup_tapped, SoupOptions};
-use octolod::lod::partition::{LevelCube, KEY_DEPTH};
 use std::path::Path;
 
 fn make_soup(dir: &Path, shape: Shape, tris: u64, attrs: u32) -> std::path::PathBuf {
@@ -56,7 +56,8 @@ fn check(shape: Shape, tris: u64, attrs: u32, limit: u64, max_depth: u8) {
             // 128 cells (--mem / 128 bytes) not the deepest level.
             assert!(l0.report.chunks > l0.report.leaves, "tiny budget should spill partial leaves: {:?}", l0.report);
             let cells = |d: u8| {
-                let mut c: Vec<u64> = all.iter().map(|t| cube.key([0, 1, 2].map(|a| t.iter().map(|v| v.pos[a] / 3.0).sum::<f64>())) >> (3 * (KEY_DEPTH - d) as u32)).collect();
+                let mut c: Vec<u64> =
+                    all.iter().map(|t| cube.key([0, 1, 2].map(|a| t.iter().map(|v| v.pos[a] / 3.0).sum::<f64>())) >> (3 * (KEY_DEPTH - d) as u32)).collect();
                 c.sort();
                 c.dedup();
                 c.len()

@@ -20,8 +20,7 @@ fn root_and_top(st: &Path) -> (u64, u64) {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let out = String::from_utf8_lossy(&o.stdout).into_owned();
     let root = out.split("root: ").nth(1).and_then(|r| r.split(' ').next()).and_then(|n| n.parse().ok()).unwrap_or_else(|| panic!("{out}"));
-    let levels: Vec<Vec<&str>> =
-        out.lines().map(|l| l.split_whitespace().collect::<Vec<_>>()).filter(|w| w.len() > 3 && w[0].parse::<u8>().is_ok()).collect();
+    let levels: Vec<Vec<&str>> = out.lines().map(|l| l.split_whitespace().collect::<Vec<_>>()).filter(|w| w.len() > 3 && w[0].parse::<u8>().is_ok()).collect();
     let top = levels.last().unwrap_or_else(|| panic!("{out}"))[2].parse().unwrap();
     (root, top)
 }

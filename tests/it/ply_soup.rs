@@ -2,11 +2,11 @@
 //! in-memory dereference for every budget, from tiny (many vertex slabs and
 //! slot buckets) to large (in-memory path).
 
+use crate::common::fixture;
 use octolod::mesh::{AttrSet, Vertex, VertexLayout};
 use octolod::ply::read::read_all;
 use octolod::soup::format::SoupReader;
 use octolod::soup::{build_soup, SoupOptions};
-use crate::common::fixture;
 use std::io::Write;
 use std::path::Path;
 
@@ -21,10 +21,8 @@ fn expected_vertex(i: u32) -> Vertex {
     }
 }
 
-const EXPECTED_TRIS: [[u64; 3]; 14] = [
-    [0, 2, 3], [0, 3, 1], [4, 5, 7], [4, 7, 6], [0, 1, 5], [0, 5, 4], [2, 6, 7], [2, 7, 3],
-    [0, 4, 6], [0, 6, 2], [1, 3, 7], [1, 7, 5], [4, 5, 7], [4, 7, 6],
-];
+const EXPECTED_TRIS: [[u64; 3]; 14] =
+    [[0, 2, 3], [0, 3, 1], [4, 5, 7], [4, 7, 6], [0, 1, 5], [0, 5, 4], [2, 6, 7], [2, 7, 3], [0, 4, 6], [0, 6, 2], [1, 3, 7], [1, 7, 5], [4, 5, 7], [4, 7, 6]];
 
 const FIXTURES: [(&str, u32); 6] = [
     ("cube_ascii.ply", 0),

@@ -186,7 +186,6 @@ fn a_later_run_removes_what_a_killed_1m_triangle_build_left() {
     killed_builds_leave_what_the_next_run_removes(LARGE);
 }
 
-
 fn write(p: &Path, text: &str) {
     std::fs::write(p, text).unwrap();
 }
@@ -210,11 +209,7 @@ fn budgets_beyond_the_machine_are_refused_before_work() {
     let d = tempfile::tempdir().unwrap();
     let a = d.path().join("a.ply");
     gen("sphere", 1000, &a);
-    for args in [
-        vec!["build", s(&a), "-o", "X", "--mem", "10T"],
-        vec!["soup", s(&a), "-o", "X", "--mem", "10T"],
-        vec!["metro", s(&a), s(&a), "--mem", "10T"],
-    ] {
+    for args in [vec!["build", s(&a), "-o", "X", "--mem", "10T"], vec!["soup", s(&a), "-o", "X", "--mem", "10T"], vec!["metro", s(&a), s(&a), "--mem", "10T"]] {
         let out = d.path().join("out");
         let args: Vec<&str> = args.iter().map(|&x| if x == "X" { s(&out) } else { x }).collect();
         let (code, err) = run_limited(&args, 60);
@@ -232,7 +227,12 @@ fn ascii_values_out_of_their_types_range_are_errors() {
     for (name, head, body, want) in [
         ("float", "property float x\nproperty float y\nproperty float z\n", "1e39 0 0\n0 1 0\n0 0 1\n3 0 1 2\n", "out of range for float"),
         ("double", "property double x\nproperty double y\nproperty double z\n", "1e400 0 0\n0 1 0\n0 0 1\n3 0 1 2\n", "out of range for double"),
-        ("uchar", "property float x\nproperty float y\nproperty float z\nproperty uchar red\nproperty uchar green\nproperty uchar blue\n", "0 0 0 256 0 0\n0 1 0 0 0 0\n0 0 1 0 0 0\n3 0 1 2\n", "out of range for uchar"),
+        (
+            "uchar",
+            "property float x\nproperty float y\nproperty float z\nproperty uchar red\nproperty uchar green\nproperty uchar blue\n",
+            "0 0 0 256 0 0\n0 1 0 0 0 0\n0 0 1 0 0 0\n3 0 1 2\n",
+            "out of range for uchar",
+        ),
         ("int", "property float x\nproperty float y\nproperty float z\n", "0 0 0\n0 1 0\n0 0 1\n3 0 1 2147483648\n", "out of range for int"),
     ] {
         let p = d.path().join(format!("{name}.ply"));
@@ -265,12 +265,7 @@ fn a_closed_pipe_ends_quietly() {
     let d = tempfile::tempdir().unwrap();
     let a = d.path().join("a.ply");
     gen("sphere", 20_000, &a);
-    let mut child = Command::new(bin())
-        .args(["ply-info", s(&a)])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let mut child = Command::new(bin()).args(["ply-info", s(&a)]).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap();
     drop(child.stdout.take());
     let o = child.wait_with_output().unwrap();
     let err = String::from_utf8_lossy(&o.stderr);
@@ -285,8 +280,16 @@ fn duplicate_declarations_and_unknown_versions_name_their_lines() {
     let d = tempfile::tempdir().unwrap();
     let body = "0 0 0\n0 1 0\n0 0 1\n3 0 1 2\n";
     for (name, header, want) in [
-        ("dupprop", "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nproperty float x\n", "declared twice (lines 4 and 7)"),
-        ("dupelem", "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nelement vertex 3\nproperty float w\n", "declared twice (lines 3 and 7)"),
+        (
+            "dupprop",
+            "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nproperty float x\n",
+            "declared twice (lines 4 and 7)",
+        ),
+        (
+            "dupelem",
+            "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nelement vertex 3\nproperty float w\n",
+            "declared twice (lines 3 and 7)",
+        ),
         ("version", "ply\nformat ascii 2.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n", "version 2.0"),
     ] {
         let p = d.path().join(format!("{name}.ply"));

@@ -192,12 +192,7 @@ fn fifos_are_refused_not_waited_on() {
     let d = tempfile::tempdir().unwrap();
     let fifo = d.path().join("in.ply");
     mkfifo(&fifo);
-    for args in [
-        vec!["build", s(&fifo), "-o", "OUT"],
-        vec!["soup", s(&fifo), "-o", "OUT"],
-        vec!["ply-info", s(&fifo)],
-        vec!["metro", s(&fifo), s(&fifo)],
-    ] {
+    for args in [vec!["build", s(&fifo), "-o", "OUT"], vec!["soup", s(&fifo), "-o", "OUT"], vec!["ply-info", s(&fifo)], vec!["metro", s(&fifo), s(&fifo)]] {
         let out = d.path().join("out");
         let args: Vec<&str> = args.iter().map(|&a| if a == "OUT" { s(&out) } else { a }).collect();
         let (code, e) = run_limited(&args, 20);
@@ -228,12 +223,8 @@ fn simplify_leaves_no_scratch_on_exit_3_or_a_closed_pipe() {
     assert_eq!(o.status.code(), Some(3), "{}", err(&o));
     assert_eq!(names(d.path()), ["in.ply", "o.ply"], "exit 3 left scratch");
     std::fs::remove_file(&out).unwrap();
-    let mut child = Command::new(bin())
-        .args(["simplify", s(&ply), "-o", s(&out), "--target-tris", "2000"])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
+    let mut child =
+        Command::new(bin()).args(["simplify", s(&ply), "-o", s(&out), "--target-tris", "2000"]).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap();
     drop(child.stdout.take());
     let o = child.wait_with_output().unwrap();
     assert!(!err(&o).contains("panicked") && !err(&o).contains("error"), "{}", err(&o));

@@ -90,7 +90,8 @@ fn req(host: &str, method: &str, target: &str, extra: &[&str]) -> Resp {
     s.write_all(r.as_bytes()).unwrap();
     let mut raw = Vec::new();
     s.read_to_end(&mut raw).unwrap();
-    let end = raw.windows(4).position(|w| w == b"\r\n\r\n").unwrap_or_else(|| panic!("{method} {target}: no header end in {:?}", String::from_utf8_lossy(&raw)));
+    let end =
+        raw.windows(4).position(|w| w == b"\r\n\r\n").unwrap_or_else(|| panic!("{method} {target}: no header end in {:?}", String::from_utf8_lossy(&raw)));
     let head = String::from_utf8(raw[..end].to_vec()).unwrap();
     let mut lines = head.split("\r\n");
     let status_line = lines.next().unwrap();

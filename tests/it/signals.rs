@@ -45,7 +45,8 @@ fn complete(out: &Path, kind: Out) -> Result<(), String> {
         #[cfg(feature = "view")]
         Out::Frames(n) => {
             let frames = names(out).iter().filter(|n| n.starts_with("frame-") && n.ends_with(".png")).count();
-            let stats: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("stats.json")).map_err(|e| e.to_string())?).map_err(|e| e.to_string())?;
+            let stats: serde_json::Value =
+                serde_json::from_slice(&std::fs::read(out.join("stats.json")).map_err(|e| e.to_string())?).map_err(|e| e.to_string())?;
             let listed = stats["frames_rendered"].as_u64().unwrap_or(0) as usize;
             if frames < n || frames != listed || !out.join(".octolod-render").is_file() {
                 return Err(format!("{frames} frames on disk, {listed} in stats.json, at least {n} expected"));
@@ -62,7 +63,13 @@ fn sweep(dir: &Path, args: &[&str], out: &Path, kind: Out, runs: usize) -> (usiz
     octolod_ok(args);
     let full = t.elapsed();
     complete(out, kind).unwrap_or_else(|e| panic!("{args:?}: the uninterrupted output is incomplete: {e}"));
-    let rm = |p: &Path| if p.is_dir() { std::fs::remove_dir_all(p).unwrap() } else if p.exists() { std::fs::remove_file(p).unwrap() };
+    let rm = |p: &Path| {
+        if p.is_dir() {
+            std::fs::remove_dir_all(p).unwrap()
+        } else if p.exists() {
+            std::fs::remove_file(p).unwrap()
+        }
+    };
     rm(out);
     let before = names(dir);
     let (mut finished, mut stopped) = (0, 0);
@@ -95,7 +102,12 @@ fn sweep(dir: &Path, args: &[&str], out: &Path, kind: Out, runs: usize) -> (usiz
             }
             _ => panic!("{what}: neither complete (0) nor interrupted (128 + {sig})"),
         }
-        assert_eq!(names(dir).iter().filter(|n| !before.contains(n)).filter(|n| **n != out.file_name().unwrap().to_string_lossy()).count(), 0, "{what}: left {:?}", names(dir));
+        assert_eq!(
+            names(dir).iter().filter(|n| !before.contains(n)).filter(|n| **n != out.file_name().unwrap().to_string_lossy()).count(),
+            0,
+            "{what}: left {:?}",
+            names(dir)
+        );
         rm(out);
     }
     (finished, stopped)
@@ -151,12 +163,6 @@ fn render_interrupted_anywhere_leaves_a_complete_output_or_none() {
     let st = d.path().join("s.octolod");
     octolod_ok(&["build", s(&ply), "-o", s(&st), "--quiet"]);
     let out = d.path().join("shots");
-    let r = sweep(
-        d.path(),
-        &["render", s(&st), "-o", s(&out), "--frames", "16", "--width", "320", "--height", "240", "--quiet"],
-        &out,
-        Out::Frames(16),
-        RUNS,
-    );
+    let r = sweep(d.path(), &["render", s(&st), "-o", s(&out), "--frames", "16", "--width", "320", "--height", "240", "--quiet"], &out, Out::Frames(16), RUNS);
     check_both("render", r);
 }

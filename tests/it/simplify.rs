@@ -351,7 +351,20 @@ fn the_command_writes_an_output_larger_than_mem_within_mem() {
     assert!(n * Simplifier::Collapse.bytes_per_triangle() > mem);
     let (code, stdout, stderr, peak) = run_measured(
         "the_command_writes_an_output_larger_than_mem_within_mem",
-        &["--quiet", "simplify", ply.to_str().unwrap(), "-o", out.to_str().unwrap(), "--target-tris", &n.to_string(), "--mem", "16M", "--leaf-tris", "4096", "--json"],
+        &[
+            "--quiet",
+            "simplify",
+            ply.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--target-tris",
+            &n.to_string(),
+            "--mem",
+            "16M",
+            "--leaf-tris",
+            "4096",
+            "--json",
+        ],
     );
     assert_eq!(code, Some(0), "{stderr}");
     let r: ReduceReport = serde_json::from_slice(&stdout).unwrap();

@@ -180,7 +180,8 @@ fn client_cuts_mixing_levels_show_no_background_where_the_surface_is() {
         let reference = r.render_offscreen(&params, &[DrawItem::whole(&full, full.triangles())]).unwrap();
         for sse in [1.0, 4.0, 16.0] {
             let cut = client_cut(&p, eye, fov, h as f64, sse);
-            let meshes: Vec<_> = cut.iter().filter_map(|&t| tile_content(&store, &p, t).unwrap()).map(|c| r.upload(&draw_mesh(&c.mesh, attrs, origin))).collect();
+            let meshes: Vec<_> =
+                cut.iter().filter_map(|&t| tile_content(&store, &p, t).unwrap()).map(|c| r.upload(&draw_mesh(&c.mesh, attrs, origin))).collect();
             let levels: HashSet<u8> = cut.iter().map(|&t| p.tiles[t].level).collect();
             levels_seen.insert(levels.len());
             let items: Vec<_> = meshes.iter().map(|m| DrawItem::whole(m, m.triangles())).collect();

@@ -170,7 +170,12 @@ fn cuts_are_valid_and_closed_and_converge() {
     assert!(st.triangles > far.triangles && st.triangles < fine.triangles, "{} vs {} / {}", st.triangles, far.triangles, fine.triangles);
     check_closed_cut(&v, &input, "near");
     // Nearer still, looking along the surface: near parts fine, far parts coarse.
-    let mut graze = Camera::look_at(DVec3::from(b.center()) + DVec3::new(0.0, -0.36, 0.0) * b.diagonal(), DVec3::from(b.center()) + DVec3::new(0.0, 0.0, 0.4) * b.diagonal(), DVec3::Z, 50.0);
+    let mut graze = Camera::look_at(
+        DVec3::from(b.center()) + DVec3::new(0.0, -0.36, 0.0) * b.diagonal(),
+        DVec3::from(b.center()) + DVec3::new(0.0, 0.0, 0.4) * b.diagonal(),
+        DVec3::Z,
+        50.0,
+    );
     graze.fit_clip(&b);
     let st = run_until_settled(&mut v, &graze, (1280, 720));
     assert!(st.nodes_per_level.iter().filter(|&&n| n > 0).count() >= 2, "{:?}", st.nodes_per_level);

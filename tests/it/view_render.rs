@@ -8,13 +8,13 @@
 //! OCTOLOD_SKIP_GPU_TESTS=1 is set.
 
 use crate::common;
+use crate::common::cli::bin;
+use crate::common::gpu::without_desktop_session;
 use octolod::gen::Shape;
 use octolod::mesh::AttrSet;
 use octolod::view::headless::{render, RenderOptions, RenderReport};
 use octolod::view::ViewOptions;
 use std::path::{Path, PathBuf};
-use crate::common::cli::bin;
-use crate::common::gpu::without_desktop_session;
 use std::process::Command;
 
 fn skip() -> bool {
@@ -168,10 +168,7 @@ fn render_cli_writes_frames_and_rejects_bad_paths() {
     let bad = dir.path().join("bad.json");
     std::fs::write(&bad, r#"{"frames":[{"eye":[0,0,0]}]}"#).unwrap();
     let out2 = dir.path().join("r2");
-    let o = Command::new(exe)
-        .args(["render", s.to_str().unwrap(), "-o", out2.to_str().unwrap(), "--camera-path", bad.to_str().unwrap()])
-        .output()
-        .unwrap();
+    let o = Command::new(exe).args(["render", s.to_str().unwrap(), "-o", out2.to_str().unwrap(), "--camera-path", bad.to_str().unwrap()]).output().unwrap();
     assert!(!o.status.success());
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("bad.json") && err.contains("target"), "{err}");

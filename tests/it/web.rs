@@ -46,12 +46,7 @@ struct Server {
 
 impl Server {
     fn start(dir: &Path) -> Server {
-        let mut child = Command::new(bin())
-            .args(["serve", s(dir), "--port", "0", "--quiet"])
-            .stdout(Stdio::piped())
-            .stderr(Stdio::inherit())
-            .spawn()
-            .unwrap();
+        let mut child = Command::new(bin()).args(["serve", s(dir), "--port", "0", "--quiet"]).stdout(Stdio::piped()).stderr(Stdio::inherit()).spawn().unwrap();
         let mut line = String::new();
         BufReader::new(child.stdout.take().unwrap()).read_line(&mut line).unwrap();
         let url = line.split_whitespace().nth(1).unwrap_or_else(|| panic!("no URL in {line:?}")).to_string();
@@ -118,7 +113,20 @@ fn browser_matches_render(shape: &str, tris: u64, extra_gen: &[&str], cameras: &
     let report: serde_json::Value = serde_json::from_slice(&std::fs::read(shots.join("browser.json")).unwrap()).unwrap();
 
     let reference = d.path().join("reference");
-    let o = octolod(&["render", s(&st), "-o", s(&reference), "--camera-path", s(&cams), "--brute-force", "--width", &w.to_string(), "--height", &h.to_string(), "--quiet"]);
+    let o = octolod(&[
+        "render",
+        s(&st),
+        "-o",
+        s(&reference),
+        "--camera-path",
+        s(&cams),
+        "--brute-force",
+        "--width",
+        &w.to_string(),
+        "--height",
+        &h.to_string(),
+        "--quiet",
+    ]);
     assert!(o.status.success(), "{}", err(&o));
     let bg = octolod::view::headless::clear_rgba8(true);
     let frames = report["frames"].as_array().unwrap();
@@ -137,7 +145,10 @@ fn browser_matches_render(shape: &str, tris: u64, extra_gen: &[&str], cameras: &
         let holes = inside.iter().zip(&mw).filter(|(i, m)| **i && !**m).count();
         let depths = f["depths"].as_array().map_or(0, |d| d.len());
         let p = psnr(&web, &full);
-        lines.push(format!("{shape} frame {i}: IoU {iou:.4}, holes {holes}, PSNR {p:.1} dB, tile depths {}, {} tiles, {} triangles", f["depths"], f["tilesVisible"], f["triangles"]));
+        lines.push(format!(
+            "{shape} frame {i}: IoU {iou:.4}, holes {holes}, PSNR {p:.1} dB, tile depths {}, {} tiles, {} triangles",
+            f["depths"], f["tilesVisible"], f["triangles"]
+        ));
         assert!(f["settled"].as_bool() == Some(true), "frame {i} did not settle");
         assert!(iou >= 0.99, "{}", lines.last().unwrap());
         assert_eq!(holes, 0, "{}", lines.last().unwrap());

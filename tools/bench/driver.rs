@@ -64,12 +64,7 @@ impl Bench<'_> {
     }
 
     fn child_once<T: ChildOut>(&self, args: &[String]) -> Result<T> {
-        let out = Command::new(&self.exe)
-            .arg("run-one")
-            .args(args)
-            .stdin(Stdio::null())
-            .output()
-            .with_context(|| format!("start {}", self.exe.display()))?;
+        let out = Command::new(&self.exe).arg("run-one").args(args).stdin(Stdio::null()).output().with_context(|| format!("start {}", self.exe.display()))?;
         if !out.status.success() {
             let err = String::from_utf8_lossy(&out.stderr);
             let tail: Vec<&str> = err.lines().rev().take(5).collect();
@@ -172,8 +167,7 @@ pub fn bench(args: &BenchArgs) -> Result<()> {
     std::fs::create_dir_all(&args.out).with_context(|| format!("create {}", args.out.display()))?;
     let exe = std::env::current_exe().context("locate this executable")?;
     let (octolod_bin, octolod_note) = find_octolod(args, &exe);
-    let (metro_bin, metro_note) =
-        if args.no_metro { (None, "metro skipped (--no-metro)".to_string()) } else { (octolod_bin.clone(), octolod_note.clone()) };
+    let (metro_bin, metro_note) = if args.no_metro { (None, "metro skipped (--no-metro)".to_string()) } else { (octolod_bin.clone(), octolod_note.clone()) };
     let b = Bench { args, exe, octolod_bin, octolod_note, metro_bin, metro_note };
     b.say(&format!(
         "octolod-bench: {} input(s), settings {}, metro: {}",
@@ -284,11 +278,7 @@ fn find_octolod(args: &BenchArgs, exe: &Path) -> (Option<PathBuf>, String) {
         Ok(o) if o.status.success() => (Some(candidate), String::new()),
         Ok(o) => (
             None,
-            format!(
-                "`{} metro` unavailable ({}); errors n/a",
-                candidate.display(),
-                String::from_utf8_lossy(&o.stderr).lines().next().unwrap_or("").trim()
-            ),
+            format!("`{} metro` unavailable ({}); errors n/a", candidate.display(), String::from_utf8_lossy(&o.stderr).lines().next().unwrap_or("").trim()),
         ),
         Err(e) => (None, format!("`{}` not runnable ({e}); errors n/a", candidate.display())),
     }
@@ -424,12 +414,8 @@ fn measure(b: &Bench, info: &InputReport, row: &mut Row) {
 }
 
 /// The attribute sets of `--attr-sweep`: label, attribute bits.
-const SWEEP_SETS: [(&str, u32); 4] = [
-    ("position only", 0),
-    ("+uv", AttrSet::UV),
-    ("+normals", AttrSet::NORMAL),
-    ("+normals+colors+uvs", AttrSet::NORMAL | AttrSet::COLOR | AttrSet::UV),
-];
+const SWEEP_SETS: [(&str, u32); 4] =
+    [("position only", 0), ("+uv", AttrSet::UV), ("+normals", AttrSet::NORMAL), ("+normals+colors+uvs", AttrSet::NORMAL | AttrSet::COLOR | AttrSet::UV)];
 
 /// `--attr-sweep N`: one generated N-triangle sphere per attribute set,
 /// built (not extracted) with the first setting.
@@ -443,13 +429,7 @@ fn attr_sweep(b: &Bench, n: u64, (leaf, grid): (u64, u32), failures: &mut Vec<St
         let path = dir.join(format!("sphere-{n}-{tag}.ply"));
         if !path.exists() {
             let t = Instant::now();
-            octolod::gen::write(
-                &GenOptions { shape: Shape::Sphere, tris: n, seed: 1, attrs },
-                &PlyWriteOptions::default(),
-                &path,
-                true,
-                false,
-            )?;
+            octolod::gen::write(&GenOptions { shape: Shape::Sphere, tris: n, seed: 1, attrs }, &PlyWriteOptions::default(), &path, true, false)?;
             b.say(&format!("[attr-sweep] generated {} in {:.1} s", path.display(), t.elapsed().as_secs_f64()));
         }
         let info = scan(&path)?;
@@ -548,11 +528,20 @@ mod tests {
             disk_bytes: 1000,
             peak_rss_with_extract_mib: f64::NAN,
             levels: vec![LevelOut { level: 1, triangles: 40, vertices: 22, nodes: Some(1), error_bound_max: Some(0.01), path: "o.ply".into() }],
-            timed: Timed { seconds: 0.5, peak_rss_mib: 30.0, other_cpu_cores: Some(0.1), child_seconds: 0.6, seconds_all_runs: vec![Some(0.5), None], ..Timed::default() },
+            timed: Timed {
+                seconds: 0.5,
+                peak_rss_mib: 30.0,
+                other_cpu_cores: Some(0.1),
+                child_seconds: 0.6,
+                seconds_all_runs: vec![Some(0.5), None],
+                ..Timed::default()
+            },
         };
         let metro: MetroJson = serde_json::from_str(METRO).unwrap();
         let mut rows = vec![level_row(&build, &build.levels[0], 96.0)];
-        rows.extend([Method::MeshoptSimplify, Method::MeshoptSloppy, Method::Oocs, Method::OctolodCollapse, Method::OctolodCluster].map(|m| run_row(run(m, 40), 96.0)));
+        rows.extend(
+            [Method::MeshoptSimplify, Method::MeshoptSloppy, Method::Oocs, Method::OctolodCollapse, Method::OctolodCluster].map(|m| run_row(run(m, 40), 96.0)),
+        );
         for (k, r) in rows.iter_mut().enumerate() {
             let mut m = metro.clone();
             m.combined.rms *= 1.0 + k as f64 * 0.1;

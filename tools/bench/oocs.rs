@@ -26,7 +26,11 @@ impl Grid {
     fn coords(&self, p: [f64; 3]) -> [u64; 3] {
         [0, 1, 2].map(|k| {
             let c = ((p[k] - self.lo[k]) / self.h).floor();
-            if c > 0.0 { (c as u64).min(self.n[k] - 1) } else { 0 }
+            if c > 0.0 {
+                (c as u64).min(self.n[k] - 1)
+            } else {
+                0
+            }
         })
     }
     #[inline]
@@ -36,10 +40,7 @@ impl Grid {
     }
     fn cell_box(&self, key: u64) -> Aabb {
         let c = [key % self.n[0], (key / self.n[0]) % self.n[1], key / (self.n[0] * self.n[1])];
-        Aabb {
-            min: [0, 1, 2].map(|k| self.lo[k] + c[k] as f64 * self.h),
-            max: [0, 1, 2].map(|k| self.lo[k] + (c[k] + 1) as f64 * self.h),
-        }
+        Aabb { min: [0, 1, 2].map(|k| self.lo[k] + c[k] as f64 * self.h), max: [0, 1, 2].map(|k| self.lo[k] + (c[k] + 1) as f64 * self.h) }
     }
 }
 
@@ -58,12 +59,8 @@ pub fn canonical<T: Ord + Copy>(t: [T; 3]) -> [T; 3] {
 
 /// Distinct, non-degenerate cell triples of the mesh on this grid.
 fn cell_triangles(keys: &[u32], tris: &[[u32; 3]]) -> Vec<[u32; 3]> {
-    let mut out: Vec<[u32; 3]> = tris
-        .iter()
-        .map(|t| t.map(|i| keys[i as usize]))
-        .filter(|c| c[0] != c[1] && c[1] != c[2] && c[0] != c[2])
-        .map(canonical)
-        .collect();
+    let mut out: Vec<[u32; 3]> =
+        tris.iter().map(|t| t.map(|i| keys[i as usize])).filter(|c| c[0] != c[1] && c[1] != c[2] && c[0] != c[2]).map(canonical).collect();
     out.sort_unstable();
     out.dedup();
     out
@@ -181,20 +178,8 @@ pub fn oocs(verts: &[Vertex], tris: &[[u32; 3]], bbox: &Aabb, target: u64) -> Oo
         .collect();
     let seconds = t.elapsed().as_secs_f64();
     let other_cpu = probe.other_cores();
-    OocsResult {
-        grid: g,
-        dims: grid.n,
-        cells: keys.len() as u64,
-        clamped,
-        tries: tried.len() as u64,
-        search_seconds,
-        seconds,
-        other_cpu,
-        vertices,
-        triangles,
-    }
+    OocsResult { grid: g, dims: grid.n, cells: keys.len() as u64, clamped, tries: tried.len() as u64, search_seconds, seconds, other_cpu, vertices, triangles }
 }
-
 
 #[cfg(test)]
 mod tests {

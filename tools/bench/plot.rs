@@ -5,7 +5,6 @@ use crate::report::thousands;
 use crate::types::{InputReport, Method, Row};
 use std::fmt::Write as _;
 
-
 #[derive(Clone, Copy)]
 enum Marker {
     Circle,
@@ -92,9 +91,7 @@ pub fn plots(inputs: &[InputReport]) -> (String, String) {
                             .collect();
                         let k = settings.iter().position(|s| s == setting).unwrap_or(0);
                         let (label, color, marker) = match m {
-                            Method::Octolod => {
-                                (format!("octolod {setting}"), OCTOLOD_COLORS[k % OCTOLOD_COLORS.len()], markers[k % markers.len()])
-                            }
+                            Method::Octolod => (format!("octolod {setting}"), OCTOLOD_COLORS[k % OCTOLOD_COLORS.len()], markers[k % markers.len()]),
                             Method::OctolodCollapse | Method::OctolodCluster => {
                                 (format!("octolod simplify {}", m.simplifier().unwrap_or("?")), method_color(m), Marker::TriangleDown)
                             }
@@ -174,7 +171,11 @@ fn tick_label(v: f64) -> String {
     } else {
         let e = v.log10().floor() as i32;
         let m = (v / 10f64.powi(e)).round();
-        if m == 1.0 { format!("1e{e}") } else { format!("{m}e{e}") }
+        if m == 1.0 {
+            format!("1e{e}")
+        } else {
+            format!("{m}e{e}")
+        }
     }
 }
 
@@ -276,12 +277,7 @@ fn svg_plot(title: &str, xlabel: &str, ylabel: &str, panels: &[Panel], note: &st
                 let _ = writeln!(s, "<text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"end\">{}</text>", px0 - 9.0, y + 4.0, tick_label(v));
             }
         }
-        let _ = writeln!(
-            s,
-            "<rect x=\"{px0}\" y=\"{py0}\" width=\"{:.1}\" height=\"{:.1}\" fill=\"none\" stroke=\"#333\"/>",
-            px1 - px0,
-            py1 - py0
-        );
+        let _ = writeln!(s, "<rect x=\"{px0}\" y=\"{py0}\" width=\"{:.1}\" height=\"{:.1}\" fill=\"none\" stroke=\"#333\"/>", px1 - px0, py1 - py0);
         let _ = writeln!(s, "<text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"middle\" font-size=\"13\">{}</text>", (px0 + px1) / 2.0, py1 + 44.0, esc(xlabel));
         let _ = writeln!(
             s,
@@ -301,12 +297,7 @@ fn svg_plot(title: &str, xlabel: &str, ylabel: &str, panels: &[Panel], note: &st
         // Data: lines first, markers on top.
         for se in panel.series.iter().filter(|s| s.join && s.points.len() > 1) {
             let pts: Vec<String> = se.points.iter().map(|p| format!("{:.1},{:.1}", sx(p.0), sy(p.1))).collect();
-            let _ = writeln!(
-                s,
-                "<polyline points=\"{}\" fill=\"none\" stroke=\"{}\" stroke-width=\"1.6\" stroke-opacity=\"0.75\"/>",
-                pts.join(" "),
-                se.color
-            );
+            let _ = writeln!(s, "<polyline points=\"{}\" fill=\"none\" stroke=\"{}\" stroke-width=\"1.6\" stroke-opacity=\"0.75\"/>", pts.join(" "), se.color);
         }
         for se in &panel.series {
             for p in &se.points {
@@ -367,7 +358,6 @@ fn wrap(text: &str, width: usize) -> Vec<String> {
     }
     lines
 }
-
 
 #[cfg(test)]
 mod tests {

@@ -313,10 +313,8 @@ pub fn report_md(r: &Report) -> String {
             );
         }
         let _ = writeln!(w, "\n### Ratios, octolod ÷ peer at the same target\n");
-        let _ = writeln!(
-            w,
-            "| octolod output | tris | peer | peer tris | time (build ÷ simplify) | time (build ÷ load+simplify) | peak RSS | RMS | Hausdorff |"
-        );
+        let _ =
+            writeln!(w, "| octolod output | tris | peer | peer tris | time (build ÷ simplify) | time (build ÷ load+simplify) | peak RSS | RMS | Hausdorff |");
         let _ = writeln!(w, "|---|---:|---|---:|---:|---:|---:|---:|---:|");
         let ps = pairs(&info.rows);
         for p in &ps {
@@ -407,13 +405,7 @@ fn simplify_section(w: &mut String, rows: &[Row]) {
     }
     let _ = writeln!(w, "{head}\n{rule}");
     for o in rows.iter().filter(|r| Method::SIMPLIFIERS.contains(&r.method)) {
-        let _ = write!(
-            w,
-            "| {} | {} | {} |",
-            o.method.simplifier().unwrap_or("?"),
-            o.target.map_or("?".into(), thousands),
-            thousands(o.triangles)
-        );
+        let _ = write!(w, "| {} | {} | {} |", o.method.simplifier().unwrap_or("?"), o.target.map_or("?".into(), thousands), thousands(o.triangles));
         for m in Method::PEERS {
             match ps.iter().find(|p| std::ptr::eq(p.o, o) && p.p.method == m) {
                 Some(p) => {
@@ -443,14 +435,7 @@ fn simplify_section(w: &mut String, rows: &[Row]) {
         let rms: Vec<f64> = sel.iter().filter_map(|p| p.rms()).collect();
         let hd: Vec<f64> = sel.iter().filter_map(|p| p.hausdorff()).collect();
         let hd_text = if m == Method::OctolodCollapse { format!(", Hausdorff {}", within(&hd, 1.2)) } else { format!(", Hausdorff {}", range(&hd)) };
-        let _ = writeln!(
-            w,
-            "- `{}` ÷ {} over {} targets: RMS {}{hd_text}.",
-            m.simplifier().unwrap_or("?"),
-            peer.name(),
-            sel.len(),
-            within(&rms, 1.0),
-        );
+        let _ = writeln!(w, "- `{}` ÷ {} over {} targets: RMS {}{hd_text}.", m.simplifier().unwrap_or("?"), peer.name(), sel.len(), within(&rms, 1.0),);
     }
 }
 

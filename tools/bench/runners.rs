@@ -107,12 +107,8 @@ pub fn run_one(a: &RunOne) -> Result<String> {
 }
 
 fn run_octolod(a: &RunOne) -> Result<BuildOut> {
-    let params = octolod::store::BuildParams {
-        mem: octolod::mem::parse_size(&a.mem)?,
-        leaf_tris: a.leaf_tris,
-        level_ratio: a.level_ratio as f64,
-        ..Default::default()
-    };
+    let params =
+        octolod::store::BuildParams { mem: octolod::mem::parse_size(&a.mem)?, leaf_tris: a.leaf_tris, level_ratio: a.level_ratio as f64, ..Default::default() };
     let opts = BuildOptions {
         params,
         quiet: true,
@@ -133,14 +129,7 @@ fn run_octolod(a: &RunOne) -> Result<BuildOut> {
             let path = PathBuf::from(format!("{}-L{l}.ply", a.output.display()));
             let (nv, nf) = extract(&store, CutSpec::Level(l), &path, true, true)?;
             let lr = r.levels.iter().find(|x| x.level == l);
-            levels.push(LevelOut {
-                level: l,
-                triangles: nf,
-                vertices: nv,
-                nodes: lr.map(|x| x.nodes),
-                error_bound_max: lr.map(|x| x.error_max),
-                path,
-            });
+            levels.push(LevelOut { level: l, triangles: nf, vertices: nv, nodes: lr.map(|x| x.nodes), error_bound_max: lr.map(|x| x.error_max), path });
         }
     }
     std::fs::remove_dir_all(&store_dir).with_context(|| format!("remove {}", store_dir.display()))?;
@@ -197,8 +186,7 @@ fn run_peer(a: &RunOne, m: Method) -> Result<RunOut> {
     let (seconds, out_verts, out_tris) = match m {
         Method::MeshoptSimplify | Method::MeshoptSloppy => {
             let idx: &[u32] = bytemuck::cast_slice(&tris);
-            let adapter = meshopt::VertexDataAdapter::new(bytemuck::cast_slice(&pos), 12, 0)
-                .map_err(|e| anyhow!("meshopt vertex adapter: {e}"))?;
+            let adapter = meshopt::VertexDataAdapter::new(bytemuck::cast_slice(&pos), 12, 0).map_err(|e| anyhow!("meshopt vertex adapter: {e}"))?;
             let target_idx = (a.target as usize).saturating_mul(3);
             let mut err = 0f32;
             let probe = CpuProbe::start();

@@ -23,7 +23,8 @@ pub fn renderer(w: u32, h: u32, opts: RendererOptions) -> Option<Renderer> {
 
 /// What tells a process it runs in a desktop session (and the backend
 /// choice): [`without_desktop_session`] removes them.
-pub const DESKTOP_SESSION_VARS: [&str; 6] = ["XDG_RUNTIME_DIR", "WAYLAND_DISPLAY", "WAYLAND_SOCKET", "NODEVICE_SELECT", "MESA_VK_DEVICE_SELECT", "WGPU_BACKEND"];
+pub const DESKTOP_SESSION_VARS: [&str; 6] =
+    ["XDG_RUNTIME_DIR", "WAYLAND_DISPLAY", "WAYLAND_SOCKET", "NODEVICE_SELECT", "MESA_VK_DEVICE_SELECT", "WGPU_BACKEND"];
 
 /// `cmd` as on a headless machine: no desktop session variables, on wgpu's
 /// default backends or (`backend` "gl") on GL only.

@@ -8,9 +8,9 @@
 use octolod::gen::{GenOptions, Generator, Shape};
 use octolod::mesh::{AttrSet, Vertex};
 use octolod::pipeline::{build_store, BuildOptions};
-pub use octolod::store::BuildParams;
-use octolod::reduce::Simplifier;
 use octolod::ply::write::{write_ply, PlyWriteOptions};
+use octolod::reduce::Simplifier;
+pub use octolod::store::BuildParams;
 use octolod::store::{Cut, IndexedMesh, Store};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
