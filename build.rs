@@ -40,7 +40,8 @@ fn main() {
         println!("cargo:rerun-if-changed=web");
     }
     files.sort();
-    let mtime = files.iter().filter_map(|(_, p)| std::fs::metadata(p).ok()?.modified().ok()?.duration_since(UNIX_EPOCH).ok()).map(|d| d.as_secs()).max().unwrap_or(0);
+    let mtime =
+        files.iter().filter_map(|(_, p)| std::fs::metadata(p).ok()?.modified().ok()?.duration_since(UNIX_EPOCH).ok()).map(|d| d.as_secs()).max().unwrap_or(0);
 
     // (name, the expression of its bytes), sorted by name.
     let mut table: Vec<(String, String)> =

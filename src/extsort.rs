@@ -255,8 +255,7 @@ fn merge(runs: &[Run], rec: usize, buf_bytes: usize, mut out: impl FnMut(&[u8]) 
         out(&r.buf[r.pos..r.pos + rec])?;
         r.pos += rec;
         // Drain this run while it stays the smallest: avoids heap traffic on presorted input.
-        loop {
-            let Some(b) = r.current()? else { break };
+        while let Some(b) = r.current()? {
             let k = key_of(b);
             match heap.peek() {
                 Some(Reverse((top, j))) if (*top, *j) < (k, i) => {

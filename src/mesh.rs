@@ -218,6 +218,7 @@ impl Aabb {
     pub const EMPTY: Aabb = Aabb { min: [f64::INFINITY; 3], max: [f64::NEG_INFINITY; 3] };
 
     #[inline]
+    #[allow(clippy::needless_range_loop, reason = "axis loop over three arrays in lockstep")]
     pub fn add(&mut self, p: [f64; 3]) {
         for k in 0..3 {
             self.min[k] = self.min[k].min(p[k]);
@@ -243,6 +244,12 @@ impl Aabb {
     }
     pub fn center(&self) -> [f64; 3] {
         [0, 1, 2].map(|k| 0.5 * (self.min[k] + self.max[k]))
+    }
+}
+
+impl Default for Aabb {
+    fn default() -> Self {
+        Aabb::EMPTY
     }
 }
 
@@ -282,11 +289,5 @@ mod tests {
         assert_eq!(AttrSet(AttrSet::COLOR).quadric_dim(), 6);
         assert_eq!(AttrSet(AttrSet::COLOR | AttrSet::NORMAL | AttrSet::UV).quadric_dim(), 11);
         assert!(AttrSet::from_bits(AttrSet::ALPHA).is_none());
-    }
-}
-
-impl Default for Aabb {
-    fn default() -> Self {
-        Aabb::EMPTY
     }
 }

@@ -227,10 +227,10 @@ pub fn decode_payload(layout: &VertexLayout, b: &[u8], file: &Path, offset: u64)
     let mut triangles = Vec::with_capacity(nt);
     for t in 0..nt {
         let mut tri = [0u32; 3];
-        for c in 0..3 {
-            tri[c] = index_at(ib, isz, 3 * t + c);
-            if tri[c] as usize >= nv {
-                return Err(bad(format!("triangle {t} index {} out of range ({nv} vertices)", tri[c])));
+        for (c, i) in tri.iter_mut().enumerate() {
+            *i = index_at(ib, isz, 3 * t + c);
+            if *i as usize >= nv {
+                return Err(bad(format!("triangle {t} index {} out of range ({nv} vertices)", *i)));
             }
         }
         triangles.push(tri);
@@ -353,7 +353,7 @@ pub struct Store {
 }
 
 impl Store {
-    /// Opens and validates the index (see [`Store::validate`]).
+    /// Opens and validates the index (see `validate`).
     pub fn open(dir: &Path) -> Result<Store> {
         let path = dir.join("nodes.bin");
         let (mut f, len) = crate::io::open_regular(&path, "open store index")?;
@@ -457,7 +457,7 @@ impl Store {
             children,
             parents,
         };
-        s.validate().map_err(|m| bad(m))?;
+        s.validate().map_err(bad)?;
         s.packs = packs;
         s.check_pack_ranges()?;
         Ok(s)
@@ -522,7 +522,7 @@ impl Store {
             if (nd.level as u32 == top) != (nd.parent_count == 0) {
                 return Err(format!("node {i}: the top level's nodes (the roots) and only they have no parent"));
             }
-            if !(nd.error.is_finite() && nd.error >= 0.0) || !aabb_finite(&nd.bounds) {
+            if !(nd.error.is_finite() && nd.error >= 0.0 && aabb_finite(&nd.bounds)) {
                 return Err(format!("node {i}: non-finite error or bounds"));
             }
             for &c in self.children_of(i) {

@@ -6,7 +6,7 @@
 //! `face(j)` are pure functions of the options and the index (randomness comes
 //! from hashing the seed with the index, trigonometry from a portable
 //! polynomial), so the output is identical whatever the chunking or thread
-//! count and nothing is ever held in memory; and [`write`], which streams a
+//! count and nothing is ever held in memory; and [`write`](fn@write), which streams a
 //! generated mesh to a PLY with parallel chunk encoding.
 //!
 //! Shapes: smooth closed ones ([`Shape::Sphere`], [`Shape::Terrain`],

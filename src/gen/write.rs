@@ -58,7 +58,7 @@ fn encode(g: &Generator, enc: &PlyEncoder, job: Job, buf: &mut Vec<u8>) -> io::R
 /// each) are encoded in parallel with rayon while a writer thread writes the
 /// finished chunks in order from a bounded queue, so memory stays at about two
 /// windows whatever the mesh size. `wopts.attrs` is used as given (see
-/// [`write`]). Returns the bytes written.
+/// [`write`](fn@write)). Returns the bytes written.
 pub fn write_to<W: Write + Send>(g: &Generator, wopts: &PlyWriteOptions, w: W, quiet: bool) -> io::Result<u64> {
     stream(g, wopts, w, quiet, CHUNK_BYTES)
 }

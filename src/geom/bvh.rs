@@ -2,7 +2,7 @@
 //!
 //! Takes: a [`Mesh`] (or a list of boxes). Gives: the exact closest point
 //! of the mesh to a query point ([`Bvh`]), or the boxes meeting a box
-//! ([`BoxTree`]). Median split of triangle centroids along the longest
+//! (`BoxTree`). Median split of triangle centroids along the longest
 //! axis, at most 4 triangles a leaf, flattened depth-first into one array
 //! with the left child next to its parent; subtrees above 64 K triangles
 //! built in parallel. Queries walk nearest child first, skip any box

@@ -27,7 +27,7 @@
 //! * `quantize`: KHR_mesh_quantization: positions as normalized `i16` (the
 //!   node's translation and uniform scale dequantize), normals as
 //!   normalized `i8` (padded to 4 bytes), uvs as normalized `u16` when all
-//!   lie in [0,1].
+//!   lie in \[0,1\].
 //! * `compress`: EXT_meshopt_compression (meshopt's vertex codec version 0,
 //!   mode ATTRIBUTES; its index codec, mode TRIANGLES) in buffer 0, with a
 //!   placeholder fallback buffer (no `uri`, `fallback: true`) giving the
@@ -60,7 +60,7 @@ pub use crate::io::is_octolod_gltf;
 
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct GltfOptions {
-    /// KHR_mesh_quantization: integer positions, normals and (in [0,1]) uvs.
+    /// KHR_mesh_quantization: integer positions, normals and (in \[0,1\]) uvs.
     pub quantize: bool,
     /// EXT_meshopt_compression on every vertex and index bufferView.
     pub compress: bool,

@@ -66,7 +66,7 @@ pub const STORE_MAGIC: [u8; 8] = *b"OCTLODIX";
 /// The first bytes of a triangle soup ([`crate::soup::format::MAGIC`]).
 pub const SOUP_MAGIC: [u8; 8] = *b"OCTSOUP\0";
 /// The marker file every `render` output directory holds: its first line
-/// is [`FRAMES_MARKER_TEXT`], the next ones list the files the render wrote.
+/// is `FRAMES_MARKER_TEXT`, the next ones list the files the render wrote.
 pub const FRAMES_MARKER: &str = ".octolod-render";
 const FRAMES_MARKER_TEXT: &str = "octolod render output";
 /// The marker file every `tiles` output directory holds, like [`FRAMES_MARKER`].

@@ -338,6 +338,65 @@ pub fn split_by_target(m: &IndexedMesh, a: &[f64], a_len: usize, locked: &[bool]
     out
 }
 
+/// Ids of byte strings of one length (vertex records), numbered in order
+/// of first appearance. The vertex sizes a layout can have (12 to 36 bytes)
+/// are keyed as arrays: hashed and compared inline, where a slice key
+/// costs a `memcmp` call per probe (a tenth of the level-0 routing).
+enum ByteIds<'a> {
+    K12(FxHashMap<[u8; 12], u32>),
+    K16(FxHashMap<[u8; 16], u32>),
+    K20(FxHashMap<[u8; 20], u32>),
+    K24(FxHashMap<[u8; 24], u32>),
+    K28(FxHashMap<[u8; 28], u32>),
+    K32(FxHashMap<[u8; 32], u32>),
+    K36(FxHashMap<[u8; 36], u32>),
+    Any(FxHashMap<&'a [u8], u32>),
+}
+
+impl<'a> ByteIds<'a> {
+    /// For keys of `len` bytes, room for `n` of them.
+    fn new(len: usize, n: usize) -> ByteIds<'a> {
+        fn map<K>(n: usize) -> FxHashMap<K, u32> {
+            FxHashMap::with_capacity_and_hasher(n, Default::default())
+        }
+        match len {
+            12 => ByteIds::K12(map(n)),
+            16 => ByteIds::K16(map(n)),
+            20 => ByteIds::K20(map(n)),
+            24 => ByteIds::K24(map(n)),
+            28 => ByteIds::K28(map(n)),
+            32 => ByteIds::K32(map(n)),
+            36 => ByteIds::K36(map(n)),
+            _ => ByteIds::Any(map(n)),
+        }
+    }
+
+    /// The id of `key` (of the length given to [`ByteIds::new`]); `new` is
+    /// called when it is met for the first time.
+    #[inline]
+    fn id(&mut self, key: &'a [u8], new: impl FnOnce()) -> u32 {
+        macro_rules! get {
+            ($m:expr, $k:expr) => {{
+                let next = $m.len() as u32;
+                *$m.entry($k).or_insert_with(|| {
+                    new();
+                    next
+                })
+            }};
+        }
+        match self {
+            ByteIds::K12(m) => get!(m, key.try_into().unwrap()),
+            ByteIds::K16(m) => get!(m, key.try_into().unwrap()),
+            ByteIds::K20(m) => get!(m, key.try_into().unwrap()),
+            ByteIds::K24(m) => get!(m, key.try_into().unwrap()),
+            ByteIds::K28(m) => get!(m, key.try_into().unwrap()),
+            ByteIds::K32(m) => get!(m, key.try_into().unwrap()),
+            ByteIds::K36(m) => get!(m, key.try_into().unwrap()),
+            ByteIds::Any(m) => get!(m, key),
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -394,11 +453,9 @@ mod tests {
         let layout = VertexLayout::new(AttrSet(0));
         let dir = tempfile::tempdir().unwrap();
         let mut file = ChunkFile::create(dir.path().join("c.bin"), layout, 1).unwrap();
-        let strip = |nv: u32| {
-            let mut m = IndexedMesh::default();
-            m.vertices = (0..nv).map(|i| Vertex { pos: [i as f64, (i % 2) as f64, 0.0], ..Default::default() }).collect();
-            m.triangles = (0..nv - 2).map(|i| if i % 2 == 0 { [i, i + 1, i + 2] } else { [i + 1, i, i + 2] }).collect();
-            m
+        let strip = |nv: u32| IndexedMesh {
+            vertices: (0..nv).map(|i| Vertex { pos: [i as f64, (i % 2) as f64, 0.0], ..Default::default() }).collect(),
+            triangles: (0..nv - 2).map(|i| if i % 2 == 0 { [i, i + 1, i + 2] } else { [i + 1, i, i + 2] }).collect(),
         };
         let meshes = [strip(u16::MAX as u32), strip(u16::MAX as u32 + 1), strip(5)];
         let mut bytes = Vec::new();
@@ -418,65 +475,6 @@ mod tests {
             assert_eq!(g.a, (0..m.vertices.len()).map(|i| i as f64).collect::<Vec<_>>());
             assert_eq!(g.was_locked, (0..m.vertices.len()).map(|i| i % 3 == 0).collect::<Vec<_>>());
             assert_eq!(g.patches, vec![(9, m.triangles.len() as u32)]);
-        }
-    }
-}
-
-/// Ids of byte strings of one length (vertex records), numbered in order
-/// of first appearance. The vertex sizes a layout can have (12 to 36 bytes)
-/// are keyed as arrays: hashed and compared inline, where a slice key
-/// costs a `memcmp` call per probe (a tenth of the level-0 routing).
-enum ByteIds<'a> {
-    K12(FxHashMap<[u8; 12], u32>),
-    K16(FxHashMap<[u8; 16], u32>),
-    K20(FxHashMap<[u8; 20], u32>),
-    K24(FxHashMap<[u8; 24], u32>),
-    K28(FxHashMap<[u8; 28], u32>),
-    K32(FxHashMap<[u8; 32], u32>),
-    K36(FxHashMap<[u8; 36], u32>),
-    Any(FxHashMap<&'a [u8], u32>),
-}
-
-impl<'a> ByteIds<'a> {
-    /// For keys of `len` bytes, room for `n` of them.
-    fn new(len: usize, n: usize) -> ByteIds<'a> {
-        fn map<K>(n: usize) -> FxHashMap<K, u32> {
-            FxHashMap::with_capacity_and_hasher(n, Default::default())
-        }
-        match len {
-            12 => ByteIds::K12(map(n)),
-            16 => ByteIds::K16(map(n)),
-            20 => ByteIds::K20(map(n)),
-            24 => ByteIds::K24(map(n)),
-            28 => ByteIds::K28(map(n)),
-            32 => ByteIds::K32(map(n)),
-            36 => ByteIds::K36(map(n)),
-            _ => ByteIds::Any(map(n)),
-        }
-    }
-
-    /// The id of `key` (of the length given to [`ByteIds::new`]); `new` is
-    /// called when it is met for the first time.
-    #[inline]
-    fn id(&mut self, key: &'a [u8], new: impl FnOnce()) -> u32 {
-        macro_rules! get {
-            ($m:expr, $k:expr) => {{
-                let next = $m.len() as u32;
-                *$m.entry($k).or_insert_with(|| {
-                    new();
-                    next
-                })
-            }};
-        }
-        match self {
-            ByteIds::K12(m) => get!(m, key.try_into().unwrap()),
-            ByteIds::K16(m) => get!(m, key.try_into().unwrap()),
-            ByteIds::K20(m) => get!(m, key.try_into().unwrap()),
-            ByteIds::K24(m) => get!(m, key.try_into().unwrap()),
-            ByteIds::K28(m) => get!(m, key.try_into().unwrap()),
-            ByteIds::K32(m) => get!(m, key.try_into().unwrap()),
-            ByteIds::K36(m) => get!(m, key.try_into().unwrap()),
-            ByteIds::Any(m) => get!(m, key),
         }
     }
 }

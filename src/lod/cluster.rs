@@ -318,6 +318,7 @@ impl<'a> Splits<'a> {
             split[c as usize] = true;
             clusters -= 1;
             let id = sp.cells.len() as u32;
+            #[allow(clippy::needless_range_loop, reason = "o is the child (0 low, 1 high), used beyond indexing mo")]
             for o in 0..2 {
                 let mut clo = lo;
                 let mut chi = hi;

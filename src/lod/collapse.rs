@@ -265,13 +265,13 @@ pub fn compact(vertices: &[Vertex], tris: &[[u32; 3]]) -> (IndexedMesh, Vec<u32>
 /// input vertex to the output surface and from an output vertex to the
 /// input surface, exact (closest points through a BVH of each side), and
 /// from the face samples next to the mesh's own open border
-/// ([`super::measure::BorderFaces`]: on a grid with one-cell holes the
+/// (`BorderFaces`: on a grid with one-cell holes the
 /// vertices alone put a level-1 cut at 1.27× its error by metro). Edge
 /// collapse keeps no member lists, so the neighbourhood bound of
 /// [`super::measure::node_error`] does not apply. An empty output has the
 /// input's extent as its error. Also gives each side's farthest points, as
 /// [`super::measure::node_error`] does, for
-/// [`super::measure::remeasure_far`].
+/// `remeasure_far`.
 pub fn collapse_error(input: &IndexedMesh, locked: &[bool], output: &IndexedMesh, from: &[u32]) -> super::NodeError {
     use super::measure::{Farthest, NodeError};
     use crate::geom::{Bvh, Mesh};

@@ -7,12 +7,12 @@
 //! [`node_error`]), or each output vertex's source (edge collapse,
 //! [`super::collapse::collapse_error`]). Gives: [`NodeError`] (the error,
 //! what remains without its few farthest points, and those points), and
-//! [`remeasure_far`], which measures those points again against the whole
+//! `remeasure_far`, which measures those points again against the whole
 //! next level, or the level itself, where they stand out.
 //!
 //! Samples: the input's vertices against the output, the output's
 //! vertices against the input, and faces next to the mesh's own open
-//! border ([`BorderFaces`]). Hand-written searches over each side's vertex
+//! border (`BorderFaces`). Hand-written searches over each side's vertex
 //! fans rather than a BVH per node: the neighbourhoods are known from the
 //! clustering, most searches end at their first exact distance (76 % on a
 //! 3 M sphere), and node errors still take about a fifth of a level
@@ -36,13 +36,13 @@ use std::collections::BinaryHeap;
 /// with no index over either mesh. Kept vertices are at distance 0.
 ///
 /// Next to the mesh's own open border, faces are sampled too
-/// ([`BorderFaces`]): there clustering can fill a small hole, or move its
+/// (`BorderFaces`): there clustering can fill a small hole, or move its
 /// rim, while every vertex stays on the other surface.
 ///
 /// Also gives the input points (vertices or face samples) that set the
 /// error (those farther than a quarter of it from the output), so the
 /// level can measure them again against the whole next level
-/// ([`NodeError`], [`remeasure_far`]).
+/// ([`NodeError`], `remeasure_far`).
 pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> NodeError {
     use crate::geom::{Bvh, Mesh};
     let output = &out.mesh;

@@ -50,7 +50,7 @@
 //!    vertices to the simplified surface, representatives to the input
 //!    surface; faces too next to the mesh's own open border, where
 //!    clustering can fill or widen a small hole with every vertex still on
-//!    the other surface: [`measure::BorderFaces`]), at most the input's extent: each step's deviation is
+//!    the other surface: `BorderFaces`), at most the input's extent: each step's deviation is
 //!    measured against the level it was made from, so the steps are added
 //!    up (the triangle inequality) to bound the distance to the input
 //!    itself. Taking only the largest, as Nexus and meshoptimizer's
@@ -63,7 +63,7 @@
 //!    from its own output: a flap folded over a neighbour's surface,
 //!    dropped as a fold; representatives far from its own input) has them
 //!    measured again against the whole next level, or the whole level
-//!    ([`remeasure_far`]): the neighbour's surface there is what a cut
+//!    (`remeasure_far`): the neighbour's surface there is what a cut
 //!    draws.
 //! 6. **Patches.** Node N of level L+1 stores its triangles grouped by the
 //!    level-L node (child) each came from; a cut draws, per selected node,
@@ -102,7 +102,7 @@
 //!   the same face samples next to the border as clustering's
 //!   ([`collapse::collapse_error`]); where a few far points set it (a
 //!   flap dropped as a fold) they are measured again against the whole
-//!   next level or the level itself ([`remeasure_far`]), as clustering's
+//!   next level or the level itself (`remeasure_far`), as clustering's
 //!   are; then saturated as in step 5.
 //! - *Patches, bounds, attributes, normals.* Each node's output is routed
 //!   to the next level as chunks tagged with the node, as with clustering,
@@ -203,7 +203,7 @@ pub struct Built {
 
 /// Most levels built: halving from 2^40 triangles takes 30. A build that
 /// would need more (a `--level-ratio` near 1) is an error naming it, up
-/// front when the ratio alone says so ([`check_level_count`]), else when
+/// front when the ratio alone says so (`check_level_count`), else when
 /// the level is reached.
 pub const MAX_LEVELS: u8 = 64;
 

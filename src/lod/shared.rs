@@ -250,6 +250,7 @@ impl SharedSort {
                     }
                     let mut n = [0f32; 3];
                     for r in g {
+                        #[allow(clippy::needless_range_loop, reason = "axis loop over two arrays in lockstep")]
                         for k in 0..3 {
                             n[k] += r.2[k];
                         }
@@ -300,15 +301,18 @@ impl SharedSort {
 /// A node's shared positions: position bits → (summed normal, flags).
 pub type SharedSet = FxHashMap<[u64; 3], ([f32; 3], u32)>;
 
+/// One resolved record: (node, position bits, summed normal, flags).
+type ResolvedRecord = (u32, [u64; 3], [f32; 3], u32);
+
 /// Reads resolved records node by node, in node order.
 pub struct Resolved {
     path: PathBuf,
     r: BufReader<std::fs::File>,
-    pending: Option<(u32, [u64; 3], [f32; 3], u32)>,
+    pending: Option<ResolvedRecord>,
 }
 
 impl Resolved {
-    fn next(&mut self) -> Result<Option<(u32, [u64; 3], [f32; 3], u32)>> {
+    fn next(&mut self) -> Result<Option<ResolvedRecord>> {
         if let Some(p) = self.pending.take() {
             return Ok(Some(p));
         }

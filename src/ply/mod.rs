@@ -3,7 +3,7 @@
 //!
 //! Takes: a path to a `.ply` file. Gives: a parsed [`PlyHeader`] (elements in
 //! file order, the recognised attribute set, the body's byte offset) and a
-//! body reader ([`read::PlyBody`]) that calls back once per vertex and once
+//! body reader ([`read::read_body`]) that calls back once per vertex and once
 //! per fan-triangulated triangle, never holding the mesh in memory.
 //!
 //! The header is read by a small grammar of our own ([`parse_header`]):
@@ -14,7 +14,7 @@
 //! accept. The body is decoded here
 //! with typed, offset-compiled decoders over large sequential buffers (no
 //! per-element hash map), which is what makes binary ingest run at memory
-//! speed. [`write`] writes PLY files (used by `extract`, the generator and
+//! speed. [`write`](mod@write) writes PLY files (used by `extract`, the generator and
 //! tests).
 
 pub mod read;

@@ -319,6 +319,7 @@ impl BodyReader<'_> {
         Ok(())
     }
 
+    #[allow(clippy::needless_range_loop, reason = "each property's slot filled from its field, arrays in lockstep")]
     fn read_vertices_fixed(&mut self, e: &ElementDef, plan: &VertexPlan, size: usize, be: bool, sink: &mut dyn BodySink) -> Result<()> {
         let mut offs = Vec::with_capacity(e.props.len());
         let mut o = 0;

@@ -7,12 +7,12 @@
 //! any [`Write`]; [`PlyWriter::finish`] checks that exactly the announced
 //! number of vertices and faces were written. [`write_ply`] and
 //! [`write_ply_polygons`] write a whole in-memory mesh atomically
-//! ([`AtomicFile`](crate::io::AtomicFile)).
+//! ([`AtomicFile`]).
 //!
 //! Vertex properties, in order: `x`, (`quality` when
 //! [`PlyWriteOptions::extra_vertex_quality`], to exercise readers), `y`, `z`
 //! (`double` with [`AttrSet::POS_F64`], else `float`), `nx ny nz` (`float`),
-//! `red green blue [alpha]` (`uchar`, or `float` in [0,1] with
+//! `red green blue [alpha]` (`uchar`, or `float` in \[0,1\] with
 //! [`PlyWriteOptions::float_colors`]), then the texture coordinates (`float`,
 //! named per [`UvNames`]). Faces are `property list uchar <index> vertex_indices`.
 //!
@@ -57,7 +57,7 @@ pub struct PlyWriteOptions {
     pub encoding: Encoding,
     /// Vertex attributes written; `POS_F64` writes `double` positions.
     pub attrs: AttrSet,
-    /// Colors as `float` in [0,1] instead of `uchar`.
+    /// Colors as `float` in \[0,1\] instead of `uchar`.
     pub float_colors: bool,
     pub uv_names: UvNames,
     /// Item type of the face index list (`int` by default). Float types are

@@ -54,9 +54,9 @@
 //! the position is re-optimised inside the box (exact minimisation of the
 //! quadric, with attributes at their optimum for each position, over the
 //! box's faces, edges and corners) and the solution is flagged `clamped`.
-// Index loops mirror the formulas; negated comparisons are deliberate
-// (`!(x > 0.0)` is also true for NaN).
-#![allow(clippy::needless_range_loop, clippy::neg_cmp_op_on_partial_ord)]
+// Index loops mirror the formulas. (Negated comparisons, `!(x > 0.0)` true
+// for NaN, are allowed crate-wide in lib.rs.)
+#![allow(clippy::needless_range_loop)]
 
 use crate::geom::{cross, dot as dot3, sub};
 use crate::mesh::{Aabb, AttrSet, Vertex};
@@ -433,7 +433,7 @@ fn in_box(x: &[f64], lo: [f64; 3], hi: [f64; 3]) -> bool {
 /// quadrics and matrices per solve: a third of a level's solve time at
 /// dimension 3). The same operations as the general path, so the same bits,
 /// except at N = 3, whose eigen-decomposition is the closed form
-/// ([`eigen::eigen3`], 2–3× cheaper than the Jacobi sweeps). None when the
+/// (`eigen3`, 2–3× cheaper than the Jacobi sweeps). None when the
 /// minimiser must be clamped into the box (the caller takes the general
 /// path, which minimises over the box).
 pub fn solve_sized<const N: usize>(k: &[f64], rel_tol: f64, bounds: ([f64; 3], [f64; 3])) -> Option<([f64; N], [f64; N], f64)> {

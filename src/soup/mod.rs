@@ -1,7 +1,7 @@
 //! Soup stage: indexed PLY → triangle soup under a fixed memory budget.
 //!
 //! Takes: a PLY path, an output path and a budget (`--mem`). Gives: a `.soup`
-//! file ([`format`]) whose records are the input's triangles in face order
+//! file ([`format`](mod@format)) whose records are the input's triangles in face order
 //! (polygons fan-triangulated, degenerate triangles dropped and counted),
 //! each corner carrying exactly the input's attributes, plus a [`SoupReport`].
 //!
@@ -293,8 +293,8 @@ impl BodySink for InMemorySink<'_> {
     fn triangles(&mut self, batch: &[[u64; 3]]) -> Result<()> {
         let s = self.layout.size;
         for t in batch {
-            for c in 0..3 {
-                let i = t[c] as usize * s;
+            for (c, &v) in t.iter().enumerate() {
+                let i = v as usize * s;
                 self.rec[c * s..(c + 1) * s].copy_from_slice(&self.table[i..i + s]);
             }
             self.soup.push_encoded(&self.rec)?;

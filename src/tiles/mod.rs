@@ -179,6 +179,10 @@ fn boxes_meet(a: &Aabb, b: &Aabb) -> bool {
     !a.is_empty() && !b.is_empty() && (0..3).all(|k| a.min[k] <= b.max[k] && b.min[k] <= a.max[k])
 }
 
+/// One level's triangles per cell code at the fine depth, with the largest
+/// error of the nodes holding them: code → (triangles, error).
+type CellCounts = FxHashMap<u64, (u64, f64)>;
+
 /// Cells of one level: the tiles' cells (sorted) with their largest node
 /// errors.
 struct LevelCut {
@@ -191,12 +195,12 @@ struct LevelCut {
 
 /// Counts one level's triangles per cell at depth `fine` (by centroid), with
 /// the largest error of the nodes holding them; and the level's reach.
-fn count_level(store: &Store, level: u8, cube: &Cube, fine: u32, progress: &Progress) -> Result<(FxHashMap<u64, (u64, f64)>, f64)> {
+fn count_level(store: &Store, level: u8, cube: &Cube, fine: u32, progress: &Progress) -> Result<(CellCounts, f64)> {
     let ids = store.level_nodes(level);
-    let parts: Vec<Result<(FxHashMap<u64, (u64, f64)>, f64)>> = ids
+    let parts: Vec<Result<(CellCounts, f64)>> = ids
         .par_chunks(8)
         .map(|chunk| {
-            let mut m: FxHashMap<u64, (u64, f64)> = FxHashMap::default();
+            let mut m: CellCounts = FxHashMap::default();
             let mut reach = 0.0f64;
             for &i in chunk {
                 crate::io::signal::check()?;
@@ -216,7 +220,7 @@ fn count_level(store: &Store, level: u8, cube: &Cube, fine: u32, progress: &Prog
             Ok((m, reach))
         })
         .collect();
-    let mut all: FxHashMap<u64, (u64, f64)> = FxHashMap::default();
+    let mut all: CellCounts = FxHashMap::default();
     let mut reach = 0.0f64;
     for p in parts {
         let (m, r) = p?;
@@ -234,7 +238,7 @@ fn count_level(store: &Store, level: u8, cube: &Cube, fine: u32, progress: &Prog
 /// than `tile_tris` of this level's triangles. Cells holding none stay (as
 /// tiles without content), so the cells always cover the whole cube and a
 /// finer level's triangles always have a cell.
-fn cut_level(coarse: &[Cell], counts: &FxHashMap<u64, (u64, f64)>, fine: u32, tile_tris: u64) -> (Vec<Cell>, Vec<f64>) {
+fn cut_level(coarse: &[Cell], counts: &CellCounts, fine: u32, tile_tris: u64) -> (Vec<Cell>, Vec<f64>) {
     // Per-cell sums at every depth up to `fine`, from the fine counts.
     let mut sums: FxHashMap<Cell, (u64, f64)> = FxHashMap::default();
     for (&code, &(n, e)) in counts {
@@ -424,12 +428,16 @@ fn grow(b: &Aabb, by: f64) -> Aabb {
     Aabb { min: (DVec3::from(b.min) - DVec3::splat(by)).to_array(), max: (DVec3::from(b.max) + DVec3::splat(by)).to_array() }
 }
 
+/// The cached nodes: node → (mesh, bytes, last use); with the bytes used
+/// and the use clock, the [`NodeCache`]'s state.
+type CachedNodes = FxHashMap<usize, (std::sync::Arc<IndexedMesh>, u64, u64)>;
+
 /// Decoded nodes shared by the tiles being made (a node reaching several
 /// cells is read once while it stays in the cache): least recently used
 /// out first, within a byte budget.
 struct NodeCache {
     budget: u64,
-    inner: std::sync::Mutex<(FxHashMap<usize, (std::sync::Arc<IndexedMesh>, u64, u64)>, u64, u64)>,
+    inner: std::sync::Mutex<(CachedNodes, u64, u64)>,
 }
 
 impl NodeCache {
@@ -464,6 +472,10 @@ impl NodeCache {
     }
 }
 
+/// A tile made in parallel: its index and, when it has content, its GLB
+/// bytes and mesh.
+type MadeTile = (usize, Option<(Vec<u8>, TileMesh)>);
+
 /// Writes the tileset; see the module doc.
 pub fn export(store: &Store, out: &Path, o: &TilesOptions) -> Result<TilesReport> {
     let t0 = Instant::now();
@@ -487,7 +499,7 @@ pub fn export(store: &Store, out: &Path, o: &TilesOptions) -> Result<TilesReport
     // A window of tiles at a time, in parallel: each holds a few nodes.
     let window = (4 * rayon::current_num_threads()).max(2);
     for chunk in order.chunks(window) {
-        let made: Vec<Result<(usize, Option<(Vec<u8>, TileMesh)>)>> = chunk
+        let made: Vec<Result<MadeTile>> = chunk
             .par_iter()
             .map(|&t| {
                 crate::io::signal::check()?;

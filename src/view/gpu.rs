@@ -178,6 +178,10 @@ struct OverlayGpu {
     current: Option<(OverlayImage, wgpu::BindGroup)>,
 }
 
+/// What an offscreen frame draws: the parameters, the meshes and an
+/// optional overlay.
+type Scene<'a> = (&'a DrawParams, &'a [DrawItem<'a, GpuMesh>], Option<&'a OverlayImage>);
+
 /// The renderer: device, pipelines and render targets.
 pub struct Renderer {
     _instance: wgpu::Instance,
@@ -671,7 +675,7 @@ impl Renderer {
     }
 
     /// Draws (when given a scene) and reads the offscreen target back.
-    fn readback_frame(&mut self, scene: Option<(&DrawParams, &[DrawItem<GpuMesh>], Option<&OverlayImage>)>) -> Result<Vec<u8>> {
+    fn readback_frame(&mut self, scene: Option<Scene<'_>>) -> Result<Vec<u8>> {
         let Some(color) = &self.color else {
             return Err(Error::Usage("render_offscreen needs a headless renderer".into()));
         };

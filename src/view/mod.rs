@@ -72,6 +72,7 @@ pub struct DrawItem<'a, M> {
 
 impl<'a, M> DrawItem<'a, M> {
     /// All of a mesh with `tris` triangles.
+    #[allow(clippy::single_range_in_vec_init, reason = "one draw range, not a Vec of 0..tris")]
     pub fn whole(mesh: &'a M, tris: u32) -> DrawItem<'a, M> {
         DrawItem { mesh, ranges: vec![0..tris] }
     }

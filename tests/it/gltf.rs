@@ -344,8 +344,8 @@ fn check(d: &Decoded, want: &IndexedMesh, attrs: AttrSet, opts: &GltfOptions, wh
         1e-6 * diag
     };
     for (k, (a, b)) in d.pos.iter().zip(&want.vertices).enumerate() {
-        for c in 0..3 {
-            assert!((a[c] - b.pos[c]).abs() <= tol, "{what}: vertex {k} axis {c}: {} vs {} (tol {tol})", a[c], b.pos[c]);
+        for (c, (x, y)) in a.iter().zip(b.pos).enumerate() {
+            assert!((x - y).abs() <= tol, "{what}: vertex {k} axis {c}: {x} vs {y} (tol {tol})");
         }
     }
     assert_eq!(d.normal.is_some(), attrs.normal(), "{what}: NORMAL present exactly when the store has normals");

@@ -139,6 +139,7 @@ fn check(shape: Shape, tris: u64, attrs: u32, limit: u64, max_depth: u8) {
         for tri in &g.mesh.triangles {
             let tri = tri.map(|k| g.mesh.vertices[k as usize]);
             let c = tri[0].pos;
+            #[allow(clippy::needless_range_loop, reason = "axis loop over the corner, cell and bounds in lockstep")]
             for a in 0..3 {
                 let slack = 1e-9 * cube.size;
                 assert!(c[a] >= cell.min[a] - slack && c[a] <= cell.max[a] + slack, "first corner outside its leaf cell");

@@ -367,7 +367,9 @@ fn damaged_indexes_are_clear_errors_from_every_command() {
     // A level-1 node: the first node with children that is not the root.
     let l1 = (0..n).find(|&i| idx[rec(i)] == 1).unwrap();
     let l1_first_child = u32_at(&idx, rec(l1) + 112 + 16) as usize;
-    let cases: Vec<(&str, Box<dyn Fn(&mut Vec<u8>)>)> = vec![
+    // One way to damage the store's bytes.
+    type Damage = Box<dyn Fn(&mut Vec<u8>)>;
+    let cases: Vec<(&str, Damage)> = vec![
         ("root-child-is-root", Box::new(move |b: &mut Vec<u8>| b[lists + 4 * root_first_child..][..4].copy_from_slice(&(root as u32).to_le_bytes()))),
         ("l1-child-is-root", Box::new(move |b: &mut Vec<u8>| b[lists + 4 * l1_first_child..][..4].copy_from_slice(&(root as u32).to_le_bytes()))),
         ("child-out-of-range", Box::new(move |b: &mut Vec<u8>| b[lists + 4 * l1_first_child..][..4].copy_from_slice(&0xFFFF_FFF0u32.to_le_bytes()))),
@@ -440,7 +442,7 @@ fn damaged_stores_fail_cleanly_or_read_sound_data() {
     let whole = exercise(&work);
     assert!(whole >= 3000, "the intact store reads every level: {whole} triangles");
     let mut cases: Vec<(String, Vec<u8>)> = Vec::new();
-    let mut rng = common::Rng(0x5eed_57);
+    let mut rng = common::Rng(0x5eed57);
     for seed in 0..600u32 {
         let mut data = Vec::new();
         for _ in 0..1 + rng.next() % 3 {

@@ -124,13 +124,17 @@ pub fn random_cut(s: &Store, seed: u64, p: f64) -> Cut {
     Cut::from_selected(s, sel)
 }
 
+/// A mesh welded by position: the distinct positions and the triangles
+/// indexing them.
+pub type Welded = (Vec<[f64; 3]>, Vec<[u32; 3]>);
+
 /// The triangles a cut draws, welded by position.
-pub fn cut_mesh(s: &Store, cut: &Cut) -> (Vec<[f64; 3]>, Vec<[u32; 3]>) {
+pub fn cut_mesh(s: &Store, cut: &Cut) -> Welded {
     cut_mesh_parts(s, cut).0
 }
 
 /// [`cut_mesh`], and per welded position whether two or more drawn nodes hold it.
-pub fn cut_mesh_parts(s: &Store, cut: &Cut) -> ((Vec<[f64; 3]>, Vec<[u32; 3]>), Vec<bool>) {
+pub fn cut_mesh_parts(s: &Store, cut: &Cut) -> (Welded, Vec<bool>) {
     let parts: Vec<IndexedMesh> = s.cut_meshes(cut).collect::<Result<_, _>>().unwrap();
     let (pos, tris) = weld_positions(parts.iter().map(|m| (&m.vertices[..], &m.triangles[..])));
     let index: HashMap<[u64; 3], usize> = pos.iter().enumerate().map(|(i, p)| (p.map(f64::to_bits), i)).collect();
@@ -152,7 +156,7 @@ pub fn cut_mesh_parts(s: &Store, cut: &Cut) -> ((Vec<[f64; 3]>, Vec<[u32; 3]>), 
 }
 
 /// Meshes welded by exact position.
-pub fn weld_positions<'a>(parts: impl Iterator<Item = (&'a [Vertex], &'a [[u32; 3]])>) -> (Vec<[f64; 3]>, Vec<[u32; 3]>) {
+pub fn weld_positions<'a>(parts: impl Iterator<Item = (&'a [Vertex], &'a [[u32; 3]])>) -> Welded {
     let mut map: HashMap<[u64; 3], u32> = HashMap::new();
     let (mut pos, mut tris) = (Vec::new(), Vec::new());
     for (v, t) in parts {
@@ -268,7 +272,7 @@ pub fn crack_report(input: &IndexedMesh, pos: &[[f64; 3]], tris: &[[u32; 3]], sh
                 false
             };
             let own_border = !shared[a as usize] && !shared[b as usize];
-            if !own_border && !(near(pa) && near(pb)) {
+            if !(own_border || (near(pa) && near(pb))) {
                 r.cracks += 1;
                 r.first.get_or_insert((pa, pb));
             }
