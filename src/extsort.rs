@@ -276,18 +276,13 @@ fn merge(runs: &[Run], rec: usize, buf_bytes: usize, mut out: impl FnMut(&[u8]) 
 mod tests {
     use super::*;
 
-    fn lcg(s: &mut u64) -> u64 {
-        *s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-        *s >> 33
-    }
-
     fn check(n: usize, mem: usize, fan: usize, key_range: u64) -> SortStats {
         let dir = tempfile::tempdir().unwrap();
         let mut s = ExtSorter::new("t", 12, mem, dir.path()).with_max_fan_in(fan).with_merge_mem(64 << 20);
-        let mut seed = 7;
+        let mut rng = crate::geom::Rng::new(7);
         let mut expect = Vec::new();
         for i in 0..n as u32 {
-            let k = lcg(&mut seed) % key_range;
+            let k = (rng.next_u64() >> 33) % key_range;
             expect.push((k, i));
             s.push_with(|b| {
                 b[..8].copy_from_slice(&k.to_le_bytes());

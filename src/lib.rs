@@ -4,7 +4,7 @@
 //! Data flow, one module per stage:
 //! `ply` (stream PLY) → `soup` (out-of-core dereference into a triangle
 //! soup) → `octree` (level-0 partition) → `lod` (levels of detail, with
-//! `quadric`) → `store` → `view`, plus `reduce` (one mesh of the size or
+//! `quadric`) → `store` → `view`, plus `simplify` (one mesh of the size or
 //! error asked, from a store) and `metro`.
 //! Shared plumbing: [`mesh`] (attribute model), [`geom`] (closest points,
 //! BVH), [`error`], [`io`], [`progress`], [`extsort`], [`mem`].
@@ -22,17 +22,15 @@ pub mod io;
 pub mod mem;
 pub mod mesh;
 pub mod metro;
-/// Level 0's partition lives with the levels it feeds (`lod::octree`); the
-/// old path stays for callers.
-pub use lod::octree;
 pub mod pipeline;
 pub mod ply;
 pub mod progress;
 pub mod quadric;
-pub mod reduce;
 pub mod serve;
 
 pub mod lod;
+pub mod manifest;
+pub mod simplify;
 
 pub mod soup;
 pub mod store;

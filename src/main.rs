@@ -76,7 +76,7 @@ enum Cmd {
         /// Node simplifier: cluster (generalized-quadric vertex clustering,
         /// fast) or collapse (quadric edge collapse with attributes, accurate).
         #[arg(long, default_value = "cluster")]
-        simplifier: octolod::reduce::Simplifier,
+        simplifier: octolod::manifest::Simplifier,
     },
     /// Per level: nodes, triangles, bytes, error range, build time.
     Info { store: PathBuf },
@@ -147,7 +147,7 @@ enum Cmd {
         /// Node simplifier: collapse (quadric edge collapse, accurate) or
         /// cluster (generalized-quadric vertex clustering, fast).
         #[arg(long, default_value = "collapse")]
-        simplifier: octolod::reduce::Simplifier,
+        simplifier: octolod::manifest::Simplifier,
         /// Metro samples per direction when checking --target-error
         /// [default: metro's own, 10 × the larger face count].
         #[arg(long)]
@@ -416,7 +416,7 @@ impl BuildArgs {
                 self.leaf_tris
             )));
         }
-        let params = octolod::store::BuildParams {
+        let params = octolod::manifest::BuildParams {
             mem: mem::parse_budget(&self.mem, "--mem")?,
             leaf_tris: self.leaf_tris,
             max_depth: self.max_depth,
@@ -673,11 +673,11 @@ fn run(cli: Cli) -> Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Cmd::Simplify { input, output, target_tris, target_ratio, target_error, simplifier, verify_samples, json, params } => {
-            use octolod::reduce::{ReduceOptions, Target};
+            use octolod::simplify::{SimplifyOptions, Target};
             let _input = octolod::io::protect(&input);
             octolod::io::check_output(&output, octolod::io::OutputKind::Ply, cli.force)?;
             let threshold = target_error.as_deref().map(octolod::metro::Threshold::parse).transpose()?;
-            octolod::reduce::check_options(target_tris, target_ratio, verify_samples)?;
+            octolod::simplify::check_options(target_tris, target_ratio, verify_samples)?;
             let bo = params.options(cli.quiet || json, false)?;
             let tmp = octolod::io::scratch_dir(&output)?;
             let dir = tmp.path().join("store.octolod");
@@ -692,8 +692,8 @@ fn run(cli: Cli) -> Result<ExitCode> {
                 (_, _, Some(t)) => Target::Error(t.limit(s.header.bbox.diagonal())),
                 _ => unreachable!("clap requires one target"),
             };
-            let o = ReduceOptions { target, simplifier, mem: bo.params.mem, verify_samples, force: cli.force };
-            let rep = octolod::reduce::simplify_store(&s, &output, &o)?;
+            let o = SimplifyOptions { target, simplifier, mem: bo.params.mem, verify_samples, force: cli.force };
+            let rep = octolod::simplify::simplify_store(&s, &output, &o)?;
             if json {
                 out!("{}", serde_json::to_string_pretty(&rep).expect("the report serializes"));
             } else {
@@ -757,7 +757,7 @@ fn info(dir: &std::path::Path) -> Result<()> {
         if h.derived_normals { ", normals computed at build time" } else { "" }
     );
     out!("nodes: {}, levels: {}, root: {} triangles", s.nodes.len(), h.levels, s.nodes[s.root()].tris);
-    let manifest = octolod::store::Manifest::read(dir).ok();
+    let manifest = octolod::manifest::Manifest::read(dir).ok();
     if let Some(m) = &manifest {
         out!("simplifier: {}", m.params.simplifier.name());
     }

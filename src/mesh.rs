@@ -253,6 +253,14 @@ impl Default for Aabb {
     }
 }
 
+/// An indexed mesh whose vertices carry the model's attributes: a store
+/// payload, a node being simplified, a level's chunk, `simplify`'s parts.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct IndexedMesh {
+    pub vertices: Vec<Vertex>,
+    pub triangles: Vec<[u32; 3]>,
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -1,6 +1,6 @@
 //! Whole-pipeline commands: PLY → store (`build`), store → PLY or glTF (`extract`
 //! of a whole level or of the cut at an error; `simplify` is in
-//! [`crate::reduce`]).
+//! [`crate::simplify`]).
 //!
 //! Takes: paths and typed options from the binaries. Gives: a complete
 //! `NAME.octolod/` directory (written under a temporary name and moved into
@@ -10,14 +10,17 @@
 use crate::error::{IoContext, Result};
 use crate::gltf::GltfOptions;
 use crate::io::{AtomicDir, OutputKind};
+use crate::lod::octree::FirstCount;
+use crate::lod::octree::OctreeReport;
 use crate::lod::Level0Source;
-use crate::lod::{LevelReport, LodOptions};
+use crate::lod::LodOptions;
+use crate::manifest::LevelReport;
+use crate::manifest::{BuildParams, Manifest, ManifestSeconds};
+use crate::mesh::IndexedMesh;
 use crate::mesh::{AttrSet, Vertex, VertexLayout};
-use crate::octree::FirstCount;
-use crate::octree::OctreeReport;
 use crate::ply::write::{PlyEncoder, PlyWriteOptions, PlyWriter};
 use crate::soup::{build_soup_tapped, SoupOptions, SoupReport};
-use crate::store::{write_index, BuildParams, Cut, IndexedMesh, Manifest, ManifestSeconds, Store};
+use crate::store::{write_index, Cut, Store};
 use rustc_hash::FxHashMap;
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
@@ -344,15 +347,15 @@ impl SpooledPly {
 /// across parts where the caller says so; the rest is emitted as it comes,
 /// so only the vertices welded across parts are remembered. Vertices are
 /// numbered in order of first use; unreferenced ones are dropped.
-pub struct Welder<'a> {
+pub struct VertexWelder<'a> {
     layout: &'a VertexLayout,
     across: FxHashMap<Vec<u8>, u32>,
     next: u32,
 }
 
-impl<'a> Welder<'a> {
-    pub fn new(layout: &'a VertexLayout) -> Welder<'a> {
-        Welder { layout, across: FxHashMap::default(), next: 0 }
+impl<'a> VertexWelder<'a> {
+    pub fn new(layout: &'a VertexLayout) -> VertexWelder<'a> {
+        VertexWelder { layout, across: FxHashMap::default(), next: 0 }
     }
 
     /// Adds `part`, welding across parts the vertices `across` picks: gives
@@ -402,7 +405,7 @@ impl<'a> Welder<'a> {
 /// Concatenates meshes, welding vertices that are bit-identical in `layout`
 /// (unreferenced vertices dropped).
 pub fn weld_union<M: std::borrow::Borrow<IndexedMesh>>(layout: &VertexLayout, parts: impl IntoIterator<Item = M>) -> IndexedMesh {
-    let mut w = Welder::new(layout);
+    let mut w = VertexWelder::new(layout);
     let mut out = IndexedMesh::default();
     for p in parts {
         let (v, t) = w.add(p.borrow(), |_| true);
@@ -441,7 +444,7 @@ mod tests {
             write_mesh_ply(&a, attrs, "octolod test", &whole, true).unwrap();
             // Welded across parts everywhere: the same mesh, spooled.
             let mut p = SpooledPly::create(&b, attrs, true).unwrap();
-            let mut w = Welder::new(&layout);
+            let mut w = VertexWelder::new(&layout);
             for part in parts() {
                 let (vs, ts) = w.add(&part, |_| true);
                 vs.iter().try_for_each(|x| p.vertex(x)).unwrap();
@@ -459,7 +462,7 @@ mod tests {
     fn the_welder_welds_across_parts_only_where_asked() {
         let layout = VertexLayout::new(AttrSet(AttrSet::COLOR));
         let count = |across: fn(&Vertex) -> bool| {
-            let mut w = Welder::new(&layout);
+            let mut w = VertexWelder::new(&layout);
             parts().iter().map(|p| w.add(p, across).0.len()).sum::<usize>()
         };
         // Within a part always (the duplicates), across only where asked; the

@@ -48,8 +48,7 @@
 
 use crate::error::{Error, IoContext, Location, Result};
 use crate::geom::Mesh;
-use crate::mesh::{Aabb, AttrSet, Vertex, VertexLayout};
-use std::collections::HashMap;
+use crate::mesh::{Aabb, AttrSet, IndexedMesh, VertexLayout};
 use std::fs::File;
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
@@ -110,13 +109,6 @@ pub struct NodeRec {
     /// Parents: `Store::parents[first_parent..][..parent_count]`.
     pub first_parent: u32,
     pub parent_count: u32,
-}
-
-/// An indexed mesh, the content of one payload.
-#[derive(Clone, Debug, Default, PartialEq)]
-pub struct IndexedMesh {
-    pub vertices: Vec<Vertex>,
-    pub triangles: Vec<[u32; 3]>,
 }
 
 /// One patch of a node: the triangles `first..first + count` came from `child`.
@@ -652,21 +644,11 @@ impl Store {
         self.check_level(level)?;
         let loc = |file: PathBuf| Location { file, ..Default::default() };
         let mut mesh = Mesh::default();
-        let mut weld: HashMap<[u64; 3], u32> = HashMap::new();
+        let mut weld = crate::geom::Welder::default();
         for i in self.level_nodes(level) {
             let n = &self.nodes[i];
             let m = self.read_node(i)?.mesh;
-            let ids: Vec<u32> = m
-                .vertices
-                .iter()
-                .map(|v| {
-                    let next = mesh.positions.len() as u32;
-                    *weld.entry(v.pos.map(f64::to_bits)).or_insert_with(|| {
-                        mesh.positions.push(v.pos);
-                        next
-                    })
-                })
-                .collect();
+            let ids: Vec<u32> = m.vertices.iter().map(|v| weld.id(v.pos, |p| mesh.positions.push(p))).collect();
             for t in &m.triangles {
                 if t.iter().any(|&k| k as usize >= ids.len()) {
                     return Err(Error::input(loc(self.pack_path(n.level as usize)), format!("node {i}: vertex index out of range")));
@@ -776,175 +758,3 @@ impl Cut {
 /// Largest `nodes.bin` read: 2.6 × 10^7 nodes, a store of some 10^11
 /// triangles (the index is read whole).
 const MAX_INDEX: u64 = 4 << 30;
-
-/// Largest `store.json` read (a real one is a few KiB: a line per level).
-const MAX_MANIFEST: u64 = 16 << 20;
-
-/// `store.json`: what was built, how, and how long it took (for people and
-/// for `octolod info`; nothing reads it to open the store).
-#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct Manifest {
-    /// Always `octolod-store`.
-    pub format: String,
-    pub version: u32,
-    /// The input PLY as given to `build`.
-    pub input: String,
-    /// E.g. `position(f32)+normal`.
-    pub attributes: String,
-    pub quadric_dim: usize,
-    /// Payloads carry normals computed at build time.
-    pub derived_normals: bool,
-    pub nodes: u64,
-    /// Input triangles (level 0).
-    pub triangles: u64,
-    pub params: BuildParams,
-    pub seconds: ManifestSeconds,
-    pub disk_bytes: u64,
-    pub levels: Vec<LevelReport>,
-}
-
-/// How each node (or the whole mesh) is reduced: recorded in the
-/// manifest (`params.simplifier`), chosen by `build` and `simplify`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Simplifier {
-    /// Generalized-quadric adaptive vertex clustering (fast).
-    Cluster,
-    /// Quadric edge collapse with attributes (accurate).
-    Collapse,
-}
-
-impl Simplifier {
-    /// The name `--simplifier` takes.
-    pub fn name(self) -> &'static str {
-        match self {
-            Simplifier::Cluster => "cluster",
-            Simplifier::Collapse => "collapse",
-        }
-    }
-}
-
-impl std::str::FromStr for Simplifier {
-    type Err = String;
-    fn from_str(s: &str) -> std::result::Result<Self, String> {
-        match s {
-            "cluster" => Ok(Simplifier::Cluster),
-            "collapse" => Ok(Simplifier::Collapse),
-            _ => Err(format!("unknown simplifier {s:?} (cluster or collapse)")),
-        }
-    }
-}
-
-/// How a store is built: `build`'s options (the CLI fills them, the level
-/// builder reads them), recorded as the manifest's `params`.
-#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct BuildParams {
-    /// `--mem`, bytes.
-    pub mem: u64,
-    /// Split a level-0 octree cell while it holds more triangles than this.
-    pub leaf_tris: u64,
-    /// Never split deeper than this.
-    pub max_depth: u8,
-    /// Each level holds about 1/ratio of the triangles below it.
-    pub level_ratio: f64,
-    /// The root holds at most this many triangles.
-    pub root_tris: u64,
-    /// Build levels up to this one only (its nodes are then the roots).
-    pub levels: Option<u8>,
-    /// The node simplifier (`cluster` for stores built before it was a choice).
-    #[serde(default = "cluster")]
-    pub simplifier: Simplifier,
-}
-
-impl Default for BuildParams {
-    fn default() -> Self {
-        BuildParams {
-            mem: crate::mem::DEFAULT_BUDGET,
-            leaf_tris: 16384,
-            max_depth: 16,
-            level_ratio: 2.0,
-            root_tris: 4096,
-            levels: None,
-            simplifier: Simplifier::Cluster,
-        }
-    }
-}
-
-fn cluster() -> Simplifier {
-    Simplifier::Cluster
-}
-
-/// Wall-clock seconds per stage.
-#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct ManifestSeconds {
-    pub soup: f64,
-    pub partition: f64,
-    pub levels: f64,
-    pub total: f64,
-}
-
-/// One built level's figures: the build report's line and the manifest's
-/// (the counts behind the two shares are not written to the manifest).
-#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct LevelReport {
-    pub level: u8,
-    pub nodes: u64,
-    pub triangles: u64,
-    /// Distinct vertex positions of the level.
-    pub positions: u64,
-    pub bytes: u64,
-    /// Node errors (object space).
-    pub error_min: f64,
-    pub error_max: f64,
-    /// Share of the level's positions locked when it was simplified
-    /// (shared with another node of the level, or seams).
-    pub locked_fraction: f64,
-    /// Share of the previous level's locked positions still locked here.
-    pub prev_locked_still_fraction: f64,
-    /// The level's error threshold (0 for the top level).
-    pub tau: f64,
-    pub seconds: f64,
-    /// Positions locked (the count behind `locked_fraction`).
-    #[serde(skip)]
-    pub locked: u64,
-    /// Positions locked one level below, and how many of them are still
-    /// locked here.
-    #[serde(skip)]
-    pub prev_locked: u64,
-    #[serde(skip)]
-    pub prev_locked_still: u64,
-    /// Representatives clamped to their cell.
-    #[serde(skip)]
-    pub clamped: u64,
-}
-
-impl LevelReport {
-    /// Sets the locked counts and the shares made of them.
-    pub fn set_locked(&mut self, locked: u64, prev_locked: u64, prev_locked_still: u64) {
-        (self.locked, self.prev_locked, self.prev_locked_still) = (locked, prev_locked, prev_locked_still);
-        self.locked_fraction = locked as f64 / self.positions.max(1) as f64;
-        self.prev_locked_still_fraction = if prev_locked == 0 { 0.0 } else { prev_locked_still as f64 / prev_locked as f64 };
-    }
-}
-
-impl Manifest {
-    pub fn write(&self, dir: &Path) -> Result<()> {
-        let path = dir.join("store.json");
-        let text = serde_json::to_string_pretty(self).map_err(|e| Error::Usage(format!("{}: {e}", path.display())))?;
-        std::fs::write(&path, text + "\n").ctx(&path, "write")
-    }
-
-    pub fn read(dir: &Path) -> Result<Manifest> {
-        let path = dir.join("store.json");
-        let (f, len) = crate::io::open_regular(&path, "open")?;
-        if len > MAX_MANIFEST {
-            return Err(Error::input(
-                Location { file: path.clone(), ..Default::default() },
-                format!("a manifest of {len} bytes (at most {MAX_MANIFEST} are read)"),
-            ));
-        }
-        let mut text = String::new();
-        f.take(MAX_MANIFEST).read_to_string(&mut text).ctx(&path, "read")?;
-        serde_json::from_str(&text).map_err(|e| Error::input(Location { file: path.clone(), ..Default::default() }, format!("bad manifest: {e}")))
-    }
-}

@@ -19,7 +19,7 @@ use libfuzzer_sys::fuzz_target;
 use octolod::gen::{GenOptions, Generator, Shape};
 use octolod::mesh::AttrSet;
 use octolod::pipeline::{build_store, BuildOptions};
-use octolod::store::BuildParams;
+use octolod::manifest::BuildParams;
 use octolod::ply::write::{write_ply, PlyWriteOptions};
 use std::path::PathBuf;
 use std::sync::OnceLock;

@@ -5,12 +5,14 @@
 //!
 //! Takes: positions and triangles. Gives: areas, bounds, closest points and
 //! nearest-triangle queries, pure functions of their inputs (no I/O, no
-//! store; `lod`, `metro` and `reduce` build on it, it imports none of them).
+//! store; `lod`, `metro` and `simplify` build on it, it imports none of them).
 
 pub mod bvh;
+pub mod keys;
 pub mod tri;
 
 pub use bvh::{Bvh, Closest};
+pub use keys::{demorton, morton3, pos_bits, Welder};
 pub use tri::{closest_point_segment, closest_point_triangle, face_samples, TriKind};
 
 use crate::mesh::{Aabb, Vertex};

@@ -47,8 +47,8 @@
 
 use crate::error::{Error, IoContext, Result};
 use crate::io::{AtomicFile, AtomicGltfPair, OutputKind};
+use crate::mesh::IndexedMesh;
 use crate::mesh::{AttrSet, Vertex};
-use crate::store::IndexedMesh;
 use serde_json::{json, Map, Value};
 use std::borrow::Borrow;
 use std::fs::{self, File};

@@ -32,8 +32,9 @@
 //! positioned read each, in the next level's Morton order.
 
 use crate::error::{Error, IoContext, Location, Result};
+use crate::mesh::IndexedMesh;
 use crate::mesh::VertexLayout;
-use crate::store::{index_at, index_width, push_indices, IndexedMesh};
+use crate::store::{index_at, index_width, push_indices};
 use rustc_hash::FxHashMap;
 use std::fs::File;
 use std::path::PathBuf;

@@ -40,9 +40,9 @@
 //! vertex clustering: a part thinner than a cluster collapses (its two
 //! sides fold and are removed); the surface stays closed.
 
+use crate::mesh::IndexedMesh;
 use crate::mesh::{Aabb, AttrSet, Vertex};
 use crate::quadric::{carry_len, AttrWeights, Quadric, QuadricSpace, MAX_DIM};
-use crate::store::IndexedMesh;
 use std::collections::BinaryHeap;
 
 /// A node's simplified mesh and where each of its vertices came from.

@@ -1,6 +1,6 @@
 //! Quadric edge collapse of one mesh (or node) with attributes and locked
 //! vertices: the `collapse` simplifier of both `octolod simplify`
-//! ([`crate::reduce`]) and `octolod build` ([`super`]).
+//! ([`crate::simplify`]) and `octolod build` ([`super`]).
 //!
 //! Takes: an indexed mesh, a lock flag per vertex, the attribute set, a
 //! triangle target and optionally an absolute error limit. Gives: the
@@ -17,8 +17,8 @@
 //! restored from their f64 originals. Results are clamped into the input's
 //! box and attribute ranges; normals are renormalised.
 
+use crate::mesh::IndexedMesh;
 use crate::mesh::{Aabb, AttrSet, Vertex};
-use crate::store::IndexedMesh;
 
 /// Weights of the attribute channels against position error (which
 /// meshoptimizer measures relative to the mesh's extent): unit normals and
@@ -224,16 +224,8 @@ pub fn choose_limit(samples: &[ErrorCurve], share: f64) -> (f64, f64) {
 /// its parity, so no crack opens, and the zero-volume fins and the
 /// non-manifold edges they bring go.
 pub fn unfold(vertices: &[Vertex], tris: &[[u32; 3]]) -> Vec<[u32; 3]> {
-    let mut id: rustc_hash::FxHashMap<[u64; 3], usize> = Default::default();
-    let images: Vec<[usize; 3]> = tris
-        .iter()
-        .map(|t| {
-            t.map(|v| {
-                let n = id.len();
-                *id.entry(super::shared::pos_bits(vertices[v as usize].pos)).or_insert(n)
-            })
-        })
-        .collect();
+    let mut weld = crate::geom::Welder::default();
+    let images: Vec<[usize; 3]> = tris.iter().map(|t| t.map(|v| weld.id(vertices[v as usize].pos, |_| {}) as usize)).collect();
     let keep = super::cluster::unfold(&images);
     tris.iter().zip(keep).filter(|(_, k)| *k).map(|(t, _)| *t).collect()
 }

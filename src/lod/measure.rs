@@ -23,7 +23,7 @@ use super::cluster::Prio;
 use super::{cluster, tri_centroid, vertex_triangles, LeafStats};
 use crate::error::Result;
 use crate::mesh::Aabb;
-use crate::store::IndexedMesh;
+use crate::mesh::IndexedMesh;
 use rayon::prelude::*;
 use std::collections::BinaryHeap;
 

@@ -128,11 +128,12 @@ pub mod shared;
 
 use crate::error::{Error, Result};
 use crate::geom::{cross, sub};
+use crate::geom::{pos_bits, Welder};
+use crate::manifest::{BuildParams, LevelReport, Simplifier};
+use crate::mesh::IndexedMesh;
 use crate::mesh::{Aabb, AttrSet, VertexLayout};
 use crate::progress::Progress;
-use crate::store::Simplifier;
-use crate::store::{encode_payload, IndexedMesh, NodeRec, PackWriter, StoreHeader, NO_NODE};
-pub use crate::store::{BuildParams, LevelReport};
+use crate::store::{encode_payload, NodeRec, PackWriter, StoreHeader, NO_NODE};
 use chunks::{split_by_target, ChunkFile, Gathered};
 use cluster::Splits;
 use measure::{node_error, remeasure_far, FarNode, NodeError};
@@ -140,8 +141,7 @@ use octree::{build_octree, FirstCount, Level0, OctreeOptions, OctreeReport};
 use ordered::ordered;
 use partition::{Histogram, LevelCube, Tiling};
 use rayon::prelude::*;
-use rustc_hash::FxHashMap;
-use shared::{pos_bits, Band, SharedSort, WAS_LOCKED};
+use shared::{Band, SharedSort, WAS_LOCKED};
 use std::path::Path;
 use std::time::Instant;
 
@@ -737,17 +737,8 @@ impl Welded {
             pos.extend(m.vertices.iter().map(|v| v.pos));
             (0..m.vertices.len() as u32).collect()
         } else {
-            let mut map: FxHashMap<[u64; 3], u32> = FxHashMap::with_capacity_and_hasher(m.vertices.len(), Default::default());
-            m.vertices
-                .iter()
-                .map(|v| {
-                    let n = pos.len() as u32;
-                    *map.entry(pos_bits(v.pos)).or_insert_with(|| {
-                        pos.push(v.pos);
-                        n
-                    })
-                })
-                .collect()
+            let mut weld = Welder::with_capacity(m.vertices.len());
+            m.vertices.iter().map(|v| weld.id(v.pos, |p| pos.push(p))).collect()
         };
         let mut count = vec![0u32; pos.len() + 1];
         for &p in &pos_of {

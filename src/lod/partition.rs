@@ -25,6 +25,7 @@
 //! per-level KD-trees with alternating split quantiles, made adaptive by
 //! the octree.
 
+use crate::geom::{demorton, morton3};
 use crate::mesh::Aabb;
 use rustc_hash::FxHashMap as HashMap;
 
@@ -125,33 +126,6 @@ impl LevelCube {
         let lo = [0, 1, 2].map(|k| self.origin[k] + [x, y, z][k] as f64 * side);
         Aabb { min: lo, max: [0, 1, 2].map(|k| lo[k] + side) }
     }
-}
-
-fn spread(mut x: u64) -> u64 {
-    x &= 0x1f_ffff;
-    x = (x | x << 32) & 0x1f00000000ffff;
-    x = (x | x << 16) & 0x1f0000ff0000ff;
-    x = (x | x << 8) & 0x100f00f00f00f00f;
-    x = (x | x << 4) & 0x10c30c30c30c30c3;
-    (x | x << 2) & 0x1249249249249249
-}
-
-fn compact(mut x: u64) -> u64 {
-    x &= 0x1249249249249249;
-    x = (x ^ (x >> 2)) & 0x10c30c30c30c30c3;
-    x = (x ^ (x >> 4)) & 0x100f00f00f00f00f;
-    x = (x ^ (x >> 8)) & 0x1f0000ff0000ff;
-    x = (x ^ (x >> 16)) & 0x1f00000000ffff;
-    (x ^ (x >> 32)) & 0x1f_ffff
-}
-
-/// Interleaves x, y, z bits (x lowest).
-pub fn morton3(x: u64, y: u64, z: u64) -> u64 {
-    spread(x) | spread(y) << 1 | spread(z) << 2
-}
-
-pub fn demorton(m: u64) -> (u64, u64, u64) {
-    (compact(m), compact(m >> 1), compact(m >> 2))
 }
 
 /// Counts of full-depth keys at a coarser depth, coarsened further when
@@ -403,11 +377,8 @@ mod tests {
     #[test]
     fn cell_counts_are_the_shifted_keys_counted() {
         let cube = LevelCube { origin: [-1.0, 2.0, 0.5], size: 3.0 };
-        let mut seed = 7u64;
-        let mut rnd = || {
-            seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rng = crate::geom::Rng::new(7);
+        let mut rnd = || rng.f64();
         // A small patch (dense box), a spread cloud (hashed), points outside the cube and NaN.
         let patch: Vec<[f64; 3]> = (0..3000).map(|_| [0.1 + 0.01 * rnd(), 2.5 + 0.02 * rnd(), 1.0 + 0.003 * rnd()]).collect();
         let cloud: Vec<[f64; 3]> = (0..3000).map(|_| [-1.0 + 3.0 * rnd(), 2.0 + 3.0 * rnd(), 0.5 + 3.0 * rnd()]).collect();
@@ -428,9 +399,9 @@ mod tests {
     fn tilings_cover_every_key_once() {
         let mut h = Histogram::new(6, 1 << 20);
         let cube = LevelCube::for_level(&Aabb { min: [0.0; 3], max: [1.0; 3] }, 0);
-        let mut s = 1u64;
+        let mut rng = crate::geom::Rng::new(1);
         for _ in 0..20000 {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            let s = rng.next_u64();
             let p = [(s >> 11) as f64 / (1u64 << 53) as f64, 0.5, ((s >> 7) & 0xffff) as f64 / 65536.0];
             h.add(cube.key(p), 1);
         }

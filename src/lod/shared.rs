@@ -354,23 +354,14 @@ impl Resolved {
     }
 }
 
-/// Position bits, the key of [`SharedSet`].
-#[inline]
-pub fn pos_bits(p: [f64; 3]) -> [u64; 3] {
-    p.map(f64::to_bits)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
 
     #[test]
     fn box_index_finds_exactly_the_overlapping_boxes() {
-        let mut s = 7u64;
-        let mut rnd = || {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1);
-            (s >> 11) as f64 / (1u64 << 53) as f64
-        };
+        let mut rng = crate::geom::Rng::new(7);
+        let mut rnd = || rng.f64();
         let boxes: Vec<Aabb> = (0..300)
             .map(|_| {
                 let c = [rnd(), rnd(), rnd()];
@@ -412,7 +403,7 @@ mod tests {
             let set = r.take(node).unwrap();
             if node < 3 {
                 assert_eq!(set.len(), 1, "node {node}");
-                assert_eq!(set[&pos_bits(p(1.0))].0, [1.0, 1.0, 1.0]);
+                assert_eq!(set[&crate::geom::pos_bits(p(1.0))].0, [1.0, 1.0, 1.0]);
             } else {
                 assert!(set.is_empty());
             }

@@ -481,7 +481,7 @@ fn level0_scratch_store(p: &Path, opts: &Options, mem: &MemOptions) -> Result<(c
     }
     // Leaves small enough that several nodes' query indexes (~250 B per
     // triangle) fit the page cache.
-    let params = crate::store::BuildParams {
+    let params = crate::manifest::BuildParams {
         mem: mem.budget.max(crate::mem::MIN_BUDGET),
         leaf_tris: (mem.budget / 2048).clamp(256, 16384),
         levels: Some(0),

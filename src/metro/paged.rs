@@ -15,11 +15,11 @@ use super::CHUNK;
 use crate::error::{Error, Result};
 use crate::geom::bvh::{inside, BoxTree};
 use crate::geom::{tri_area, Bvh, Mesh, P3};
+use crate::mesh::IndexedMesh;
 use crate::mesh::{Aabb, Vertex};
 use crate::progress::Progress;
-use crate::store::{IndexedMesh, NodeRec, Store};
+use crate::store::{NodeRec, Store};
 use rayon::prelude::*;
-use std::collections::HashMap;
 use std::mem::size_of;
 use std::path::Path;
 use std::sync::atomic::Ordering::Relaxed;
@@ -75,18 +75,11 @@ impl SrcPart {
 /// dropped, vertices numbered in the order of first reference (the weld
 /// [`Store::level_mesh`] does across the whole level, node by node).
 fn weld_first_reference(m: &IndexedMesh) -> (Vec<P3>, Vec<[u32; 3]>) {
-    let mut ids: HashMap<[u64; 3], u32> = HashMap::with_capacity(m.vertices.len());
+    let mut weld = crate::geom::Welder::with_capacity(m.vertices.len());
     let mut positions = Vec::with_capacity(m.vertices.len());
     let mut triangles = Vec::with_capacity(m.triangles.len());
     for t in &m.triangles {
-        triangles.push(t.map(|v| {
-            let p = m.vertices[v as usize].pos;
-            let next = positions.len() as u32;
-            *ids.entry(p.map(f64::to_bits)).or_insert_with(|| {
-                positions.push(p);
-                next
-            })
-        }));
+        triangles.push(t.map(|v| weld.id(m.vertices[v as usize].pos, |p| positions.push(p))));
     }
     positions.shrink_to_fit();
     (positions, triangles)
@@ -639,8 +632,7 @@ impl PagedLevel {
         });
         let q = |p: &P3, k: usize| (((p[k] - b.min[k]) * scale[k]).max(0.0) as u64).min((1 << 21) - 1);
         let answers: Vec<Vec<(u32, f64)>> = pool.install(|| {
-            let mut order: Vec<(u64, u32)> =
-                points.par_iter().enumerate().map(|(i, p)| (crate::lod::partition::morton3(q(p, 0), q(p, 1), q(p, 2)), i as u32)).collect();
+            let mut order: Vec<(u64, u32)> = points.par_iter().enumerate().map(|(i, p)| (crate::geom::morton3(q(p, 0), q(p, 1), q(p, 2)), i as u32)).collect();
             order.par_sort_unstable();
             order
                 .par_chunks(PIECE)

@@ -191,7 +191,7 @@ impl SoupReport {
 
 /// Sees the soup's corners and triangles on the external path, so `build`
 /// partitions level 0 without reading the soup back
-/// ([`crate::octree::FirstCount`]): phase 2 shows it each triangle's first
+/// ([`crate::lod::octree::FirstCount`]): phase 2 shows it each triangle's first
 /// corner (with the bounding box of the input's vertices beforehand), phase
 /// 3 the triangles in soup order (with the soup's own bounding box
 /// beforehand). A tap that takes the triangles ([`TapMode::Takes`]) is

@@ -45,9 +45,10 @@
 use crate::error::{Error, Result};
 use crate::gltf::{encode_glb, GltfOptions};
 use crate::io::{AtomicDir, OutputKind};
+use crate::mesh::IndexedMesh;
 use crate::mesh::{Aabb, Vertex};
 use crate::progress::Progress;
-use crate::store::{IndexedMesh, Store};
+use crate::store::Store;
 use glam::DVec3;
 use rayon::prelude::*;
 use rustc_hash::{FxHashMap, FxHashSet};

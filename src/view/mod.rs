@@ -43,7 +43,7 @@ pub mod window;
 pub use viewer::{FrameStats, ViewOptions, Viewer};
 
 use crate::mesh::AttrSet;
-use crate::store::IndexedMesh;
+use crate::mesh::IndexedMesh;
 
 /// One vertex as the GPU sees it: position relative to the store's origin
 /// (f32), unit normal, RGBA8 color. 28 bytes.

@@ -7,9 +7,10 @@ use crate::common::cli::{err, names, octolod, s};
 use crate::common::{self, srgb_to_linear};
 use octolod::gen::Shape;
 use octolod::gltf::{encode_glb, is_octolod_gltf, write_parts, GltfOptions};
+use octolod::mesh::IndexedMesh;
 use octolod::mesh::{AttrSet, Vertex};
 use octolod::pipeline::{extract_as, weld_union, CutSpec};
-use octolod::store::{IndexedMesh, Store};
+use octolod::store::Store;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 

@@ -4,9 +4,9 @@
 
 use crate::common::gen_mesh;
 use octolod::gen::Shape;
+use octolod::lod::octree::{build_octree, FirstCount, OctreeOptions};
 use octolod::lod::partition::{LevelCube, KEY_DEPTH};
 use octolod::mesh::{AttrSet, Vertex};
-use octolod::octree::{build_octree, FirstCount, OctreeOptions};
 use octolod::ply::write::{write_ply, PlyWriteOptions};
 use octolod::soup::format::SoupReader;
 use octolod::soup::{build_soup, build_soup_tapped, SoupOptions};
@@ -71,7 +71,7 @@ fn check(shape: Shape, tris: u64, attrs: u32, limit: u64, max_depth: u8) {
         results.push(l0);
     }
     let l0 = &results[0];
-    let leaves = |l: &octolod::octree::Level0| -> Vec<(u64, u8, u64)> {
+    let leaves = |l: &octolod::lod::octree::Level0| -> Vec<(u64, u8, u64)> {
         l.tiling.leaves.iter().zip(&l.leaves).filter(|(_, s)| s.tris > 0).map(|(t, s)| (t.path, t.depth, s.tris)).collect()
     };
     assert_eq!(leaves(l0), leaves(&results[1]), "octree depends on the memory budget");
@@ -189,7 +189,7 @@ fn duplicate_triangles_stay_duplicated() {
 #[test]
 fn a_stray_vertex_outside_the_faces_falls_back_to_the_written_soup() {
     let dir = tempfile::tempdir().unwrap();
-    let octolod::store::IndexedMesh { vertices: mut v, triangles: f } = gen_mesh(Shape::Sphere, 20_000, 0, 5);
+    let octolod::mesh::IndexedMesh { vertices: mut v, triangles: f } = gen_mesh(Shape::Sphere, 20_000, 0, 5);
     v.push(Vertex { pos: [40.0, -3.0, 7.0], ..Default::default() });
     let ply = dir.path().join("stray.ply");
     write_ply(&ply, &PlyWriteOptions::default(), &v, &f).unwrap();

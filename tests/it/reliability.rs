@@ -442,24 +442,24 @@ fn damaged_stores_fail_cleanly_or_read_sound_data() {
     let whole = exercise(&work);
     assert!(whole >= 3000, "the intact store reads every level: {whole} triangles");
     let mut cases: Vec<(String, Vec<u8>)> = Vec::new();
-    let mut rng = common::Rng(0x5eed57);
+    let mut rng = common::Rng::new(0x5eed57);
     for seed in 0..600u32 {
         let mut data = Vec::new();
-        for _ in 0..1 + rng.next() % 3 {
-            let op = (rng.next() % 4) as u8;
-            let file = (rng.next() % 256) as u8;
+        for _ in 0..1 + rng.next_u64() % 3 {
+            let op = (rng.next_u64() % 4) as u8;
+            let file = (rng.next_u64() % 256) as u8;
             // Half the edits land in the first 256 bytes (headers, the index's fixed part).
-            let at = if rng.next() % 2 == 0 { (rng.next() % 256) as u32 } else { rng.next() as u32 };
-            let len = 1 + (rng.next() % 8) as u8;
+            let at = if rng.next_u64() % 2 == 0 { (rng.next_u64() % 256) as u32 } else { rng.next_u64() as u32 };
+            let len = 1 + (rng.next_u64() % 8) as u8;
             data.extend_from_slice(&[op, file]);
             data.extend_from_slice(&at.to_le_bytes());
             data.push(len);
             for _ in 0..len {
-                data.push(match rng.next() % 4 {
+                data.push(match rng.next_u64() % 4 {
                     0 => 0x00,
                     1 => 0xff,
                     2 => 0x80,
-                    _ => rng.next() as u8,
+                    _ => rng.next_u64() as u8,
                 });
             }
         }

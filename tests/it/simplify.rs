@@ -5,17 +5,19 @@
 use crate::common::cli::{bin, err};
 use crate::common::{build_from, edge_counts, gen_ply, this_test_again, weld_positions};
 use octolod::gen::Shape;
+use octolod::manifest::Simplifier;
+use octolod::mesh::IndexedMesh;
 use octolod::mesh::{AttrSet, Vertex};
-use octolod::reduce::{simplify_store, ReduceOptions, ReduceReport, Simplifier, Target};
-use octolod::store::{IndexedMesh, Store};
+use octolod::simplify::{simplify_store, SimplifyOptions, SimplifyReport, Target};
+use octolod::store::Store;
 use std::collections::HashSet;
 use std::path::Path;
 use std::process::Command;
 
 const BOTH: [Simplifier; 2] = [Simplifier::Collapse, Simplifier::Cluster];
 
-fn opts(target: Target, simplifier: Simplifier, mem: u64) -> ReduceOptions {
-    ReduceOptions { target, simplifier, mem, verify_samples: Some(200_000), force: false }
+fn opts(target: Target, simplifier: Simplifier, mem: u64) -> SimplifyOptions {
+    SimplifyOptions { target, simplifier, mem, verify_samples: Some(200_000), force: false }
 }
 
 fn read(p: &Path) -> (AttrSet, IndexedMesh) {
@@ -24,7 +26,7 @@ fn read(p: &Path) -> (AttrSet, IndexedMesh) {
     (h.attrs, IndexedMesh { vertices: m.vertices, triangles: tris })
 }
 
-fn run(s: &Store, dir: &Path, name: &str, o: &ReduceOptions) -> (ReduceReport, AttrSet, IndexedMesh) {
+fn run(s: &Store, dir: &Path, name: &str, o: &SimplifyOptions) -> (SimplifyReport, AttrSet, IndexedMesh) {
     let out = dir.join(format!("{name}.ply"));
     let r = simplify_store(s, &out, o).unwrap_or_else(|e| panic!("{name}: {e}"));
     let (a, m) = read(&out);
@@ -174,7 +176,7 @@ fn target_error_is_met_when_measured_by_metro() {
             let e = rel * diag;
             let name = format!("err-{simp:?}-{rel}");
             // Verified at metro's default density (10 × the larger face count).
-            let o = ReduceOptions { verify_samples: None, ..opts(Target::Error(e), simp, 1 << 30) };
+            let o = SimplifyOptions { verify_samples: None, ..opts(Target::Error(e), simp, 1 << 30) };
             let (r, _, m) = run(&s, dir.path(), &name, &o);
             assert!(r.reached, "{name}: {r:?}");
             assert_eq!(r.verify_samples, Some(10 * input.triangles.len() as u64), "{name}: {r:?}");
@@ -367,7 +369,7 @@ fn the_command_writes_an_output_larger_than_mem_within_mem() {
         ],
     );
     assert_eq!(code, Some(0), "{stderr}");
-    let r: ReduceReport = serde_json::from_slice(&stdout).unwrap();
+    let r: SimplifyReport = serde_json::from_slice(&stdout).unwrap();
     assert_eq!(r.route, "per-node", "{r:?}");
     assert!(r.reached && within_1pct(r.triangles as usize, n), "{r:?}");
     assert_eq!(read(&out).1.triangles.len() as u64, r.triangles);

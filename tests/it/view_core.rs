@@ -17,7 +17,7 @@ fn store(dir: &Path, shape: Shape, tris: u64, leaf: u64) -> PathBuf {
     store_and_input(dir, shape, tris, leaf).0
 }
 
-fn store_and_input(dir: &Path, shape: Shape, tris: u64, leaf: u64) -> (PathBuf, octolod::store::IndexedMesh) {
+fn store_and_input(dir: &Path, shape: Shape, tris: u64, leaf: u64) -> (PathBuf, octolod::mesh::IndexedMesh) {
     common::default_store(dir, shape, tris, 0, 5, leaf)
 }
 
@@ -34,12 +34,12 @@ fn up(m: &DrawMesh) -> DrawMesh {
 /// The viewer's selection as a store cut: closed under parents, and its
 /// surface welded by position has no open edge (the cut's nodes are all
 /// drawn here, culled or not).
-fn check_closed_cut(v: &Viewer<DrawMesh>, input: &octolod::store::IndexedMesh, what: &str) {
+fn check_closed_cut(v: &Viewer<DrawMesh>, input: &octolod::mesh::IndexedMesh, what: &str) {
     check_cut(v, input, what, true)
 }
 
 /// Like [`check_closed_cut`]; an open input may show its own border.
-fn check_cut(v: &Viewer<DrawMesh>, input: &octolod::store::IndexedMesh, what: &str, closed: bool) {
+fn check_cut(v: &Viewer<DrawMesh>, input: &octolod::mesh::IndexedMesh, what: &str, closed: bool) {
     let sel = v.selection();
     let st = &v.store;
     for i in 0..st.nodes.len() {

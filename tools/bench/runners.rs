@@ -107,8 +107,12 @@ pub fn run_one(a: &RunOne) -> Result<String> {
 }
 
 fn run_octolod(a: &RunOne) -> Result<BuildOut> {
-    let params =
-        octolod::store::BuildParams { mem: octolod::mem::parse_size(&a.mem)?, leaf_tris: a.leaf_tris, level_ratio: a.level_ratio as f64, ..Default::default() };
+    let params = octolod::manifest::BuildParams {
+        mem: octolod::mem::parse_size(&a.mem)?,
+        leaf_tris: a.leaf_tris,
+        level_ratio: a.level_ratio as f64,
+        ..Default::default()
+    };
     let opts = BuildOptions {
         params,
         quiet: true,

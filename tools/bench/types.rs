@@ -191,7 +191,7 @@ impl ChildOut for BuildOut {
 }
 
 /// What `octolod simplify --json` prints.
-pub type SimplifyJson = octolod::reduce::ReduceReport;
+pub type SimplifyJson = octolod::simplify::SimplifyReport;
 
 /// What a one-output child prints: a peer (`meshopt-*`, `oocs`) or an
 /// `octolod simplify` run. Fields of other methods are absent.

@@ -6,12 +6,13 @@
 #![allow(dead_code)]
 
 use octolod::gen::{GenOptions, Generator, Shape};
+pub use octolod::manifest::BuildParams;
+use octolod::manifest::Simplifier;
+use octolod::mesh::IndexedMesh;
 use octolod::mesh::{AttrSet, Vertex};
 use octolod::pipeline::{build_store, BuildOptions};
 use octolod::ply::write::{write_ply, PlyWriteOptions};
-use octolod::reduce::Simplifier;
-pub use octolod::store::BuildParams;
-use octolod::store::{Cut, IndexedMesh, Store};
+use octolod::store::{Cut, Store};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
@@ -94,30 +95,18 @@ pub fn build_with(dir: &Path, shape: Shape, tris: u64, attrs: u32, leaf: u64, si
     (build_from_with(dir, &ply, leaf, simplifier), m)
 }
 
-/// A small xorshift generator for reproducible random choices.
-pub struct Rng(pub u64);
-impl Rng {
-    pub fn next(&mut self) -> u64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        self.0
-    }
-    pub fn unit(&mut self) -> f64 {
-        (self.next() >> 11) as f64 / (1u64 << 53) as f64
-    }
-}
+pub use octolod::geom::Rng;
 
 /// A random valid selection: from the root down, a node joins with
 /// probability `p` once all its parents are in.
 pub fn random_cut(s: &Store, seed: u64, p: f64) -> Cut {
-    let mut rng = Rng(seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) | 1);
+    let mut rng = Rng::new(seed);
     let mut sel = vec![false; s.nodes.len()];
     for r in s.roots() {
         sel[r] = true;
     }
     for i in (0..s.nodes.len()).rev() {
-        if !sel[i] && s.parents_of(i).iter().all(|&q| sel[q as usize]) && !s.parents_of(i).is_empty() && rng.unit() < p {
+        if !sel[i] && s.parents_of(i).iter().all(|&q| sel[q as usize]) && !s.parents_of(i).is_empty() && rng.f64() < p {
             sel[i] = true;
         }
     }

@@ -5,7 +5,7 @@
 //! ([`Target`]: a triangle count, a ratio of the input's, or an error in
 //! object space), a node simplifier ([`Simplifier`]) and `--mem`. Gives:
 //! the simplified mesh (welded, the input's attributes) and a
-//! [`ReduceReport`] saying which route was taken and whether the target
+//! [`SimplifyReport`] saying which route was taken and whether the target
 //! was met.
 //!
 //! **Route for a size N.** The levels halve, so some level holds between N
@@ -75,20 +75,21 @@
 //! remove small disconnected parts), the report says so.
 
 use crate::error::{Error, IoContext, Result};
+use crate::geom::{pos_bits, Welder};
 use crate::io::ScratchDir;
 use crate::lod::cluster::{cluster_node, Splits};
-use crate::lod::shared::pos_bits;
+use crate::mesh::IndexedMesh;
 use crate::mesh::{AttrSet, VertexLayout};
 use crate::metro::{self, MemOptions, Source};
-use crate::pipeline::{weld_union, write_mesh_ply, SpooledPly, Welder};
-use crate::store::{decode_payload, encode_payload, Cut, IndexedMesh, Store, NO_NODE};
+use crate::pipeline::{weld_union, write_mesh_ply, SpooledPly, VertexWelder};
+use crate::store::{decode_payload, encode_payload, Cut, Store, NO_NODE};
 use rayon::prelude::*;
 use rustc_hash::{FxHashMap, FxHashSet};
 use std::fs::File;
 use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
 
-pub use crate::store::Simplifier;
+use crate::manifest::Simplifier;
 
 /// What `simplify` needs to know of each simplifier.
 impl Simplifier {
@@ -127,7 +128,7 @@ pub enum Goal {
 }
 
 #[derive(Clone, Debug)]
-pub struct ReduceOptions {
+pub struct SimplifyOptions {
     pub target: Target,
     pub simplifier: Simplifier,
     pub mem: u64,
@@ -140,7 +141,7 @@ pub struct ReduceOptions {
 
 /// What `simplify` did (`octolod simplify --json` prints it; the bench reads it back).
 #[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
-pub struct ReduceReport {
+pub struct SimplifyReport {
     /// `in-memory`, `per-node` or `store-cut`.
     pub route: String,
     /// The cut it started from (`level 3`, `max error 1e-4`).
@@ -202,7 +203,7 @@ pub fn check_options(target_tris: Option<u64>, target_ratio: Option<f64>, verify
 }
 
 /// `octolod simplify` after the build: writes the reduced mesh to `out`.
-pub fn simplify_store(store: &Store, out: &Path, o: &ReduceOptions) -> Result<ReduceReport> {
+pub fn simplify_store(store: &Store, out: &Path, o: &SimplifyOptions) -> Result<SimplifyReport> {
     let input = store.level_triangles(0);
     match o.target {
         Target::Tris(n) => check_options(Some(n), None, o.verify_samples)?,
@@ -241,9 +242,9 @@ fn within_1pct(got: u64, n: u64) -> bool {
     got.abs_diff(n) as f64 <= 0.01 * n as f64
 }
 
-fn reduce_to_count(store: &Store, n: u64, out: &Path, o: &ReduceOptions) -> Result<(Reduced, ReduceReport)> {
+fn reduce_to_count(store: &Store, n: u64, out: &Path, o: &SimplifyOptions) -> Result<(Reduced, SimplifyReport)> {
     let input = store.level_triangles(0);
-    let mut rep = ReduceReport { target_triangles: Some(n), ..Default::default() };
+    let mut rep = SimplifyReport { target_triangles: Some(n), ..Default::default() };
     if n >= input {
         let cut = store.level_cut(0);
         rep.route = "in-memory".into();
@@ -289,8 +290,8 @@ fn reduce_to_count(store: &Store, n: u64, out: &Path, o: &ReduceOptions) -> Resu
 /// from level 2 on, README "What E bounds"), rarely by more than 4×.
 const COARSEST_FIRST: f64 = 0.25;
 
-fn reduce_to_error(store: &Store, e: f64, o: &ReduceOptions) -> Result<(IndexedMesh, ReduceReport)> {
-    let mut rep = ReduceReport { target_error: Some(e), ..Default::default() };
+fn reduce_to_error(store: &Store, e: f64, o: &SimplifyOptions) -> Result<(IndexedMesh, SimplifyReport)> {
+    let mut rep = SimplifyReport { target_error: Some(e), ..Default::default() };
     let scratch = crate::io::scratch_dir(&store.dir)?;
     let candidate = scratch.path().join("candidate.ply");
     // The candidate's two-sided Hausdorff distance to level 0, and the
@@ -375,13 +376,13 @@ fn reduce_to_error(store: &Store, e: f64, o: &ReduceOptions) -> Result<(IndexedM
 }
 
 /// The cut's meshes welded into one (must fit `mem`).
-fn load_cut(store: &Store, cut: &Cut, o: &ReduceOptions) -> Result<IndexedMesh> {
+fn load_cut(store: &Store, cut: &Cut, o: &SimplifyOptions) -> Result<IndexedMesh> {
     check_fits(cut.triangles(store), o, "the mesh")?;
     let parts = store.cut_meshes(cut).collect::<Result<Vec<_>>>()?;
     Ok(weld_union(&store.layout, &parts))
 }
 
-fn check_fits(tris: u64, o: &ReduceOptions, what: &str) -> Result<()> {
+fn check_fits(tris: u64, o: &SimplifyOptions, what: &str) -> Result<()> {
     let (need, mem) = (tris.saturating_mul(o.simplifier.bytes_per_triangle()), o.mem);
     if need > mem {
         return Err(Error::Usage(format!(
@@ -397,7 +398,7 @@ fn check_fits(tris: u64, o: &ReduceOptions, what: &str) -> Result<()> {
 /// fits, else node by node with shared vertices locked, welded (and, for a
 /// size, settled; see the module doc). `simplify --target-tris` streams
 /// its per-node result to the output instead.
-pub fn reduce_cut(store: &Store, cut: &Cut, goal: Goal, o: &ReduceOptions) -> Result<IndexedMesh> {
+pub fn reduce_cut(store: &Store, cut: &Cut, goal: Goal, o: &SimplifyOptions) -> Result<IndexedMesh> {
     let attrs = store.header.attrs;
     let tris = cut.triangles(store);
     if tris.saturating_mul(o.simplifier.bytes_per_triangle()) <= o.mem {
@@ -424,7 +425,7 @@ pub fn reduce_cut(store: &Store, cut: &Cut, goal: Goal, o: &ReduceOptions) -> Re
 /// whole result fits `--mem`, one last pass over it in memory with nothing
 /// locked; else the parts welded into `out` as they are read back (in
 /// memory without `out`).
-fn per_node_to_count(store: &Store, cut: &Cut, n: u64, o: &ReduceOptions, out: Option<&Path>) -> Result<Reduced> {
+fn per_node_to_count(store: &Store, cut: &Cut, n: u64, o: &SimplifyOptions, out: Option<&Path>) -> Result<Reduced> {
     let mut pn = PerNode::new(store, cut, o)?;
     pn.reduce_to(n)?;
     let total = pn.total();
@@ -455,7 +456,7 @@ const SETTLE_ROUNDS: usize = 3;
 struct PerNode<'a> {
     store: &'a Store,
     cut: &'a Cut,
-    o: &'a ReduceOptions,
+    o: &'a SimplifyOptions,
     shared: FxHashSet<[u64; 3]>,
     /// Nodes reduced at once: what `--mem` holds beside the shared set.
     batch: usize,
@@ -470,7 +471,7 @@ struct PerNode<'a> {
 impl<'a> PerNode<'a> {
     /// Finds the shared positions and sizes the batches; a usage error when
     /// the shared set and one node do not fit `--mem` together.
-    fn new(store: &'a Store, cut: &'a Cut, o: &'a ReduceOptions) -> Result<PerNode<'a>> {
+    fn new(store: &'a Store, cut: &'a Cut, o: &'a SimplifyOptions) -> Result<PerNode<'a>> {
         let shared = shared_positions(store, cut, o.mem)?;
         let shared_bytes = shared.len() as u64 * SHARED_BYTES;
         let node_tris = cut.drawn.iter().map(|&i| store.nodes[i].tris as u64).max().unwrap_or(0).max(1);
@@ -575,7 +576,7 @@ impl<'a> PerNode<'a> {
     /// part only.
     fn spool(&self, out: &Path, force: bool) -> Result<SpooledPly> {
         let mut ply = SpooledPly::create(out, self.store.header.attrs, force)?;
-        let mut weld = Welder::new(&self.store.layout);
+        let mut weld = VertexWelder::new(&self.store.layout);
         for k in 0..self.cut.drawn.len() {
             let (v, t) = weld.add(&self.spill.read(k)?, |v| self.shared.contains(&pos_bits(v.pos)));
             for x in &v {
@@ -687,15 +688,8 @@ impl Spill {
 fn open_edge_positions(m: &IndexedMesh) -> FxHashSet<[u64; 3]> {
     let mut edges: FxHashMap<(u32, u32), u32> = FxHashMap::default();
     // Edges by position, so split attribute copies count as one vertex.
-    let mut id: FxHashMap<[u64; 3], u32> = FxHashMap::default();
-    let canon: Vec<u32> = m
-        .vertices
-        .iter()
-        .map(|v| {
-            let n = id.len() as u32;
-            *id.entry(pos_bits(v.pos)).or_insert(n)
-        })
-        .collect();
+    let mut id = Welder::default();
+    let canon: Vec<u32> = m.vertices.iter().map(|v| id.id(v.pos, |_| {})).collect();
     for t in &m.triangles {
         for k in 0..3 {
             let (a, b) = (canon[t[k] as usize], canon[t[(k + 1) % 3] as usize]);
