@@ -149,6 +149,19 @@ impl<'a> Splits<'a> {
         min_priority: f64,
         ordered: bool,
     ) -> Splits<'a> {
+        let (mut sp, embedded, root) = Self::setup(mesh, vertex_a, locked, attrs);
+        if sp.free.is_empty() {
+            return sp;
+        }
+        let rows = sp.member_rows(&embedded);
+        sp.split_cells(rows, &root, max_clusters, min_priority, ordered);
+        sp
+    }
+
+    /// The free (unlocked, used) vertices, the quadric space over their
+    /// box, and every vertex's quadric (carried, or its triangles' planes
+    /// plus border planes); also each vertex embedded and the free box.
+    fn setup(mesh: &'a IndexedMesh, vertex_a: Option<&[f64]>, locked: &[bool], attrs: AttrSet) -> (Splits<'a>, Vec<[f64; MAX_DIM]>, Aabb) {
         let nv = mesh.vertices.len();
         let mut stats = ClusterStats::default();
         let mut used = vec![false; nv];
@@ -202,9 +215,14 @@ impl<'a> Splits<'a> {
                 va
             }
         };
-        if sp.free.is_empty() {
-            return sp;
-        }
+        (sp, embedded, root)
+    }
+
+    /// Each free vertex's row: its quadric about its own position, in
+    /// packed form, its local position and its free index.
+    fn member_rows(&self, embedded: &[[f64; MAX_DIM]]) -> Rows {
+        let (sp, mesh, cl, dim) = (self, self.mesh, self.cl, self.space.dim);
+        let (al, cs) = (dim * (dim + 1) / 2, carry_len(dim));
         let nf = sp.free.len();
         let mut vq = vec![0.0f64; nf * cl];
         for (i, &v) in sp.free.iter().enumerate() {
@@ -228,9 +246,18 @@ impl<'a> Splits<'a> {
         // cell order, each cell's members contiguous: a split reads and
         // swaps them in two sequential sweeps instead of gathering them
         // through an index (which cost a cache miss per member and level).
-        let mut rows =
-            Rows { q: vq, pts: sp.free.iter().map(|&v| sp.space.to_local(mesh.vertices[v as usize].pos)).collect(), ids: (0..nf as u32).collect(), cl };
-        let (rlo, rhi) = sp.space.local_bounds(&root);
+        Rows { q: vq, pts: sp.free.iter().map(|&v| sp.space.to_local(mesh.vertices[v as usize].pos)).collect(), ids: (0..nf as u32).collect(), cl }
+    }
+
+    /// The splits themselves: from one cell over the free box, the cell of
+    /// largest priority is split at its members' mean along their axis of
+    /// largest variance until `max_clusters` or `min_priority` (in priority
+    /// order when `ordered`, else every cell above `min_priority`); then
+    /// each member's deepest cell.
+    fn split_cells(&mut self, mut rows: Rows, root: &Aabb, max_clusters: usize, min_priority: f64, ordered: bool) {
+        let sp = self;
+        let (cl, dim, nf) = (sp.cl, sp.space.dim, sp.free.len());
+        let (rlo, rhi) = sp.space.local_bounds(root);
         sp.cells.reserve(2 * nf);
         sp.cells.push(Cell { lo: rlo, hi: rhi, start: 0, end: nf as u32, created: 0, parent: u32::MAX });
         sp.cq = Vec::with_capacity(2 * nf * cl);
@@ -296,17 +323,9 @@ impl<'a> Splits<'a> {
             if i == start || i == end {
                 // All members on one side: shrink the box (no new cluster).
                 sp.cq.truncate(at);
-                let mut blo = [f64::INFINITY; 3];
-                let mut bhi = [f64::NEG_INFINITY; 3];
-                for p in &rows.pts[start..end] {
-                    for k in 0..3 {
-                        blo[k] = blo[k].min(p[k]);
-                        bhi[k] = bhi[k].max(p[k]);
-                    }
-                }
-                if (0..3).all(|k| bhi[k] - blo[k] <= 0.0) || (0..3).all(|k| blo[k] == lo[k] && bhi[k] == hi[k]) {
+                let Some((blo, bhi)) = rows.shrunk_box(start, end, lo, hi) else {
                     continue; // identical points: cannot split
-                }
+                };
                 let cell = &mut sp.cells[c as usize];
                 cell.lo = blo;
                 cell.hi = bhi;
@@ -344,7 +363,6 @@ impl<'a> Splits<'a> {
                 }
             }
         }
-        sp
     }
 
     /// Priority of each split step, in order.
@@ -720,6 +738,23 @@ struct Rows {
 }
 
 impl Rows {
+    /// The box of rows `start..end`'s points, unless they are all one
+    /// point or the box is `lo..hi` already (then no split can separate them).
+    fn shrunk_box(&self, start: usize, end: usize, lo: [f64; 3], hi: [f64; 3]) -> Option<([f64; 3], [f64; 3])> {
+        let mut blo = [f64::INFINITY; 3];
+        let mut bhi = [f64::NEG_INFINITY; 3];
+        for p in &self.pts[start..end] {
+            for k in 0..3 {
+                blo[k] = blo[k].min(p[k]);
+                bhi[k] = bhi[k].max(p[k]);
+            }
+        }
+        if (0..3).all(|k| bhi[k] - blo[k] <= 0.0) || (0..3).all(|k| blo[k] == lo[k] && bhi[k] == hi[k]) {
+            return None;
+        }
+        Some((blo, bhi))
+    }
+
     /// Adds row `i` to a cell's quadric and moments.
     #[inline]
     /// `cl`: the row length (`self.cl`; a constant where the caller's is,

@@ -264,7 +264,7 @@ pub fn compact(vertices: &[Vertex], tris: &[[u32; 3]]) -> (IndexedMesh, Vec<u32>
 /// input's extent as its error. Also gives each side's farthest points, as
 /// [`super::measure::node_error`] does, for
 /// `remeasure_far`.
-pub fn collapse_error(input: &IndexedMesh, locked: &[bool], output: &IndexedMesh, from: &[u32]) -> super::NodeError {
+pub fn collapse_error(input: &IndexedMesh, locked: &[bool], output: &IndexedMesh, from: &[u32]) -> super::measure::NodeError {
     use super::measure::{Farthest, NodeError};
     use crate::geom::{Bvh, Mesh};
     if input.triangles.is_empty() {

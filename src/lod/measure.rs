@@ -44,12 +44,37 @@ use std::collections::BinaryHeap;
 /// level can measure them again against the whole next level
 /// ([`NodeError`], `remeasure_far`).
 pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> NodeError {
-    use crate::geom::{Bvh, Mesh};
     let output = &out.mesh;
     if input.triangles.is_empty() {
         return NodeError::default();
     }
-    // Input vertex → its image in the output.
+    let image = images(input, out);
+    let (in_first, in_around) = vertex_triangles(input.vertices.len(), &input.triangles);
+    let border = BorderFaces::of_clusters(input, out, &image);
+    let Some(top) = input_side(input, out, &image, (&in_first, &in_around), &border) else {
+        // Everything collapsed: the input's extent is the error.
+        let mut bbox = Aabb::EMPTY;
+        for v in (0..input.vertices.len()).filter(|&v| in_first[v + 1] > in_first[v]) {
+            bbox.add(input.vertices[v].pos);
+        }
+        let e = bbox.diagonal();
+        return NodeError { error: e, base: e, ..Default::default() };
+    };
+    let in_d2 = top.max();
+    let in_fans = InFans { input, first: &in_first, around: &in_around };
+    let (r2, rest_r, top_r) = reps_side(&in_fans, out, &border, top.rest);
+    // The far points: those with the largest bounds; every other one is
+    // within `rest` (input side) or `rest_r` (representatives).
+    let base = top.rest.max(rest_r).sqrt();
+    let far = top.points(|v| border.input_point(input, v));
+    let far_reps = top_r.map_or_else(Vec::new, |t| t.points(|o| border.output_point(output, o)));
+    NodeError { error: in_d2.max(r2).sqrt(), base, far, far_reps }
+}
+
+/// Per input vertex: the output vertex it became (kept, or a member of a
+/// representative); `u32::MAX` when it is in no cluster.
+fn images(input: &IndexedMesh, out: &cluster::NodeOut) -> Vec<u32> {
+    let output = &out.mesh;
     let nv = input.vertices.len();
     let mut image = vec![u32::MAX; nv];
     for (o, &k) in out.kept_from.iter().enumerate() {
@@ -62,14 +87,24 @@ pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> NodeError {
             image[m as usize] = o as u32;
         }
     }
-    let (in_first, in_around) = vertex_triangles(nv, &input.triangles);
+    image
+}
+
+/// The input side of [`node_error`]: input vertices (then samples of the
+/// faces next to the border) to the output triangles around their images,
+/// their largest bounds kept. `None` when the output has no triangle.
+fn input_side(input: &IndexedMesh, out: &cluster::NodeOut, image: &[u32], (in_first, in_around): (&[u32], &[u32]), border: &BorderFaces) -> Option<Farthest> {
+    use crate::geom::{Bvh, Mesh};
+    let output = &out.mesh;
+    if output.triangles.is_empty() {
+        return None;
+    }
+    let nv = input.vertices.len();
     let (out_first, out_around) = vertex_triangles(output.vertices.len(), &output.triangles);
-    let fans = OutFans::new(output, &image, &out_first, &out_around);
-    let border = BorderFaces::of_clusters(input, out, &image);
+    let fans = OutFans::new(output, image, &out_first, &out_around);
     // The vertex (or sample) whose search last met each output triangle
     // (each is measured once per vertex, though it lies in up to three fans).
     let mut met = vec![u32::MAX; output.triangles.len()];
-    let mut bbox = Aabb::EMPTY;
     let mut whole: Option<Bvh> = None;
     // The MAX_FAR largest bounds (squared) of input vertices, smallest on
     // top: a vertex's search stops once its bound falls to the smallest of
@@ -93,7 +128,6 @@ pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> NodeError {
             continue;
         }
         let p = input.vertices[v].pos;
-        bbox.add(p);
         let o = image[v] as usize;
         if o < output.vertices.len() && out.kept_from[o] == v as u32 {
             continue; // kept as it is: on the output
@@ -105,11 +139,6 @@ pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> NodeError {
         if let Some(d) = if best.is_finite() { Some(best) } else { exact(p) } {
             top.push(d, v as u32);
         }
-    }
-    if output.triangles.is_empty() {
-        // Everything collapsed: the input's extent is the error.
-        let e = bbox.diagonal();
-        return NodeError { error: e, base: e, ..Default::default() };
     }
     // Samples of the input faces next to the border, searched like their
     // corners (numbered after the vertices).
@@ -124,14 +153,20 @@ pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> NodeError {
             top.push(d, (nv + k) as u32);
         }
     }
-    let in_d2 = top.max();
+    Some(top)
+}
+
+/// The representatives' side of [`node_error`], given the input side's
+/// `rest`: the largest bound (squared), what remains without the far
+/// representatives, and those (when a second pass looked for them).
+fn reps_side(in_fans: &InFans, out: &cluster::NodeOut, border: &BorderFaces, rest: f64) -> (f64, f64, Option<Farthest>) {
+    let (input, output) = (in_fans.input, &out.mesh);
     // The representatives' side. A first pass finds its maximum, each
     // search stopping once it cannot raise it (cheap); only when that
     // maximum stands out against the input side's (over 4× the distance
     // of its 65th largest) is a second pass run for the representatives'
     // own largest bounds (a representative can sit over a neighbour's
     // surface too), each search stopping at the smallest of those.
-    let in_fans = InFans { input, first: &in_first, around: &in_around };
     // The representative (or sample) whose search last met each input triangle.
     let mut met_in = vec![u32::MAX; input.triangles.len()];
     let no = output.vertices.len();
@@ -183,7 +218,7 @@ pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> NodeError {
     };
     let mut top_r = None;
     let r2 = reps_pass(&mut top_r);
-    let rest_r = if r2 > 16.0 * top.rest {
+    let rest_r = if r2 > 16.0 * rest {
         let mut t = Some(Farthest::default());
         reps_pass(&mut t);
         top_r = t;
@@ -191,12 +226,7 @@ pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> NodeError {
     } else {
         r2
     };
-    // The far points: those with the largest bounds; every other one is
-    // within `rest` (input side) or `rest_r` (representatives).
-    let base = top.rest.max(rest_r).sqrt();
-    let far = top.points(|v| border.input_point(input, v));
-    let far_reps = top_r.map_or_else(Vec::new, |t| t.points(|o| border.output_point(output, o)));
-    NodeError { error: in_d2.max(r2).sqrt(), base, far, far_reps }
+    (r2, rest_r, top_r)
 }
 
 /// The output triangles around each output vertex, with each triangle's

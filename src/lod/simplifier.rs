@@ -1,0 +1,267 @@
+//! The node simplifier behind the level builder: one trait, [`NodeSimplifier`],
+//! with adaptive quadric clustering ([`ClusterNodes`]) and quadric edge
+//! collapse ([`CollapseNodes`]) behind it.
+//!
+//! Takes: a node's gathered mesh with its locks (shared positions and
+//! attribute seams) and, for clustering, the input quadrics its vertices
+//! carry. Gives: per sampled node a curve (triangles kept against the
+//! level's error limit), the level's limit from the sampled curves, and per
+//! node its simplified mesh down to that limit, with the quadrics it
+//! carries on, which output vertices were locked, and its measured error.
+//! The builder (`level`) does the rest the same way for every simplifier:
+//! a new one is a type implementing the trait and a line in [`super::build`].
+
+use super::cluster::Splits;
+use super::collapse;
+use super::measure::{node_error, NodeError};
+use crate::mesh::{AttrSet, IndexedMesh};
+
+/// One node as a simplifier gets it.
+pub struct NodeInput<'a> {
+    pub mesh: &'a IndexedMesh,
+    /// The quadrics its vertices carry ([`NodeSimplifier::carried_len`]
+    /// values each); `None` at level 0, whose quadrics are the input's own.
+    pub carried: Option<&'a [f64]>,
+    /// Per vertex: kept exactly (a shared position or an attribute seam).
+    pub locked: &'a [bool],
+}
+
+/// A node's simplification.
+pub struct Simplified {
+    pub mesh: IndexedMesh,
+    /// Quadrics carried to the next level, per output vertex.
+    pub carried: Vec<f64>,
+    /// Per output vertex: it is a locked input vertex.
+    pub locked: Vec<bool>,
+    pub error: NodeError,
+    /// Representatives clamped into their cell.
+    pub clamped: u64,
+}
+
+/// How the level builder reduces each node.
+pub trait NodeSimplifier: Sync {
+    /// What a sampled node's reduction looks like against the level's limit.
+    type Curve: Send;
+    /// Quadric values each vertex carries between levels (0: none).
+    fn carried_len(&self) -> usize;
+    /// The curve of one sampled node.
+    fn curve(&self, node: &NodeInput) -> Self::Curve;
+    /// The level's limit at which the sampled nodes keep `share` of their
+    /// triangles, and the share they keep there.
+    fn choose_limit(&self, curves: &[Self::Curve], share: f64) -> (f64, f64);
+    /// `node` reduced down to `limit`; `as_stored` rounds a mesh's vertices
+    /// as the store will hold them (errors are measured on those bits).
+    fn simplify(&self, node: &NodeInput, limit: f64, as_stored: &dyn Fn(&mut IndexedMesh)) -> Simplified;
+}
+
+/// Generalized-quadric adaptive vertex clustering ([`super::cluster`]) down
+/// to one split priority τ per level, carrying the input's quadrics.
+pub struct ClusterNodes {
+    pub attrs: AttrSet,
+    /// Eigenvalue cut-off of the representatives' solve.
+    pub rel_tol: f64,
+}
+
+impl NodeSimplifier for ClusterNodes {
+    type Curve = SplitCurve;
+
+    fn carried_len(&self) -> usize {
+        crate::quadric::carry_len(self.attrs.quadric_dim())
+    }
+
+    fn curve(&self, n: &NodeInput) -> SplitCurve {
+        let sp = Splits::new(n.mesh, n.carried, n.locked, self.attrs, usize::MAX, 0.0);
+        SplitCurve::of(&sp, n.mesh.triangles.len())
+    }
+
+    fn choose_limit(&self, curves: &[SplitCurve], share: f64) -> (f64, f64) {
+        choose_tau(curves, share)
+    }
+
+    fn simplify(&self, n: &NodeInput, tau: f64, as_stored: &dyn Fn(&mut IndexedMesh)) -> Simplified {
+        let sp = Splits::to_threshold(n.mesh, n.carried, n.locked, self.attrs, tau);
+        let mut out = sp.build(sp.steps(), self.rel_tol);
+        as_stored(&mut out.mesh);
+        let error = node_error(n.mesh, &out);
+        let locked = out.kept_from.iter().map(|&k| k != u32::MAX).collect();
+        Simplified { clamped: out.stats.clamped, mesh: out.mesh, carried: out.a, locked, error }
+    }
+}
+
+/// Quadric edge collapse with attributes ([`super::collapse`]:
+/// meshoptimizer's `simplifyWithUpdate`) down to one absolute error per
+/// level; its quadrics come from the mesh it is given, so none is carried.
+pub struct CollapseNodes {
+    pub attrs: AttrSet,
+}
+
+impl NodeSimplifier for CollapseNodes {
+    type Curve = collapse::ErrorCurve;
+
+    fn carried_len(&self) -> usize {
+        0
+    }
+
+    fn curve(&self, n: &NodeInput) -> collapse::ErrorCurve {
+        collapse::ErrorCurve::of(n.mesh, n.locked, self.attrs)
+    }
+
+    fn choose_limit(&self, curves: &[collapse::ErrorCurve], share: f64) -> (f64, f64) {
+        collapse::choose_limit(curves, share)
+    }
+
+    fn simplify(&self, n: &NodeInput, limit: f64, as_stored: &dyn Fn(&mut IndexedMesh)) -> Simplified {
+        let c = collapse::collapse(n.mesh, n.locked, self.attrs, 0, Some(limit));
+        let (mut out, from) = collapse::compact(&c.vertices, &collapse::unfold(&c.vertices, &c.triangles));
+        as_stored(&mut out);
+        let error = collapse::collapse_error(n.mesh, n.locked, &out, &from);
+        let locked = from.iter().map(|&f| n.locked[f as usize]).collect();
+        Simplified { mesh: out, carried: Vec::new(), locked, error, clamped: 0 }
+    }
+}
+
+/// Split curve of one sampled node: its triangles, and for split prefixes
+/// (priority of the next split, triangles after the prefix).
+pub struct SplitCurve {
+    tris: u64,
+    prio: Vec<f64>,
+    /// (steps, triangles) at sampled step counts, increasing.
+    counts: Vec<(u32, f64)>,
+}
+
+impl SplitCurve {
+    fn of(sp: &Splits, tris: usize) -> SplitCurve {
+        let n = sp.steps();
+        let mut steps: Vec<u32> = (0..=24).map(|j| ((n as u64 * j as u64 * j as u64) / (24 * 24)) as u32).collect();
+        steps.dedup();
+        let counts = steps.iter().map(|&s| (s, sp.count_at(s) as f64)).collect();
+        SplitCurve { tris: tris as u64, prio: sp.priorities().to_vec(), counts }
+    }
+
+    /// Triangles at threshold `tau`.
+    fn at(&self, tau: f64) -> f64 {
+        let s = self.prio.iter().position(|&p| !(p > tau)).unwrap_or(self.prio.len()) as u32;
+        let k = self.counts.partition_point(|c| c.0 < s);
+        if k == 0 {
+            return self.counts[0].1;
+        }
+        if k >= self.counts.len() {
+            return self.counts.last().unwrap().1;
+        }
+        let (a, b) = (self.counts[k - 1], self.counts[k]);
+        let f = if b.0 > a.0 { (s - a.0) as f64 / (b.0 - a.0) as f64 } else { 1.0 };
+        a.1 + f * (b.1 - a.1)
+    }
+}
+
+/// The threshold at which the sampled nodes keep `share` of their
+/// triangles, and the share they actually keep there.
+fn choose_tau(samples: &[SplitCurve], share: f64) -> (f64, f64) {
+    let total: f64 = samples.iter().map(|c| c.tris as f64).sum();
+    if total == 0.0 {
+        return (0.0, 1.0);
+    }
+    let kept = |t: f64| samples.iter().map(|c| c.at(t)).sum::<f64>() / total;
+    let hi0 = samples.iter().flat_map(|c| c.prio.first().copied()).fold(0.0, f64::max);
+    if !(hi0 > 0.0) {
+        return (0.0, kept(0.0));
+    }
+    let (mut lo, mut hi) = (hi0 * 1e-30, hi0 * 2.0);
+    if kept(lo) <= share {
+        return (0.0, kept(0.0));
+    }
+    for _ in 0..100 {
+        let m = (lo * hi).sqrt();
+        if kept(m) > share {
+            lo = m;
+        } else {
+            hi = m;
+        }
+        if hi / lo < 1.0 + 1e-6 {
+            break;
+        }
+    }
+    (hi, kept(hi))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::Vertex;
+
+    /// A flat n×n grid of quads in z = 0 (a bump in the middle when `bump`).
+    fn grid(n: u32, bump: bool) -> IndexedMesh {
+        let mut m = IndexedMesh::default();
+        for y in 0..=n {
+            for x in 0..=n {
+                let (fx, fy) = (x as f64 / n as f64, y as f64 / n as f64);
+                let z = if bump { 0.2 * (-((fx - 0.5).powi(2) + (fy - 0.5).powi(2)) * 20.0).exp() } else { 0.0 };
+                m.vertices.push(Vertex { pos: [fx, fy, z], ..Default::default() });
+            }
+        }
+        for y in 0..n {
+            for x in 0..n {
+                let v = y * (n + 1) + x;
+                m.triangles.push([v, v + 1, v + n + 2]);
+                m.triangles.push([v, v + n + 2, v + n + 1]);
+            }
+        }
+        m
+    }
+
+    fn check(s: &impl NodeSimplifier) {
+        let m = grid(24, true);
+        let locked = vec![false; m.vertices.len()];
+        let node = NodeInput { mesh: &m, carried: None, locked: &locked };
+        let curves = vec![s.curve(&node)];
+        let (limit, kept) = s.choose_limit(&curves, 0.5);
+        assert!(limit > 0.0 && limit.is_finite(), "limit {limit}");
+        assert!(kept > 0.2 && kept <= 0.6, "kept {kept} at limit {limit}");
+        let out = s.simplify(&node, limit, &|_| {});
+        let t = out.mesh.triangles.len() as f64 / m.triangles.len() as f64;
+        assert!(t > 0.1 && t < 0.8, "{t} of the triangles left at limit {limit}");
+        assert_eq!(out.locked.len(), out.mesh.vertices.len());
+        assert_eq!(out.carried.len(), s.carried_len() * out.mesh.vertices.len());
+        assert!(out.error.error >= 0.0 && out.error.error < 0.2, "error {}", out.error.error);
+        // No limit: nothing to remove on a flat grid but its error stays 0.
+        let flat = grid(8, false);
+        let fl = vec![false; flat.vertices.len()];
+        let fo = s.simplify(&NodeInput { mesh: &flat, carried: None, locked: &fl }, 0.0, &|_| {});
+        assert!(fo.error.error <= 1e-12, "flat error {}", fo.error.error);
+    }
+
+    #[test]
+    fn both_simplifiers_meet_the_chosen_limit() {
+        check(&ClusterNodes { attrs: AttrSet::default(), rel_tol: 1e-3 });
+        check(&CollapseNodes { attrs: AttrSet::default() });
+    }
+
+    #[test]
+    fn locked_vertices_stay_and_are_reported() {
+        let m = grid(16, true);
+        // Lock the border ring.
+        let locked: Vec<bool> = m.vertices.iter().map(|v| v.pos[0] == 0.0 || v.pos[0] == 1.0 || v.pos[1] == 0.0 || v.pos[1] == 1.0).collect();
+        let ring = locked.iter().filter(|&&l| l).count();
+        let cl: [&dyn Fn(&NodeInput) -> Simplified; 2] = [&|n| ClusterNodes { attrs: AttrSet::default(), rel_tol: 1e-3 }.simplify(n, 1e-2, &|_| {}), &|n| {
+            CollapseNodes { attrs: AttrSet::default() }.simplify(n, 1e-2, &|_| {})
+        }];
+        for f in cl {
+            let out = f(&NodeInput { mesh: &m, carried: None, locked: &locked });
+            assert_eq!(out.locked.iter().filter(|&&l| l).count(), ring);
+            for (v, &l) in out.mesh.vertices.iter().zip(&out.locked) {
+                if l {
+                    assert!(m.vertices.iter().zip(&locked).any(|(w, &wl)| wl && w.pos == v.pos), "a locked vertex moved");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn tau_is_chosen_where_the_samples_keep_the_share() {
+        let c = SplitCurve { tris: 100, prio: vec![8.0, 4.0, 2.0, 1.0], counts: vec![(0, 4.0), (2, 40.0), (4, 100.0)] };
+        let (tau, kept) = choose_tau(std::slice::from_ref(&c), 0.5);
+        assert!((2.0..4.0).contains(&tau), "tau {tau}");
+        assert!((0.4..=0.5).contains(&kept), "kept {kept}");
+        assert_eq!(choose_tau(&[], 0.5), (0.0, 1.0));
+    }
+}

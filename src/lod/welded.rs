@@ -1,0 +1,123 @@
+//! A node's vertices welded by position: what the level builder locks,
+//! shares and derives normals from.
+
+use super::chunks::Gathered;
+use super::shared::SharedSet;
+use crate::geom::{cross, pos_bits, sub, Welder};
+use crate::mesh::{Aabb, IndexedMesh};
+
+/// A node's vertices welded by position: per position its point, the
+/// area-weighted normal of its triangles in the node, whether several
+/// vertex variants sit there (an attribute seam), its bounds.
+pub(super) struct Welded {
+    pub pos: Vec<[f64; 3]>,
+    pub pos_of: Vec<u32>,
+    pub normal: Vec<[f64; 3]>,
+    pub seam: Vec<bool>,
+    /// Vertices per position: `members[first[p]..first[p+1]]`.
+    first: Vec<u32>,
+    members: Vec<u32>,
+    pub bounds: Aabb,
+}
+
+impl Welded {
+    /// `unique`: no two vertices of `m` share a position (a gathered node
+    /// without attributes), so none is looked up.
+    pub fn new(m: &IndexedMesh, unique: bool) -> Welded {
+        let mut pos = Vec::new();
+        let mut bounds = Aabb::EMPTY;
+        let pos_of: Vec<u32> = if unique {
+            pos.extend(m.vertices.iter().map(|v| v.pos));
+            (0..m.vertices.len() as u32).collect()
+        } else {
+            let mut weld = Welder::with_capacity(m.vertices.len());
+            m.vertices.iter().map(|v| weld.id(v.pos, |p| pos.push(p))).collect()
+        };
+        let mut count = vec![0u32; pos.len() + 1];
+        for &p in &pos_of {
+            count[p as usize + 1] += 1;
+        }
+        let seam = (0..pos.len()).map(|p| count[p + 1] > 1).collect();
+        for i in 0..pos.len() {
+            count[i + 1] += count[i];
+        }
+        let mut members = vec![0u32; pos_of.len()];
+        let mut next = count.clone();
+        for (v, &p) in pos_of.iter().enumerate() {
+            members[next[p as usize] as usize] = v as u32;
+            next[p as usize] += 1;
+        }
+        let mut normal = vec![[0.0; 3]; pos.len()];
+        for t in &m.triangles {
+            let c = t.map(|v| m.vertices[v as usize].pos);
+            for p in c {
+                bounds.add(p);
+            }
+            let n = cross(sub(c[1], c[0]), sub(c[2], c[0]));
+            let mut seen = [u32::MAX; 3];
+            for (k, &v) in t.iter().enumerate() {
+                let p = pos_of[v as usize];
+                if !seen[..k].contains(&p) {
+                    for a in 0..3 {
+                        normal[p as usize][a] += n[a];
+                    }
+                }
+                seen[k] = p;
+            }
+        }
+        Welded { pos, pos_of, normal, seam, first: count, members, bounds }
+    }
+
+    /// Per vertex: locked (its position is shared, or an attribute seam).
+    pub fn locks(&self, shared: &SharedSet) -> Vec<bool> {
+        self.locks_at(|p| shared.contains_key(&pos_bits(self.pos[p])))
+    }
+
+    /// [`Welded::locks`], given whether position `p` is shared.
+    pub fn locks_at(&self, is_shared: impl Fn(usize) -> bool) -> Vec<bool> {
+        let at: Vec<bool> = (0..self.pos.len()).map(|p| self.seam[p] || is_shared(p)).collect();
+        self.pos_of.iter().map(|&p| at[p as usize]).collect()
+    }
+
+    fn verts_at(&self, p: usize) -> &[u32] {
+        &self.members[self.first[p] as usize..self.first[p + 1] as usize]
+    }
+
+    /// Position `p` was locked when the level below was simplified.
+    pub fn was_locked(&self, g: &Gathered, p: usize) -> bool {
+        !g.was_locked.is_empty() && self.verts_at(p).iter().any(|&v| g.was_locked[v as usize])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::Vertex;
+
+    #[test]
+    fn seams_and_shared_positions_lock_every_variant() {
+        // Two triangles sharing an edge whose second copy of vertex 1 has another uv (a seam).
+        let v = |p: [f64; 3], u: f32| Vertex { pos: p, uv: [u, 0.0], ..Default::default() };
+        let m = IndexedMesh {
+            vertices: vec![v([0.0; 3], 0.0), v([1.0, 0.0, 0.0], 0.0), v([0.0, 1.0, 0.0], 0.0), v([1.0, 0.0, 0.0], 0.5), v([1.0, 1.0, 0.0], 0.0)],
+            triangles: vec![[0, 1, 2], [3, 4, 2]],
+        };
+        let w = Welded::new(&m, false);
+        assert_eq!(w.pos.len(), 4);
+        assert_eq!(w.pos_of, [0, 1, 2, 1, 3]);
+        assert_eq!(w.seam, [false, true, false, false]);
+        assert_eq!(w.verts_at(1), [1, 3]);
+        // Both triangles face +z: every position's normal points up.
+        assert!(w.normal.iter().all(|n| n[2] > 0.0 && n[0] == 0.0 && n[1] == 0.0));
+        assert_eq!(w.bounds.max, [1.0, 1.0, 0.0]);
+        assert_eq!(w.locks_at(|_| false), [false, true, false, true, false]);
+        assert_eq!(w.locks_at(|p| p == 3), [false, true, false, true, true]);
+        let mut shared = SharedSet::default();
+        shared.insert(pos_bits([0.0; 3]), ([0.0; 3], 0));
+        assert_eq!(w.locks(&shared), [true, true, false, true, false]);
+        // Unique positions (no attributes): no lookup, no seam.
+        let u = Welded::new(&IndexedMesh { vertices: m.vertices[..3].to_vec(), triangles: vec![[0, 1, 2]] }, true);
+        assert_eq!(u.pos_of, [0, 1, 2]);
+        assert!(u.seam.iter().all(|&s| !s));
+    }
+}
