@@ -250,8 +250,8 @@ impl PackWriter {
 /// every level is written, so no level waits for its own pack's writeback
 /// (the kernel writes each back while the next levels are built). Done
 /// before the index that makes the store readable, so a store that opens
-/// has its payload on disk. (At 120 M triangles this measured the same wall
-/// time as syncing each pack when complete, within run-to-run noise.)
+/// has its payload on disk. (No slower than syncing each pack when
+/// complete: `docs/build-costs.md`, "Syncs".)
 pub fn sync_packs(dir: &Path, levels: usize) -> Result<()> {
     for level in 0..levels {
         let path = pack_file(dir, level);

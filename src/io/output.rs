@@ -591,8 +591,8 @@ impl AtomicFile {
     }
     /// Not synced to disk on commit: for a command's own scratch, removed
     /// before the command ends (a crash loses the command's output anyway),
-    /// so it never waits for the file's writeback (the build's soup: 4 GB
-    /// at 120 M triangles).
+    /// so it never waits for the file's writeback (the build's soup, when
+    /// it writes one).
     pub fn scratch(mut self) -> AtomicFile {
         self.sync = false;
         self
