@@ -1,78 +1,34 @@
 //! Reduce stage (`octolod simplify`): one mesh of the size or error asked,
 //! from a store's cuts, under the memory budget.
 //!
-//! Takes: a built store (its level 0 is the exact input), a target
-//! ([`Target`]: a triangle count, a ratio of the input's, or an error in
-//! object space), a node simplifier ([`Simplifier`]) and `--mem`. Gives:
-//! the simplified mesh (welded, the input's attributes) and a
-//! [`SimplifyReport`] saying which route was taken and whether the target
-//! was met.
+//! Takes: a built store (level 0 is the exact input), a [`Target`] (a
+//! triangle count, a ratio of the input's, or an object-space error), a
+//! node [`Simplifier`] and `--mem`. Gives: the simplified mesh (welded, the
+//! input's attributes) and a [`SimplifyReport`]: the route taken, and
+//! whether the target was met.
 //!
-//! **Route for a size N.** The levels halve, so some level holds between N
-//! and 2N triangles. Starting finer costs time but gives the simplifier more
-//! to choose from, so the start is the *finest* level with at least N
-//! triangles whose whole mesh fits the budget ([`Simplifier::bytes_per_triangle`]
-//! estimates what the welded mesh and the simplifier need per triangle); it
-//! is welded and reduced in memory to exactly N. When no such level fits,
-//! the start is the coarsest level with at least N triangles, reduced node
-//! by node and streamed to the output, so the output need not fit the
-//! budget either:
+//! **Size N.** The start is the *finest* level with at least N triangles
+//! whose welded mesh fits the budget ([`Simplifier::bytes_per_triangle`]),
+//! reduced in memory to exactly N; when none fits, the coarsest level with
+//! at least N, reduced node by node and streamed ([`SpooledPly`]: the bytes
+//! [`write_mesh_ply`] writes), so the output need not fit either. That route
+//! holds only the positions two nodes share (found exactly and locked;
+//! `SHARED_BYTES` each) and a batch of nodes: each node gets a share of N,
+//! the remainder is settled over the spilled parts (to within 0.25 % of N,
+//! at most `SETTLE_ROUNDS` more rounds), and the parts are welded at the
+//! shared positions, whose locked vertices are bit-identical: seams close.
 //!
-//! 1. The positions two nodes of the cut share are found exactly
-//!    (positions on some node's open edges, kept when two nodes hold them;
-//!    the mesh's own open border is not locked). This *shared set* is what
-//!    the route holds throughout, counted at 256 bytes a position
-//!    (`SHARED_BYTES`: its entry, and the output weld map's; measured
-//!    about half that): a few per cent of the start
-//!    level's vertices — on a 2 M-triangle sphere in 16 K-triangle nodes,
-//!    53 K positions (5.3 %), 13 MiB, against 240 MiB for its 1 M-triangle
-//!    output in memory.
-//! 2. Each node gets a share of N proportional to its triangles and is
-//!    reduced with the shared positions locked, in parallel batches sized so
-//!    that the shared set and a batch of nodes (their triangles ×
-//!    `bytes_per_triangle`) fit `--mem` (a usage error when even one node
-//!    does not); each reduced part is spilled to a scratch file.
-//! 3. The remainder is settled over the spilled parts: nodes that missed
-//!    their share by over 1 % (their locked vertices kept them above it, or
-//!    the simplifier's last step overshot) keep what they have, the others
-//!    share what is left and are reduced again — from their spilled part,
-//!    or from the store when they must grow — for up to three rounds
-//!    (`SETTLE_ROUNDS`), until the total is within 0.25 % of N.
-//! 4. The parts are read back one at a time and written out: vertices at
-//!    shared positions are welded across parts by their encoded bytes
-//!    (position and attributes; bit-identical locked vertices make the
-//!    seams close), the others within their part only; the records are
-//!    spooled to scratch files and joined behind a header with the final
-//!    counts ([`SpooledPly`]: the bytes [`write_mesh_ply`] writes).
+//! **Error E.** `cluster` returns the store's cut at E; `collapse` starts
+//! from the cut at E/4 with an absolute limit of 3E/4. The result is
+//! *measured* with [`crate::metro`] against level 0 and rebuilt with a lower
+//! limit while it exceeds E, down to the input; the coarsest level is tried
+//! first when E is at least `COARSEST_FIRST` of its recorded error.
 //!
-//! When the shares cannot come within 1 % of N (the locked borders hold
-//! more) and the whole result fits the budget, one last pass over it in
-//! memory settles the rest with nothing locked; otherwise the report says
-//! how many triangles the borders kept.
-//!
-//! **Route for an error E.** `cluster` returns the store's cut at error E
-//! (the coarsest valid cut whose saturated node errors are ≤ E);
-//! `collapse` starts from the cut at E/4 and collapses with an absolute
-//! error limit of 3E/4 (a cut too large for the budget node by node, as in
-//! steps 1–2 above, the parts then welded in memory). Either way the result is *measured* with
-//! [`crate::metro`] against level 0 (Hausdorff, both directions, vertex,
-//! edge and face samples) and, while it exceeds E, the limit is lowered and
-//! the mesh rebuilt, down to the input itself. The store's coarsest level
-//! is the floor: when E is at least a quarter of its recorded error
-//! (`COARSEST_FIRST`) it is measured first, and returned when within E.
-//!
-//! **Simplifiers.** `collapse` is quadric edge collapse with attributes
-//! ([`crate::lod::collapse`], shared with `build --simplifier collapse`):
-//! meshoptimizer's `simplifyWithUpdate` (vertex positions and attributes
-//! re-placed optimally, locked vertices kept bit-exact, normals, colours and
-//! uvs weighted into the quadric, attribute seams kept closed). Positions
-//! go to meshoptimizer as f32 relative to the mesh's centre, so inputs far
-//! from the origin keep their precision; locked vertices are restored from
-//! their f64 originals. `cluster` is the hierarchy's generalized-quadric
-//! adaptive clustering ([`crate::lod::cluster`]) stopped at the first split
-//! count giving at least N triangles. When a simplifier cannot reach N
-//! without breaking the topology (`collapse` then retries once, allowed to
-//! remove small disconnected parts), the report says so.
+//! **Simplifiers.** `collapse`: quadric edge collapse with attributes
+//! ([`crate::lod::collapse`], meshoptimizer's `simplifyWithUpdate`), locked
+//! vertices kept bit-exact; `cluster`: adaptive clustering
+//! ([`crate::lod::cluster`]) stopped at the first split count giving at
+//! least N triangles. The steps in full, and figures: `docs/simplify.md`.
 
 use crate::error::{Error, IoContext, Result};
 use crate::geom::{pos_bits, Welder};
@@ -95,10 +51,9 @@ use crate::manifest::Simplifier;
 impl Simplifier {
     /// Bytes held per triangle of a mesh reduced in memory: the welded mesh
     /// (≈ 0.5 vertices × 64 B + 12 B), the weld map and the simplifier's
-    /// working set. Measured peaks on the 12 M-triangle sphere reduced whole:
-    /// `collapse` 1.97 GB (164 B per triangle: f32 positions, quadrics,
-    /// edge tables), `cluster` 4.74 GB (395 B: per-vertex quadrics and the
-    /// split sequence's cells); with a margin.
+    /// working set (`collapse`: f32 positions, quadrics, edge tables;
+    /// `cluster`: per-vertex quadrics and the split sequence's cells), with
+    /// a margin over the measured peaks (`docs/simplify.md`, "Node by node").
     pub fn bytes_per_triangle(self) -> u64 {
         match self {
             Simplifier::Collapse => 240,
@@ -286,8 +241,8 @@ fn reduce_to_count(store: &Store, n: u64, out: &Path, o: &SimplifyOptions) -> Re
 
 /// Error targets at least this share of the coarsest level's recorded
 /// node error measure that level first: the recorded errors add each
-/// step's measured deviation, so they lie above metro's distance (1.1–2.3×
-/// from level 2 on, README "What E bounds"), rarely by more than 4×.
+/// step's measured deviation, so they lie above metro's distance, but
+/// rarely by more than 1 / `COARSEST_FIRST` (figures: `docs/simplify.md`).
 const COARSEST_FIRST: f64 = 0.25;
 
 fn reduce_to_error(store: &Store, e: f64, o: &SimplifyOptions) -> Result<(IndexedMesh, SimplifyReport)> {

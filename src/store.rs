@@ -8,43 +8,26 @@
 //! at an error, which patches of a node a cut draws ([`Cut`]) and the
 //! meshes a cut draws.
 //!
-//! Files:
-//! * `nodes.bin` — a 128-byte [`StoreHeader`] (magic `OCTLODIX`, version,
-//!   attribute set, flags, counts, root, store id, input bounds), one fixed
-//!   160-byte [`NodeRec`] per node, then the children and parents lists
-//!   (`u32` node ids) the records point into. Nodes are numbered level by
-//!   level from the finest (level 0 = the input, bit-exact); the root is
-//!   the last node.
-//! * `level-L.pack` — the payloads of level L's nodes, each on a 4 KiB page
-//!   boundary, read with one positioned read.
-//! * `store.json` — a human-readable manifest (parameters, per-level
-//!   figures, timings).
+//! Invariants:
+//! * Files: `nodes.bin` (a [`StoreHeader`], one fixed-size [`NodeRec`] per
+//!   node, then the children and parents lists), `level-L.pack` (each
+//!   payload on a [`PAGE`] boundary, read with one positioned read) and
+//!   `store.json`; all little-endian. Nodes are numbered level by level from
+//!   the finest (level 0 = the input, bit-exact); the root is the last node.
+//! * A node's payload is its triangles *at its level*, grouped into patches
+//!   by the finer node (child) each part was simplified from (a level-0
+//!   node: one patch, child [`NO_NODE`]), its vertices in
+//!   [`Store::payload_layout`]. Its record's counts give its exact size and
+//!   its CRC-32C, in the record, is checked on every read.
+//! * Cuts. A *selection* S holds the root and, with every node, all of its
+//!   parents; it draws, for each node of S, the patches whose child is not
+//!   in S (a level-0 node draws everything). Seams were kept exactly, so any
+//!   such cut is closed wherever the input is (Batched Multi-Triangulation,
+//!   Cignoni et al. 2005). The whole level L is S = every node of level ≥ L;
+//!   the cut at object-space error E adds every node a parent of which has
+//!   error > E (with its missing ancestors): every drawn patch has error ≤ E.
 //!
-//! A node's payload is its triangles *at its level*, grouped into patches
-//! by the finer node (child) each part was simplified from:
-//! `u32 vertex count, u32 triangle count, u32 index size (2 or 4), u32
-//! patch count`, then per patch `u32 child id, u32 triangle count` (in the
-//! order of the node's children list; level-0 nodes have one patch with
-//! child [`NO_NODE`]), the vertex table in [`Store::payload_layout`] (the
-//! input's attributes, plus per-vertex normals computed at build time when
-//! the input has none — [`StoreHeader::derived_normals`]), then the
-//! triangles' indices (u16 when ≤ 65 535 vertices), all little-endian. Each
-//! payload's CRC-32C is in its record and checked on every read.
-//!
-//! Cuts. A *selection* S is a set of nodes that holds the root and, with
-//! every node, all of its parents. It draws, for each node of S, the
-//! patches whose child is not in S (a level-0 node draws everything). A
-//! node's patches from child c are c's simplified mesh, whose boundary with
-//! its level's other nodes was kept exactly, so any such cut is closed
-//! wherever the input is (Batched Multi-Triangulation, Cignoni et al.
-//! 2005). The whole level L is S = every node of level ≥ L; the cut at
-//! object-space error E adds every node a parent of which has error > E
-//! (with its missing ancestors), so every drawn patch has error ≤ E.
-//!
-//! Pack files rather than one file per node: a 10^9-triangle mesh has
-//! ~10^5 nodes per level; page-aligned ranges in a few large files give the
-//! same "one node = one sequential read" with `pread`, keep nodes of one
-//! region adjacent for read-ahead, and cost no inodes.
+//! Byte layout, why pack files, what opening checks: `docs/store-format.md`.
 
 use crate::error::{Error, IoContext, Location, Result};
 use crate::geom::Mesh;
@@ -126,7 +109,7 @@ pub struct NodeMesh {
     pub patches: Vec<Patch>,
 }
 
-/// Encodes a payload (see the module doc). `patches` are (child, count) in order.
+/// Encodes a payload (layout: `docs/store-format.md`). `patches` are (child, count) in order.
 pub fn encode_payload(layout: &VertexLayout, m: &IndexedMesh, patches: &[(u32, u32)], out: &mut Vec<u8>) {
     out.clear();
     let nv = m.vertices.len();
@@ -267,8 +250,8 @@ impl PackWriter {
 /// every level is written, so no level waits for its own pack's writeback
 /// (the kernel writes each back while the next levels are built). Done
 /// before the index that makes the store readable, so a store that opens
-/// has its payload on disk. (At 120 M triangles this measured the same wall
-/// time as syncing each pack when complete, within run-to-run noise.)
+/// has its payload on disk. (No slower than syncing each pack when
+/// complete: `docs/build-costs.md`, "Syncs".)
 pub fn sync_packs(dir: &Path, levels: usize) -> Result<()> {
     for level in 0..levels {
         let path = pack_file(dir, level);

@@ -5,45 +5,29 @@
 //! [`AttrSet`] saying which attributes are real, and [`GltfOptions`].
 //! Gives: one scene, one node, one mesh of triangle primitives. POSITION
 //! always; NORMAL (made unit length), COLOR_0 and TEXCOORD_0 only when the
-//! set has them. Positions are `f32` relative to the bounding box's centre,
-//! the node's `translation` (JSON doubles), so a mesh 10^6 from the origin
-//! keeps its detail. Attributes are interleaved in one bufferView per primitive;
-//! indices are `u16` up to 65535 vertices, else `u32`; triangles keep
-//! their order and winding.
-//! * Colours: octolod's [`Vertex::color`] bytes are sRGB-encoded, as PLY
-//!   files carry them (alpha linear); glTF's COLOR_0 is linear. RGB goes
-//!   through the exact sRGB transfer function and is stored as normalized
-//!   `u16` (VEC3 padded to 8 bytes, or VEC4 with alpha, which is copied
-//!   as it is: `a × 257`). Not normalized `u8`, even with `quantize` (where
-//!   glTF allows `u16` colours too): linear bytes merge the dark tones (sRGB
-//!   0 to 17 would get 2 codes, and the 256 sRGB bytes only 183 distinct
-//!   codes), where `u16` keeps every sRGB byte apart (by 19 steps or more)
-//!   and converts back to the same byte.
-//! * One material for every primitive, `pbrMetallicRoughness` with
-//!   `metallicFactor` 0 and `roughnessFactor` 1 (glTF's default material is
-//!   fully metallic: dark in Cesium and physically based viewers), white,
-//!   and `doubleSided`: octolod's own renderer draws both sides, and scans
-//!   with holes and open borders show their back.
-//! * `quantize`: KHR_mesh_quantization: positions as normalized `i16` (the
-//!   node's translation and uniform scale dequantize), normals as
-//!   normalized `i8` (padded to 4 bytes), uvs as normalized `u16` when all
-//!   lie in \[0,1\].
-//! * `compress`: EXT_meshopt_compression (meshopt's vertex codec version 0,
-//!   mode ATTRIBUTES; its index codec, mode TRIANGLES) in buffer 0, with a
-//!   placeholder fallback buffer (no `uri`, `fallback: true`) giving the
-//!   uncompressed layout; a fallback without data makes the extension
-//!   required (its spec says so).
+//! set has them; optionally `quantize` (KHR_mesh_quantization) and
+//! `compress` (EXT_meshopt_compression, which the file then requires).
 //!
-//! A whole mesh is one primitive ([`encode_glb`], [`write_mesh`]); a cut
-//! streamed ([`write_parts`]) is one primitive per run of whole nodes of at
-//! most [`STREAM_GROUP_VERTICES`] vertices, only one run in memory. Every
-//! output carries `asset.extras.octolod = "output"` ([`is_octolod_gltf`]).
-//! Files are written as every octolod output is ([`crate::io`],
-//! [`OutputKind::Gltf`]): a `.glb` through an [`AtomicFile`], a `.gltf` and
-//! its `.bin` through an [`AtomicGltfPair`]; what may be replaced is decided
-//! there ([`check_output`]).
-//! Hand-written: the format is JSON (serde_json is already here) plus
-//! little-endian buffers; the codecs come from the `meshopt` crate.
+//! Invariants:
+//! * Positions are `f32` relative to the bounding box's centre, the node's
+//!   `translation` (JSON doubles), so a mesh 10^6 from the origin keeps its
+//!   detail; triangles keep their order and winding; indices are `u16` up
+//!   to 65535 vertices, else `u32`.
+//! * Colours: octolod's sRGB-encoded [`Vertex::color`] bytes become linear
+//!   COLOR_0 through the exact transfer function, as normalized `u16`, which
+//!   keeps every sRGB byte apart and converts back to the same byte.
+//! * One material for every primitive: not metallic, fully rough, double-sided.
+//! * A whole mesh is one primitive ([`encode_glb`], [`write_mesh`]); a cut
+//!   streamed ([`write_parts`]) is one primitive per run of whole nodes of at
+//!   most [`STREAM_GROUP_VERTICES`] vertices, only one run in memory.
+//! * Every output carries `asset.extras.octolod = "output"`
+//!   ([`is_octolod_gltf`]) and is written as every octolod output is
+//!   ([`crate::io`], [`OutputKind::Gltf`]): a `.glb` through an
+//!   [`AtomicFile`], a `.gltf` and its `.bin` through an [`AtomicGltfPair`];
+//!   what may be replaced is decided there ([`check_output`]).
+//!
+//! Hand-written: JSON (serde_json) plus little-endian buffers; the codecs come
+//! from the `meshopt` crate. The encodings and why: `docs/web.md`, "glTF output".
 
 use crate::error::{Error, IoContext, Result};
 use crate::io::{AtomicFile, AtomicGltfPair, OutputKind};
@@ -607,8 +591,8 @@ fn document(s: &Survey, l: &Layout, opts: &GltfOptions, name: Option<&str>, plac
     Value::Object(doc)
 }
 
-/// The one material: not metallic, fully rough, double-sided (see the
-/// module doc); white under vertex colours, else octolod's own grey
+/// The one material: not metallic, fully rough, double-sided (why:
+/// `docs/web.md`, "glTF output"); white under vertex colours, else octolod's own grey
 /// ([`crate::view::DEFAULT_COLOR`], linear), so a mesh without colours
 /// looks in any client as it does in `view` and `render`.
 fn material(colored: bool) -> Value {

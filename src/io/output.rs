@@ -7,28 +7,25 @@
 //! deleted if dropped uncommitted, so a failed or interrupted run never
 //! leaves partial output pretending to be complete.
 //!
-//! Data safety rules (README "What octolod promises"):
+//! Invariants (the data safety promises, `docs/promises.md`):
 //! * An existing path is replaced only when it is a complete octolod output
 //!   of the same kind ([`OutputKind::recognise`]: a store's index magic, a
-//!   soup's magic, a render directory's marker, a PLY's exact
-//!   [`PLY_MARK`] comment line, a glTF's `asset.extras.octolod` marker)
-//!   **and** `force` is set; anything else that exists is refused before any
-//!   work starts.
+//!   soup's magic, a render directory's marker, a PLY's exact [`PLY_MARK`]
+//!   comment line, a glTF's `asset.extras.octolod` marker) **and** `force`
+//!   is set; anything else that exists is refused before any work starts.
 //! * A `.gltf`'s buffer, the `.bin` beside it ([`gltf_bin_path`]), is
 //!   replaced only when the old `.gltf` is octolod's and names that `.bin`
-//!   in `buffers[].uri`; both are written under temp names and moved into
-//!   place together ([`AtomicGltfPair`]).
+//!   in `buffers[].uri`; both are moved into place together ([`AtomicGltfPair`]).
 //! * A directory output (store, render directory) is replaced only when it
 //!   holds nothing but what octolod wrote there (a store: `nodes.bin`,
 //!   `store.json` and its levels' packs; a render directory: the files its
-//!   marker lists); a user's file inside is never deleted: the command is
-//!   refused. The old output is then removed file by file, never with a
-//!   recursive delete; what appeared in it meanwhile is kept under a
-//!   visible name.
+//!   marker lists); a user's file inside makes the command refuse. The old
+//!   output is removed file by file, never recursively; what appeared in it
+//!   meanwhile is kept under a visible name.
 //! * Nothing that is, holds or lies inside a path the running command reads
-//!   ([`protect`]: its input, an opened store, a camera path) is ever
-//!   replaced (so `extract s.octolod -o s.octolod/nodes.gltf --force` cannot
-//!   replace the store's `nodes.bin` as the glTF's buffer).
+//!   ([`protect`]: its input, an opened store, a camera path) is replaced
+//!   (`extract s.octolod -o s.octolod/nodes.gltf --force` cannot replace the
+//!   store's `nodes.bin` as the glTF's buffer).
 //! * A store is swapped in with one `renameat2(RENAME_EXCHANGE)`, so the
 //!   final name always holds a complete store.
 
@@ -594,8 +591,8 @@ impl AtomicFile {
     }
     /// Not synced to disk on commit: for a command's own scratch, removed
     /// before the command ends (a crash loses the command's output anyway),
-    /// so it never waits for the file's writeback (the build's soup: 4 GB
-    /// at 120 M triangles).
+    /// so it never waits for the file's writeback (the build's soup, when
+    /// it writes one).
     pub fn scratch(mut self) -> AtomicFile {
         self.sync = false;
         self

@@ -342,7 +342,8 @@ pub fn split_by_target(m: &IndexedMesh, a: &[f64], a_len: usize, locked: &[bool]
 /// Ids of byte strings of one length (vertex records), numbered in order
 /// of first appearance. The vertex sizes a layout can have (12 to 36 bytes)
 /// are keyed as arrays: hashed and compared inline, where a slice key
-/// costs a `memcmp` call per probe (a tenth of the level-0 routing).
+/// costs a `memcmp` call per probe (measured dear in the level-0 routing:
+/// `docs/build-costs.md`, "Partition").
 enum ByteIds<'a> {
     K12(FxHashMap<[u8; 12], u32>),
     K16(FxHashMap<[u8; 16], u32>),

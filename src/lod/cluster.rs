@@ -9,36 +9,27 @@
 //! by error threshold (the level builder) or by triangle target — and the
 //! simplified mesh with each output vertex's quadric ([`Splits::build`]).
 //!
-//! Why adaptive rather than a uniform grid (OOCS, meshoptimizer's
-//! `simplify_sloppy`): a uniform grid spends as many clusters on a flat
-//! region as on a curved one. Here the free vertices' bounding box is split
-//! in two, kd-tree fashion, always splitting the cluster whose quadric
-//! error at its members' mean is largest (its contribution to the squared
-//! RMS error), at the members' mean along their axis of largest variance.
-//! Binary splits keep neighbouring clusters within 2× in size (octree
-//! splits: 8×), which measured 10–25 % lower RMS on spheres and terrains
-//! than octree splits and than OOCS at equal size. The splits form one
-//! sequence; a prefix is chosen by threshold, or by bisection for the
-//! first triangle count at or above a target (re-evaluated in O(T)).
+//! Clusters: the free vertices' box is split in two, kd-tree fashion, always
+//! the cluster whose quadric error at its members' mean is largest, at that
+//! mean along the members' axis of largest variance. Unlike a uniform grid
+//! (OOCS, meshoptimizer's `simplify_sloppy`) this spends clusters where the
+//! surface curves, and binary splits keep neighbours within 2× in size
+//! (octree splits: 8×). A prefix of the one sequence is chosen by threshold,
+//! or by bisection for the first triangle count at or above a target. A
+//! representative minimises its members' summed quadrics (each the quadric
+//! of the input surface it stands for) inside its cluster box
+//! ([`crate::quadric`]); matrices are carried in raw attribute units and
+//! rescaled ([`scale_packed`]).
 //!
-//! A cluster's quadric is the sum of its members' (each vertex carries the
-//! quadric of the input surface it stands for), so a representative
-//! minimises the squared distance to the input's planes; it is solved by
-//! the rank-revealing pseudo-inverse about the members' mean and kept
-//! inside its cluster box ([`crate::quadric`]). Attribute dimensions are
-//! weighted by the node's size; propagated matrices are carried in raw
-//! attribute units and rescaled ([`scale_packed`]).
-//!
-//! Triangles are re-indexed; those whose corners merge are dropped, and a
-//! triangle and one of opposite orientation on the same corners (a fold)
-//! are dropped together. All others are kept (duplicates too). The map is
-//! then a simplicial chain map up to pairs, so the output's mod-2 boundary
-//! is the image of the input's: no open edge appears that the input did
-//! not have, the mesh's own open border is simplified with the rest, and
-//! every triangle on an edge between two locked vertices keeps that edge
-//! — what keeps a node's seams with its neighbours closed. Known cost of
-//! vertex clustering: a part thinner than a cluster collapses (its two
-//! sides fold and are removed); the surface stays closed.
+//! Invariant: triangles whose corners merge are dropped, and so are a
+//! triangle and one of opposite orientation on the same corners (a fold);
+//! all others are kept. The map is then a simplicial chain map up to pairs,
+//! so the output's mod-2 boundary is the image of the input's: no open edge
+//! appears that the input did not have, the mesh's own open border is
+//! simplified with the rest, and every triangle on an edge between two
+//! locked vertices keeps that edge, which keeps a node's seams closed. Known
+//! cost: a part thinner than a cluster collapses (its two sides fold and are
+//! removed); the surface stays closed. Figures: `docs/levels-of-detail.md`.
 
 use crate::mesh::IndexedMesh;
 use crate::mesh::{Aabb, AttrSet, Vertex};

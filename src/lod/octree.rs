@@ -6,60 +6,29 @@
 //! and the level-0 cube ([`crate::lod::partition::LevelCube`]).
 //! Gives: the leaves (a [`Tiling`] of the level-0 cube with, per leaf, its
 //! triangle count, bounds and reach), their triangles in a
-//! [`ChunkFile`] (indexed, exactly equal corners welded). Every triangle
-//! lives in exactly one leaf, chosen by its first corner; nothing is
-//! replicated.
+//! [`ChunkFile`] (indexed, exactly equal corners welded).
 //!
-//! Why the first corner and not the centroid: the soup stage joins each
-//! corner with its vertex one at a time (phase 2), in slab order, so a
-//! triangle's three corners first meet when phase 3 writes it; its first
-//! corner is known in phase 2, on its own. Counting first corners there
-//! lets phase 3 route each triangle to its leaf as it is placed, so
-//! `build` never writes the soup nor reads it back: 4.3 GB written and read
-//! less at 120 M triangles. Any point of the triangle partitions as well;
-//! the first corner only makes the reach (how far a leaf's triangles stick
-//! out of its cell, [`crate::lod::shared`]) a little larger.
+//! Invariants:
+//! * Every triangle lives in exactly one leaf, chosen by its first corner;
+//!   nothing is replicated. The first corner rather than the centroid
+//!   because the soup stage knows it in phase 2, before a triangle's corners
+//!   meet, so `build` counts and routes inside the soup stage and never
+//!   writes the soup; it only makes the reach ([`crate::lod::shared`]) a
+//!   little larger.
+//! * The leaves are exactly the top-down rule's ("split while a cell holds
+//!   more than `leaf_tris` and is shallower than `max_depth`") on the exact
+//!   counts, and a leaf reads the same (triangles in soup order, vertices in
+//!   first appearance), whatever the budget.
+//! * Sequential passes, no sort: **counting** first corners in a
+//!   [`Histogram`] that coarsens to fit, cells still too full counted again
+//!   alone ([`Histogram::cut`]); **routing** each triangle to its leaf's
+//!   buffer, written as chunks when the leaf is complete or the buffers
+//!   outgrow their share, welded on reading ([`ChunkFile::gather`]). In
+//!   `build` the soup stage does both ([`SoupTap`]) when one count suffices.
+//! * Memory: the histogram's share, the buffers' quarter, one batch of the
+//!   soup; in the soup stage, taken from phases 2 and 3 ([`SoupTap::reserve`]).
 //!
-//! Out of core, in sequential passes over the soup and no sort:
-//! 1. **Counting.** The first corners' Morton keys in the level-0 cube are
-//!    counted in a [`Histogram`] ten levels below the cells being cut (at
-//!    most `max_depth`), which coarsens itself to fit its memory share
-//!    (`--mem` / 128 bytes' worth of cells); the
-//!    top-down rule "split while a cell holds more than `leaf_tris` and is
-//!    shallower than `max_depth`" is applied to the counts
-//!    ([`Histogram::cut`]). Cells left at the histogram's depth still
-//!    holding too many are counted again, alone, in another pass at a finer
-//!    depth, until none is left (at most `--mem` / 1 KiB cells per pass,
-//!    so their children fit the histogram). One pass suffices unless the
-//!    input is dense beyond the histogram's depth (the 120 M-triangle sphere under
-//!    `--mem 512M`: one). The leaves are exactly the top-down rule's on the
-//!    exact counts, whatever the budget. In `build`, the first pass is
-//!    done by the soup stage on its external path, in phase 2
-//!    ([`FirstCount`], a [`SoupTap`]; in the cube of the input's vertices,
-//!    which is the soup's unless a vertex no face uses lies outside the
-//!    faces' box — then phase 3 counts again).
-//! 2. **Routing.** One pass sends each triangle to its leaf's buffer (the
-//!    tiling's binary search); a buffer becomes a chunk when its leaf is
-//!    complete (its count is known; complete leaves are encoded a few at a
-//!    time, in parallel), and when the buffers together outgrow
-//!    a quarter of the budget the largest are written as chunks until they
-//!    hold an eighth. A leaf is read back by [`ChunkFile::gather`], which
-//!    welds its chunks; triangles keep the soup's order within a leaf, and
-//!    vertices their first appearance, so a leaf reads the same whatever
-//!    the budget. In `build`, when the first pass was enough, this pass
-//!    too is done by the soup stage (phase 3, as each slot range is
-//!    placed, in soup order) and no soup file is written; otherwise the
-//!    soup is written and read back here.
-//!
-//! Why not a sort: the external Morton sort this stage used before wrote
-//! and read the soup twice more (runs, merge) and compared every key:
-//! 46 s of the 120 M-triangle build at `--mem 512M`. Counting needs one
-//! read of the soup and a hash map the size of the cells.
-//!
-//! Memory: the histogram's share, the buffers' quarter (and as much again
-//! while a batch of them is encoded), one batch of the soup. In the soup
-//! stage, the larger of the histogram's and the routing's share is taken
-//! from phases 2 and 3 ([`SoupTap::reserve`]).
+//! Passes, shares and figures: `docs/levels-of-detail.md`, "Level 0: the octree".
 
 use super::chunks::ChunkFile;
 use super::partition::{Histogram, LevelCube, Tiling, KEY_DEPTH};

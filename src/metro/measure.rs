@@ -173,7 +173,7 @@ pub(super) fn measure(gen: &mut dyn Gen, target: &Target, batch: usize, snap: f6
 }
 
 /// One-sided distances from `src`'s samples to the mesh `target` indexes:
-/// about `samples` samples (see the module documentation), from `seed`.
+/// about `samples` samples (see [`super`]), from `seed`.
 pub fn one_sided(src: &Mesh, target: &Bvh, samples: u64, seed: u64, progress: &Progress) -> Result<Distances> {
     if target.is_empty() {
         return Err(Error::Usage("metro: the target mesh has no triangles".into()));
@@ -190,7 +190,7 @@ pub fn one_sided(src: &Mesh, target: &Bvh, samples: u64, seed: u64, progress: &P
 
 /// Distances at most this are rounding, not distance, and count as 0:
 /// [`SNAP_ULPS`] × `f64::EPSILON` × the largest coordinate magnitude of the
-/// boxes (see the module doc).
+/// boxes (why: `docs/metro.md`, "Rounding").
 pub fn snap_distance(boxes: &[Aabb]) -> f64 {
     let m =
         boxes.iter().filter(|b| !b.is_empty()).flat_map(|b| b.min.iter().chain(b.max.iter())).map(|x| x.abs()).filter(|x| x.is_finite()).fold(0.0, f64::max);

@@ -1,162 +1,32 @@
 //! Metro: the two-sided surface distance between two triangle meshes, after
 //! Cignoni, Rocchini and Scopigno, "Metro: measuring error on simplified
-//! surfaces" (1998), as implemented by vcglib's `metro`.
+//! surfaces" (1998), sampled as vcglib's `metro` does.
 //!
-//! Takes: two meshes `A` and `B`, each a PLY path (held in memory whole) or
-//! `STORE@L` (level `L` of an octolod store, paged: see "Paging" below; it
-//! measures as the level's whole-level cut with bit-identical positions
-//! welded, the mesh `octolod extract` writes), a sample budget, a seed and a
-//! memory budget (`--mem`). Gives: per direction (`A -> B`: samples on A, distance to the closest
-//! point of B; `B -> A` the other way) and combined, the maximum (Hausdorff),
-//! mean and RMS distance and the sample counts, each absolute and relative to
-//! **the bounding-box diagonal of A** (A is meant to be the reference, e.g.
-//! the original, so figures for several simplifications of it share one
-//! scale; vcglib's Metro divides by the diagonal of the union box instead,
-//! which the report also lists). Combined figures: max of the two maxima;
-//! mean and RMS over all samples of both directions together (so with the
-//! default budget, equal sample counts, the combined mean is the average of
-//! the two directional means). Bounding boxes, areas, vertex and face counts
-//! of both meshes come with it.
+//! Takes: two operands `A` and `B`, each a PLY path (held whole, or paged
+//! through a scratch store of its level 0 when it does not fit `--mem`) or
+//! `STORE@L` (level `L`'s whole-level cut, welded, paged part by part), a
+//! sample budget (default [`SAMPLES_PER_FACE`] × the larger face count), a
+//! seed and `--mem`. Gives: a [`Report`]: per direction (`A -> B`: samples
+//! on A, distance to the closest point of B) and combined, the maximum
+//! (Hausdorff), mean and RMS distance, absolute and relative to A's
+//! bounding-box diagonal; thresholds exit with [`EXIT_THRESHOLD`].
 //!
-//! Sampling (per direction, of the source mesh S, total budget `N`, by
-//! default `10 * max(faces of A, faces of B)` like Metro, `--samples`
-//! overrides): as in vcglib's `Sampling::Hausdorff`,
-//! 1. every vertex referenced by a triangle (unreferenced ones are not part
-//!    of the surface), `V` samples — all of them even when `V >= N` — in the
-//!    order of first reference (face by face, corner by corner);
-//! 2. with `R = N - V` left, every unique edge gets samples at equally spaced
-//!    interior points, `sqrt(R / area(S))` per unit length exactly like
-//!    Metro (the spacing the face samples will have), which at the default
-//!    budget puts about 70 % of the samples on edges (~7 per face of the
-//!    larger mesh). One guard Metro lacks: the edges take at most
-//!    [`EDGE_SHARE_MAX`] (90 %) of `R`, which only binds below ~6 samples
-//!    per face, where Metro's edges would take the whole budget and leave
-//!    the face interiors (where a simplification's error peaks) unsampled.
-//!    Length-proportional, fractions carried from edge to edge in edge
-//!    order: the order of first occurrence (face `f`'s corner `k` meets edge
-//!    `(t[k], t[k+1])`), each edge directed as first met;
-//! 3. what is left after the edges, `R - E`, goes to the faces (Metro's
-//!    `Hausdorff()` subtracts the vertex samples a second time here, giving
-//!    the faces `R - E - V`; octolod keeps the total at `N` as `--samples`
-//!    promises, so its faces get `V` more), proportionally to area
-//!    (fractions carried in face order), each face's `n` samples *stratified*:
-//!    the face is cut into `m² >= n` similar sub-triangles (`m = ceil(sqrt
-//!    n)`), `n` of them are picked at equal index spacing with a random
-//!    offset, and one uniform random point is drawn in each.
+//! Invariants:
+//! * Samples: every used vertex, then edge points at the face-sample spacing
+//!   (at most [`EDGE_SHARE_MAX`] of what the vertices leave), then
+//!   stratified face points by area; exactly the budget in all.
+//! * Distances are to the exact closest point ([`crate::geom`]); never NaN.
+//! * Every figure is bit-identical for a seed whatever the threads, batches
+//!   or memory budget: samples are hashed from (seed, direction, face,
+//!   sample) and summed in fixed jobs of [`CHUNK`], combined in job order. A
+//!   paged level gives the samples and distances of the level in memory.
+//! * A distance at most [`snap_distance`] ([`SNAP_ULPS`] ulps of the largest
+//!   coordinate) is rounding and counts as 0: a mesh against itself
+//!   measures 0 wherever it lies.
 //!
-//! The randomness is a splitmix64 hash of (seed, direction, face, sample), so
-//! the sample set depends on the seed only, not on thread count or chunking.
-//!
-//! Distance: for each sample, the exact closest point on the target mesh,
-//! found in a bounding-volume hierarchy over the target's triangles (median
-//! split of triangle centroids along the longest axis, at most 4 triangles a
-//! leaf, flattened depth-first into one array with the left child next to
-//! its parent; subtrees above 64 K triangles built in parallel) by a pruned
-//! nearest-first traversal: the nearer child first, any box farther than the
-//! best distance found so far skipped, and the search seeded with the
-//! previous sample's closest triangle (samples come in surface order, so the
-//! seed is usually already the answer and prunes almost everything). The
-//! point–triangle distance is Ericson's Voronoi-region method (Real-Time
-//! Collision Detection §5.1.5) for well-shaped triangles; thin triangles
-//! (height below 1e-3 of the longest edge) use a plane projection with an
-//! edge-sign inside test and fall back to the edges, and degenerate ones
-//! (height at most 1e-8 of the longest edge: collinear or coincident
-//! corners) are the union of their three edges as segments, so no input
-//! produces NaN.
-//!
-//! Determinism: samples are summed in fixed jobs of [`CHUNK`] samples
-//! (vertex jobs, then edge jobs, then face jobs, each starting at a multiple
-//! of `CHUNK` within its kind), generated and queried a batch of jobs at a
-//! time in parallel with rayon; each job sums sequentially, and the job
-//! partial sums are combined in job order, so every figure is bit-identical
-//! for a given seed whatever the thread count, batch size or memory budget.
-//! The JSON report holds no timings, so it can be diffed; its `paging`
-//! object (present only with a store operand) holds cache counters and peak
-//! RSS, which depend on scheduling.
-//!
-//! Paging (a `STORE@L` operand): the level is never loaded whole. Opening
-//! it reads `nodes.bin` (kept in memory, ~300 bytes a node) and the cut's
-//! node meshes once, in parallel, for their exact bounds (the nodes'
-//! `content` boxes bound the original triangles, not a simplified mesh,
-//! whose cluster representatives may leave them). The cut's nodes are the
-//! level's *parts*; a hierarchy over their bounds is the top level of its
-//! index. A part is read with one positioned read when needed and kept in
-//! one LRU page cache shared by both operands, under a byte budget: as a
-//! query target, its triangles' BVH (built on load); as a sample source,
-//! its mesh welded in first-reference order with its edges and sorted
-//! lookups. Resident bytes are the heap bytes of live entries (cached, or
-//! evicted but still held by a query) plus a reservation, for each load in
-//! flight, of the load's estimated peak (payload, decoded vertices, weld
-//! map, the structure being built), an upper bound swapped for the real
-//! size once built; the cache evicts unheld entries, least recently used
-//! first, before a reservation would exceed its budget.
-//! * Queries against a paged level come a batch at a time (up to 1 M
-//!   samples), sorted along a Morton curve of the target's box, in pieces
-//!   of consecutive queries per worker. A worker keeps the part of its last
-//!   answer (its *home*) and searches it first, which bounds the rest: only
-//!   a part whose box is nearer than the best so far can hold a nearer
-//!   point, and such a box lies within `d + dist(p, home box)` of the home
-//!   box, so the worker's list of the parts near its home (rebuilt with
-//!   twice the radius when a query reaches past it) settles the query;
-//!   without a home, a nearer-child-first walk of the box tree does. A part
-//!   is searched (loaded if needed) only while its box is nearer than the
-//!   best so far. Each answer is the minimum over the same triangles as in
-//!   memory, so the distances equal the in-memory ones (bit for bit but for
-//!   a near-tie pruned differently by the two hierarchies).
-//! * Sampling a paged level gives the samples the welded level would give
-//!   in memory, in the same order: parts in cut order (the in-memory
-//!   concatenation order), in each its vertices and edges in first-
-//!   reference and first-occurrence order, skipping those an earlier part
-//!   already has (bit-identical positions; only earlier parts whose bounds
-//!   meet this part's are asked), then its faces, with the carried
-//!   fractions running across parts and faces numbered globally. That takes
-//!   three passes over the parts: vertices (which also totals the area and
-//!   the owned edges' length the densities need), edges, faces.
-//! * Budget: `--mem` (default [`DEFAULT_MEM`]) covers the batch buffers
-//!   (48 bytes a sample) and the cache; given explicitly, also each PLY
-//!   operand's estimated in-memory size ([`ply_estimate`]); a PLY that does
-//!   not fit is streamed into a scratch store of its level 0 (the exact
-//!   input: soup + octree under `--mem`, leaves sized to the budget) and
-//!   paged like a store level. The cache must hold what one direction holds at once: a paged
-//!   source's current part and one earlier part, and two parts per query
-//!   worker (its home and one other); the number of workers is cut to fit,
-//!   and a budget below one worker's worth is a usage error naming the
-//!   minimum. Fixed overheads (the store indexes, thread stacks) come on
-//!   top; the report gives the cache's peak and the process's peak RSS.
-//!
-//! Complexity: building each BVH is O(F log F) time and O(F) memory (about
-//! 100 bytes a triangle with the reordered copy of its corners); sampling is
-//! O(N) plus an O(F) prefix pass and an O(E log E) edge sort; each query is
-//! O(log F) expected on reasonable meshes (worst case O(F)), so a direction
-//! costs O(N log F) and runs on all cores. Paged, memory is O(budget +
-//! nodes) and each part is read once per pass and per role while the cache
-//! holds the working set, more often below it (the report counts loads).
-//!
-//! Rounding: a distance is computed from coordinates of magnitude `M`
-//! (the largest `|coordinate|` of the two meshes' bounding boxes) and is
-//! only good to some units of `f64::EPSILON × M`: generated meshes against
-//! themselves measured up to 0.7 of that (1.2e-16 at unit scale, 1.5e-14
-//! on tori spread over 100 units), not 0. So every sample distance at most
-//! [`SNAP_ULPS`] (64) × `f64::EPSILON × M` ([`snap_distance`]: 1.4e-14 at
-//! unit scale, 1.4e-8 around 1e6) counts as exactly 0, in the maximum,
-//! the mean and the RMS alike: identical meshes measure 0 wherever they
-//! lie (and pass `--max-hausdorff 0`), while a real offset far above the
-//! rounding (1e-12 at unit scale) still shows. The rounding grows with a
-//! triangle's thinness: soups of random slivers measured a median of 28
-//! and up to ~1000 × `f64::EPSILON × M` against themselves, and keep what
-//! exceeds the allowance.
-//!
-//! Thresholds (`--max-hausdorff`, `--max-rms`, `--max-mean`) are checked
-//! against the combined figures, absolute (`0.01`) or as a percentage of A's
-//! diagonal (`0.1%`); the CLI exits with [`EXIT_THRESHOLD`] (3) when one is
-//! exceeded, distinct from 1 for errors.
-//!
-//! Files: this one (operands, options, the two-sided comparison, [`run`]),
-//! `sample.rs` (the sample points of a mesh in memory), `measure.rs` (one
-//! direction: samples against a target), `paged.rs` (a store level as
-//! parts), `cache.rs` (the page cache), `report.rs` (the report, its table
-//! and its JSON); the point–triangle distance and the BVH are
-//! [`crate::geom`]'s.
+//! Files: this one (operands, options, the comparison, [`run`]), `sample.rs`,
+//! `measure.rs` (one direction), `paged.rs`, `cache.rs`, `report.rs`.
+//! Sampling, paging, complexity, rounding and figures: `docs/metro.md`.
 
 mod cache;
 mod measure;
@@ -188,8 +58,9 @@ pub const EXIT_THRESHOLD: u8 = 3;
 pub const SAMPLES_PER_FACE: u64 = 10;
 /// Samples per parallel work item; fixed, so results do not depend on threads.
 pub const CHUNK: u64 = 16 * 1024;
-/// Most of the non-vertex budget the edges may take (Metro has no cap; see
-/// the module documentation).
+/// Most of the non-vertex budget the edges may take (Metro has no cap: its
+/// edges take the whole budget below a few samples a face, leaving the face
+/// interiors unsampled; `docs/metro.md`, "Sample mix").
 pub const EDGE_SHARE_MAX: f64 = 0.9;
 
 /// Default `--mem`: every command's ([`crate::mem::DEFAULT_BUDGET`]).
@@ -662,9 +533,9 @@ mod tests {
         assert_ne!(r1.combined.sum, r_other.combined.sum, "the seed changes the face samples");
     }
 
-    /// Issue "Reliability v2" item 13f: a mesh against itself measured
-    /// 1.4e-16, not 0 (so `--max-hausdorff 0` failed); far from the origin
-    /// the rounding grows with the coordinates.
+    /// Issue "Reliability v2" item 13f: a mesh against itself must measure
+    /// 0, not the rounding (`--max-hausdorff 0` must pass), also far from
+    /// the origin, where the rounding grows with the coordinates.
     #[test]
     fn identical_meshes_measure_zero_anywhere_and_real_offsets_still_show() {
         // A wavy 40 × 40 grid over [0, 1]², scaled and moved.

@@ -2,8 +2,8 @@
 //! read with one positioned read when needed and held in the shared
 //! [`Cache`]; as a sample source ([`PagedGen`]: the samples the welded
 //! level gives in memory, in the same order) and as a query target
-//! ([`PagedLevel::query`]: the same minimum over the same triangles). See
-//! "Paging" in the documentation of [`super`].
+//! ([`PagedLevel::query`]: the same minimum over the same triangles). How
+//! parts are searched, sampled and budgeted: `docs/metro.md`, "Paged stores".
 //!
 //! Takes: a store directory and level, the cache. Gives: samples and
 //! closest-point distances without loading the level whole.

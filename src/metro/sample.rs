@@ -1,5 +1,5 @@
 //! Metro's sample points on a mesh held in memory: which points, in which
-//! order (see the module documentation of [`super`]), and the helpers the
+//! order (the rules are in `docs/metro.md`, "Sample mix"), and the helpers the
 //! paged levels share to give the same points part by part.
 //!
 //! Takes: a [`Mesh`], a sample budget and a seed. Gives: the samples of one

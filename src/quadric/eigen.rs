@@ -19,8 +19,8 @@ impl Eigen {
     pub(super) fn new(a: &Mat, n: usize) -> Eigen {
         // The common dimensions (positions; +uv; +normal or colour) run on
         // arrays of their own size: unrolled, in registers, without
-        // copying and clearing MAX_DIM² matrices per solve (a few per cent
-        // of a build). Same arithmetic, same results.
+        // copying and clearing MAX_DIM² matrices per solve. Same arithmetic,
+        // same results.
         match n {
             3 => Self::sized::<3>(a, n),
             5 => Self::sized::<5>(a, n),
@@ -195,7 +195,8 @@ fn jacobi<const N: usize>(a: &mut [[f64; N]; N], v: &mut [[f64; N]; N], n: usize
 /// vector's orthogonal complement. V is orthonormal to roundoff and each
 /// eigenvalue is its vector's Rayleigh quotient, accurate to a few ulps of
 /// the largest entry, however the eigenvalues cluster (flat: two zeros;
-/// cylinder: two equal). About a quarter of the Jacobi sweeps' cost.
+/// cylinder: two equal). Cheaper than the Jacobi sweeps, which it replaces
+/// at dimension 3 (`docs/build-costs.md`).
 pub(super) fn eigen3(a: &[[f64; 3]; 3]) -> ([f64; 3], [[f64; 3]; 3]) {
     let (a00, a01, a02, a11, a12, a22) = (a[0][0], a[0][1], a[0][2], a[1][1], a[1][2], a[2][2]);
     let max_abs = a00.abs().max(a01.abs()).max(a02.abs()).max(a11.abs()).max(a12.abs()).max(a22.abs());

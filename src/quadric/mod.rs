@@ -6,54 +6,29 @@
 //! R^n by a [`QuadricSpace`]. Gives: the accumulated [`Quadric`] and its
 //! minimiser ([`Quadric::solve`]), decoded back into a [`Vertex`].
 //!
-//! # Space
-//! A vertex is a point of R^n, n = [`AttrSet::quadric_dim`]: position (3,
-//! *local* to the space's `origin`, normally the cell centre, so that a mesh at
-//! 1e6 with 1e-3 detail keeps its precision), then uv (2) if present, normal
-//! (3) if present, color rgb (3, as `u8 / 255`) if present, in that order.
-//! Alpha is not modelled. Attribute coordinates are multiplied by
-//! [`AttrWeights`] so that they are commensurate with positions (see
-//! [`AttrWeights::for_extent`]) and divided again when decoding.
+//! Invariants:
+//! * A vertex is a point of R^n, n = [`AttrSet::quadric_dim`]: position
+//!   (*local* to the space's `origin`, normally the cell centre, so a mesh
+//!   at 1e6 with 1e-3 detail keeps its precision), then uv, normal and
+//!   colour when present, scaled by [`AttrWeights`] to be commensurate with
+//!   positions. Alpha is not modelled.
+//! * A triangle p, q, r with orthonormal in-plane frame e1, e2 gives
+//!   `A = I − e1e1ᵀ − e2e2ᵀ`, `b = −A p`, `c = pᵀA p`: `Q(v) = vᵀAv + 2bᵀv + c`
+//!   is the squared distance of v from its plane in R^n, weighted by its
+//!   area *in position space*; triangles of zero position area or with a
+//!   non-finite coordinate add nothing. Everything is accumulated in f64.
+//! * A [`Quadric`] is fixed-size and heap-free, every loop bounded by the
+//!   dimension; large per-cell tables store only the live coefficients
+//!   ([`Quadric::coeffs`], [`Quadric::from_coeffs`], [`Quadric::add_into`]).
+//! * The minimiser is taken about the cluster mean m, `x = m + A⁺(−b − A m)`,
+//!   the pseudo-inverse dropping eigenvalues below `rel_tol` times the
+//!   largest, so rank-deficient directions (a flat sheet, a crease) stay at
+//!   the mean, as in Lindstrom's / VTK's quadric clustering. Given cell
+//!   bounds, a minimiser outside them is re-optimised exactly inside the box
+//!   and flagged `clamped`.
 //!
-//! # Quadric
-//! For a triangle p, q, r of R^n with orthonormal in-plane frame e1, e2:
-//! `A = I − e1e1ᵀ − e2e2ᵀ`, `b = −A p`, `c = pᵀA p`, so that
-//! `Q(v) = vᵀAv + 2bᵀv + c` is the squared distance of v from the triangle's
-//! plane in R^n. Each triangle is weighted by its area *in position space*;
-//! triangles whose position area is zero (duplicate or collinear corners) or
-//! that hold a non-finite coordinate contribute nothing. Everything is
-//! accumulated in f64.
-//!
-//! # Memory
-//! A [`Quadric`] is a fixed-capacity, heap-free struct (736 bytes whatever the
-//! dimension) whose coefficients are packed at the front of one array; every
-//! loop is bounded by the dimension, so a position-only quadric costs 15 adds,
-//! not 91. For large per-cell tables, store only the live coefficients
-//! ([`Quadric::coeffs`], [`Quadric::from_coeffs`], [`Quadric::add_into`]):
-//!
-//! | dim | attributes            | paper coefficients (A, b, c) | stored f64 | packed bytes |
-//! |-----|-----------------------|------------------------------|-----------:|-------------:|
-//! | 3   | position              | 6 + 3 + 1 = 10               | 15         | 120          |
-//! | 5   | + uv                  | 15 + 5 + 1 = 21              | 28         | 224          |
-//! | 6   | + normal *or* color   | 21 + 6 + 1 = 28              | 36         | 288          |
-//! | 8   | + uv + normal/color   | 36 + 8 + 1 = 45              | 55         | 440          |
-//! | 9   | + normal + color      | 45 + 9 + 1 = 55              | 66         | 528          |
-//! | 11  | + uv + normal + color | 66 + 11 + 1 = 78             | 91         | 728          |
-//!
-//! "Stored" adds the total area, the sum of the cluster's embedded points (n)
-//! and their count, used for the mean: `(n+1)(n+2)/2 + n + 2` values.
-//!
-//! # Solve
-//! The minimiser uses a symmetric eigen-decomposition of A (cyclic Jacobi,
-//! accurate to working precision for these ≤ 11×11 PSD matrices, no heap) and
-//! a pseudo-inverse that drops eigenvalues below `rel_tol` times the largest.
-//! The minimum-norm correction is taken about the cluster mean m:
-//! `x = m + A⁺(−b − A m)`, so rank-deficient directions (along a flat sheet,
-//! along a crease) stay at the mean, as in Lindstrom's / VTK's quadric
-//! clustering. If cell bounds are given and the position falls outside them,
-//! the position is re-optimised inside the box (exact minimisation of the
-//! quadric, with attributes at their optimum for each position, over the
-//! box's faces, edges and corners) and the solution is flagged `clamped`.
+//! The space, the coefficient table and the solver: `docs/levels-of-detail.md`,
+//! "Quadrics".
 // Index loops mirror the formulas. (Negated comparisons, `!(x > 0.0)` true
 // for NaN, are allowed crate-wide in lib.rs.)
 #![allow(clippy::needless_range_loop)]
@@ -430,10 +405,10 @@ fn in_box(x: &[f64], lo: [f64; 3], hi: [f64; 3]) -> bool {
 /// unconstrained minimiser lies in `bounds`: the minimiser, the half-gradient
 /// there ([`Quadric::half_gradient`]) and `Q` there, on arrays of the
 /// quadric's own size (the general path copies and clears `MAX_DIM`-sized
-/// quadrics and matrices per solve: a third of a level's solve time at
-/// dimension 3). The same operations as the general path, so the same bits,
-/// except at N = 3, whose eigen-decomposition is the closed form
-/// (`eigen3`, 2–3× cheaper than the Jacobi sweeps). None when the
+/// quadrics and matrices per solve, a large share of a small solve's time:
+/// `docs/build-costs.md`). The same operations as the general path, so the
+/// same bits, except at N = 3, whose eigen-decomposition is the closed form
+/// (`eigen3`, cheaper than the Jacobi sweeps). None when the
 /// minimiser must be clamped into the box (the caller takes the general
 /// path, which minimises over the box).
 pub fn solve_sized<const N: usize>(k: &[f64], rel_tol: f64, bounds: ([f64; 3], [f64; 3])) -> Option<([f64; N], [f64; N], f64)> {

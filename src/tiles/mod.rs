@@ -4,43 +4,30 @@
 //! Takes: an opened store and [`TilesOptions`]. Gives: a directory written
 //! atomically (an [`AtomicDir`] of kind `Tiles`) and a [`TilesReport`].
 //!
-//! The mapping. A store is a DAG (a node has up to 8 parents, its patch
-//! borders locked for two levels); 3D Tiles refines a tile into *its*
-//! children only (REPLACE). Sharing a multi-parent node's subtree from
-//! every parent (an external tileset) never opens a hole, but a client
-//! instantiates a subtree once per path from the root: [`dag_instances`]
-//! counts about 1,000 paths per leaf on generated 2 M-triangle stores and
-//! 2.3 million on a 10^8 one, so a close-up would draw each leaf that many
-//! times. Instead
-//! each level is cut into nested cells: one adaptive octree over the
-//! store's cube, the cells of level L found top-down by splitting the
-//! cells of level L + 1 while they hold more than `tile_tris` of level L's
-//! triangles (by centroid), so every level-(L-1) cell lies in one level-L
-//! cell and the tiles form a tree. A tile holds every triangle of its level
-//! that reaches into its cell, exactly as the store has them: so whatever
-//! level each cell is drawn at, the surface inside every cell is covered
-//! (a partition by centroid would leave strips uncovered where a refined
-//! cell meets a coarser one), and tiles of one level overlap by the
-//! triangles they share, identical. Where neighbours are drawn at
-//! different levels their surfaces differ by their errors; a skirt along
-//! every edge where the tile's content stops (not along the mesh's own
-//! open borders) closes that slit: a strip hanging from just below the
-//! edge into the surface, along the vertices' normals, twice as long as
-//! the coarser of the tile's and its parent's errors (Chunked LOD's
-//! skirts, with the normal as "down"). Overlaps stay within the errors;
-//! no hole opens.
+//! The mapping. 3D Tiles refines a tile into its own children only
+//! (REPLACE); a store is a DAG, whose shared subtrees a client would
+//! instantiate once per path from the root ([`dag_instances`]). Instead each
+//! level is cut into nested cells of one adaptive octree over the store's
+//! cube: the cells of level L split those of level L + 1 while they hold
+//! more than `tile_tris` of level L's triangles (by centroid), so every
+//! level-(L-1) cell lies in one level-L cell and the tiles form a tree.
 //!
-//! Frames: positions stay in the store's coordinates (the root tile's
-//! frame); the root `transform` turns the model's up axis (`--up`, `auto`
-//! as in `view`) to +Z as 3D Tiles expects, and each GLB is written Y-up
-//! (glTF's convention, which clients turn to Z-up). `geometricError` is the
-//! tile's largest node error (object space), raised to its children's
-//! (monotone), 0 at level 0; bounding boxes enclose the content and the
-//! children's boxes.
+//! Invariants:
+//! * A tile holds every triangle of its level that reaches into its cell,
+//!   exactly as the store has them: whatever level each cell is drawn at,
+//!   the surface inside every cell is covered.
+//! * A skirt along every edge where the tile's content stops (not along the
+//!   mesh's own open borders), twice as long as the coarser of the tile's
+//!   and its parent's errors, closes the slit between neighbours drawn at
+//!   different levels (Chunked LOD's skirts, the normal as "down"):
+//!   overlaps stay within the errors; no hole opens.
+//! * Positions stay in the store's frame (the root `transform` turns the up
+//!   axis to +Z; GLBs are Y-up); `geometricError` is monotone, 0 at level 0;
+//!   boxes enclose the content and the children's boxes.
+//! * Out of core: one counting and one writing pass over each level, a few
+//!   nodes per thread in memory whatever the store's size.
 //!
-//! Out of core: one counting pass and one writing pass over each level;
-//! a tile reads the nodes whose bounds reach its cell, in parallel, so
-//! memory is a few nodes per thread whatever the store's size.
+//! Why a tree of cells, the skirts, frames and costs: `docs/web.md`.
 
 use crate::error::{Error, Result};
 use crate::gltf::{encode_glb, GltfOptions};
@@ -570,9 +557,8 @@ pub fn export(store: &Store, out: &Path, o: &TilesOptions) -> Result<TilesReport
     Ok(rep)
 }
 
-/// Turns the few triangles that face against their vertex normals (folds
-/// a coarse level keeps: about 0.1 % of a generated 10 M sphere's levels)
-/// to face with them. octolod's shader lights both sides by the vertex
+/// Turns the few triangles that face against their vertex normals (the
+/// rare folds a coarse level keeps) to face with them. octolod's shader lights both sides by the vertex
 /// normals; a glTF client lights a back face with the normals reversed, so
 /// a fold shows as a dark speck there. A display format only: the store
 /// and `extract` keep the triangles as they are.

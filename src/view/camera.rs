@@ -400,7 +400,7 @@ fn default_between() -> f64 {
 
 /// Most frames one `octolod render` run takes, all counted: the path's
 /// poses (the orbit's `--frames`, or a path file's after expansion) plus
-/// `--settle` (about an hour at lavapipe's pace on a small store).
+/// `--settle` (far more than any real run needs).
 pub const MAX_FRAMES: usize = 100_000;
 
 impl PathFile {

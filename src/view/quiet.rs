@@ -4,35 +4,30 @@
 //! `wl_display_connect` prints "error: XDG_RUNTIME_DIR is invalid or not
 //! set in the environment." through libwayland-client's log handler
 //! whenever `XDG_RUNTIME_DIR` is unset or relative (and `WAYLAND_DISPLAY`
-//! is not an absolute path). Several libraries in our process merely
-//! *probe* for a Wayland display and go on without one: Mesa's Vulkan
-//! device-select layer (under `view`; `render` turns the layer off),
-//! wgpu's EGL/GL backend (whenever EGL offers `EGL_EXT_platform_wayland`),
-//! and winit. On a headless or X11-only session every successful run then
-//! printed a line starting with "error".
+//! is not an absolute path), and several libraries in our process (Mesa's
+//! Vulkan device-select layer, wgpu's EGL backend, winit) merely *probe*
+//! for a Wayland display and go on without one.
 //!
-//! The fix replaces libwayland-client's log handler, once, before any of
-//! them runs: the handler drops exactly that message and forwards every
-//! other Wayland log line to stderr as "octolod: wayland: …". libwayland's
-//! handler is one global per loaded library, and every later user (a
-//! `DT_NEEDED` dependency of the Vulkan layer or of libEGL, wgpu's and
-//! winit's `dlopen`s) gets the same, already loaded, instance by its soname.
+//! Takes: the environment. Gives: [`quiet_wayland_probes`], which replaces
+//! libwayland-client's log handler once, before any of those libraries
+//! runs: the handler drops exactly that message ([`dropped`]) and forwards
+//! every other Wayland log line to stderr as "octolod: wayland: …".
 //!
-//! Why not environment variables: pointing `WAYLAND_DISPLAY` at an absolute
-//! path (which makes the probe fail silently) makes winit choose Wayland
-//! over X11, so `view` would fail under X11 without a runtime directory;
-//! inventing an `XDG_RUNTIME_DIR` would hand a fake runtime directory to
-//! every library and child process that uses one (D-Bus, dconf, sockets).
-//! Both also leak into child processes. The handler changes nothing but
-//! which lines are printed, and only when no Wayland session can exist
-//! (`XDG_RUNTIME_DIR` unset or relative): in a desktop session nothing is
-//! installed and winit's own handler stays in charge.
+//! Invariants:
+//! * It changes nothing but which lines are printed, and only when no
+//!   Wayland session can exist (`XDG_RUNTIME_DIR` unset or relative): in a
+//!   desktop session nothing is installed and winit's handler stays in charge.
+//! * libwayland's handler is one global per loaded library; every later user
+//!   (a `DT_NEEDED` dependency of the Vulkan layer or of libEGL, wgpu's and
+//!   winit's `dlopen`s) gets the same, already loaded, instance by its soname.
+//! * The handler's C signature is `void (const char *fmt, va_list ap)`. On
+//!   x86_64 and aarch64 Linux a `va_list` argument is passed as a pointer
+//!   (x86_64: an array type, decayed; aarch64: a 32-byte struct, passed by
+//!   reference), so the handler takes it as an opaque pointer and hands it
+//!   on to `vsnprintf` unchanged. Other targets get no handler.
 //!
-//! The handler's C signature is `void (const char *fmt, va_list ap)`. On
-//! x86_64 and aarch64 Linux a `va_list` argument is passed as a pointer
-//! (x86_64: an array type, decayed; aarch64: a 32-byte struct, passed by
-//! reference), so the handler takes it as an opaque pointer and hands it
-//! on to `vsnprintf` unchanged. Other targets get no handler.
+//! Which libraries probe, and why not environment variables:
+//! `docs/viewer.md`, "The Wayland message".
 
 /// Whether libwayland's log line with this format string is dropped: the
 /// "no runtime directory" probe failure ("error: XDG_RUNTIME_DIR is invalid
@@ -61,8 +56,8 @@ fn no_runtime_dir() -> bool {
     }
 }
 
-/// Installs the filtering log handler in libwayland-client (see the module
-/// documentation) when `XDG_RUNTIME_DIR` is unset or relative and the
+/// Installs the filtering log handler in libwayland-client (see [`self`])
+/// when `XDG_RUNTIME_DIR` is unset or relative and the
 /// library exists. Call it at the start of `view` and `render`, before any
 /// wgpu or winit call. Returns whether a handler is installed (also by an
 /// earlier call).
