@@ -23,11 +23,9 @@
 //! pipelining) serves a browser's many parallel tile requests; `ServeDir`'s
 //! pluggable backend confines paths ([`Confined`]) and serves the embedded
 //! page ([`Embedded`]) through the same code. The alternative, `tiny_http`
-//! (last release 2022) with our own Range/conditional code, builds in 5 s
-//! of CPU and adds 0.35 MB (stripped) against 36 s and 1.16 MB for axum +
-//! tokio + tower-http (30 crates, measured standalone on this 2-core
-//! machine, release profile): small next to wgpu (octolod is 11 MB
-//! stripped), and once per clean build.
+//! (last release 2022) with our own Range/conditional code, builds faster
+//! and smaller, but the difference is small next to wgpu and paid once per
+//! clean build (figures in `docs/web.md`, "Serve").
 
 use crate::error::{Error, IoContext, Result};
 use crate::io::signal;

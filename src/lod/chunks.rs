@@ -18,8 +18,8 @@
 //! is part of one leaf), else `u32` — the store payload's rule
 //! ([`crate::store::index_width`]). The narrow indices
 //! cut level 0's chunks by a third and later levels' by a sixth: bytes that
-//! are copied into fresh page cache and back, at 2.4 s of CPU a GB written
-//! on the README's 2-core VM.
+//! are copied into fresh page cache and back (costs in
+//! `docs/build-costs.md`).
 //!
 //! Why chunks rather than a triangle soup sorted again for every level:
 //! a soup repeats each vertex in about six triangles, and with a quadric

@@ -257,8 +257,8 @@ pub fn compact(vertices: &[Vertex], tris: &[[u32; 3]]) -> (IndexedMesh, Vec<u32>
 /// input vertex to the output surface and from an output vertex to the
 /// input surface, exact (closest points through a BVH of each side), and
 /// from the face samples next to the mesh's own open border
-/// (`BorderFaces`: on a grid with one-cell holes the
-/// vertices alone put a level-1 cut at 1.27× its error by metro). Edge
+/// (`BorderFaces`: on a grid with one-cell holes the vertices alone let a
+/// level-1 cut exceed its error by metro). Edge
 /// collapse keeps no member lists, so the neighbourhood bound of
 /// [`super::measure::node_error`] does not apply. An empty output has the
 /// input's extent as its error. Also gives each side's farthest points, as

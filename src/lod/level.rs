@@ -3,14 +3,14 @@
 //!
 //! Takes: level 0 as partitioned leaves with their chunks, the options and
 //! a [`NodeSimplifier`]. Gives: the store's packs as it goes, then the node
-//! records with their children and parents lists ([`LevelBuilder::finish`]).
-//! Per level: [`LevelBuilder::nodes`] (the level's partition, decided
-//! when the level below was simplified), [`LevelBuilder::shared_vertices`]
-//! (and the next level's histogram), [`LevelBuilder::threshold`],
-//! [`LevelBuilder::partition_next`], [`LevelBuilder::simplify_and_route`]
+//! records with their children and parents lists (`finish`).
+//! Per level: `nodes` (the level's partition, decided
+//! when the level below was simplified), `shared_vertices`
+//! (and the next level's histogram), `threshold`,
+//! `partition_next`, `simplify_and_route`
 //! (payloads, node errors and bounds, chunks for the next level),
-//! [`LevelBuilder::measure_far`] and [`LevelBuilder::advance`]; at the end
-//! [`link_dag`].
+//! `measure_far` and `advance`; at the end
+//! `link_dag`.
 
 use super::chunks::{split_by_target, ChunkEncoder, ChunkFile};
 use super::measure::{remeasure_far, FarNode, NodeError};

@@ -14,9 +14,8 @@
 //! vertices against the input, and faces next to the mesh's own open
 //! border (`BorderFaces`). Hand-written searches over each side's vertex
 //! fans rather than a BVH per node: the neighbourhoods are known from the
-//! clustering, most searches end at their first exact distance (76 % on a
-//! 3 M sphere), and node errors still take about a fifth of a level
-//! pass's CPU (4.2 of 22 s on the 12 M sphere, README "Costs").
+//! clustering and most searches end at their first exact distance (costs
+//! in `docs/build-costs.md`).
 
 use super::chunks::ChunkFile;
 use super::cluster::Prio;
@@ -368,9 +367,9 @@ fn tri_dist2(p: [f64; 3], c: [[f64; 3]; 3]) -> f64 {
 /// hole, half its width from the input) or leave an input face beside it
 /// uncovered, with every vertex still on the other surface. On a grid
 /// with one-cell holes (`tests/it/lod.rs`,
-/// `cuts_over_small_holes_stay_within_their_error`) a cut at
-/// `--max-error` E measured up to 8.8 E by metro; with these samples
-/// every cut from level 2 on is within E.
+/// `cuts_over_small_holes_stay_within_their_error`) vertices alone let a
+/// cut at `--max-error` E exceed E by metro; with these samples every cut
+/// from level 2 on is within E (`docs/levels-of-detail.md`, "Small holes").
 ///
 /// Which faces: the border vertices are the free input vertices whose fan
 /// does not close ([`open_fans`]; a node's seams are locked, so they are
@@ -382,9 +381,8 @@ fn tri_dist2(p: [f64; 3], c: [[f64; 3]; 3]) -> f64 {
 ///
 /// Where: each such triangle's edge midpoints and centroid
 /// ([`crate::geom::face_samples`]); lattices of up to 8 steps a side on
-/// the output triangles found no more on that grid. Cost: about 5 % of a
-/// build's CPU on the generator's 2 M scan, nothing measurable on closed
-/// inputs (README, "What E bounds").
+/// the output triangles found no more on that grid. On a closed input this
+/// costs nothing (no border); costs in `docs/build-costs.md`.
 pub(crate) struct BorderFaces {
     pub input: Vec<([f64; 3], u32)>,
     pub output: Vec<([f64; 3], u32)>,

@@ -9,8 +9,7 @@
 //! Why not rayon batches: a pass used to compute a batch of nodes with
 //! `par_iter`, then write the batch's results on one thread. Each batch
 //! ended waiting for its slowest node, and the writes ran with the other
-//! core idle: 14 % of the two cores went unused on the 12 M sphere's
-//! levels. Here workers take the next item as soon as they are free (at
+//! core idle (`docs/build-costs.md`). Here workers take the next item as soon as they are free (at
 //! most `window` items ahead of the consumer, which bounds memory like a
 //! batch did), and the consumer writes while they compute.
 
