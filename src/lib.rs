@@ -18,6 +18,7 @@ pub mod extsort;
 pub mod gen;
 pub mod geom;
 pub mod gltf;
+pub mod input;
 pub mod io;
 pub mod mem;
 pub mod mesh;

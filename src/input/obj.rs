@@ -1,0 +1,1 @@
+//! OBJ input: see [`super`].

@@ -1,0 +1,1 @@
+//! STL input (binary and ascii): see [`super`].
