@@ -389,6 +389,8 @@ impl BodySink for ExternalSink<'_> {
     }
 }
 
+/// The external path: three phases (see the module doc), each a function
+/// below, in a scratch directory next to `output`.
 fn build_external(
     input: &Path,
     output: &Path,
@@ -397,32 +399,90 @@ fn build_external(
     progress: &Progress,
     mut tap: Option<&mut dyn SoupTap>,
 ) -> Result<SoupReport> {
-    let layout = VertexLayout::new(header.attrs);
-    let s = layout.size;
     let scratch = crate::io::scratch_dir(output)?;
-    let budget = opts.mem.saturating_sub(IO_RESERVE).max(opts.mem / 2) as usize;
-    // What phases 2 and 3 hold: the budget less what the tap holds beside them.
-    let held = budget.saturating_sub(tap.as_ref().map_or(0, |t| t.reserve()) as usize).max(budget / 4);
-    // Vertex slabs: consecutive index ranges whose vertex bytes fit half of that.
-    let n_vertices = header.vertex_count();
-    let per_slab = ((held / 2 / s) as u64).clamp(1, u32::MAX as u64);
-    let n_slabs = n_vertices.div_ceil(per_slab).max(1) as usize;
+    let plan = ExternalPlan::new(header, opts, tap.as_ref().map_or(0, |t| t.reserve()));
 
     let t0 = Instant::now();
-    // Phase 1: one pass over the PLY; corners distributed by vertex slab.
-    let vpath = scratch.path().join("vertices.bin");
+    let slabs = distribute_by_slab(input, header, opts, progress, &plan, scratch.path())?;
+    progress.finish();
+    let body = slabs.body;
+
+    let t1 = Instant::now();
+    let joined = join_slabs(&plan, scratch.path(), slabs, opts.quiet, &mut tap)?;
+
+    let t2 = Instant::now();
+    let written = write_slots(output, opts, plan.layout, &body, joined.buckets, joined.bbox, &mut tap)?;
+    let phase_seconds = [(t1 - t0).as_secs_f64(), (t2 - t1).as_secs_f64(), t2.elapsed().as_secs_f64()];
+    Ok(SoupReport {
+        header: written.header,
+        body,
+        input_bytes: 0,
+        external: true,
+        vertex_slabs: plan.n_slabs as u64,
+        corner_bucket_bytes: joined.corner_bucket_bytes,
+        slot_buckets: written.slot_buckets,
+        slot_bucket_bytes: written.slot_bucket_bytes,
+        phase_seconds,
+        seconds: 0.0,
+        written: written.mode == TapMode::Sees,
+    })
+}
+
+/// How the external path splits its budget and cuts the vertex indices into slabs.
+struct ExternalPlan {
+    layout: VertexLayout,
+    /// The budget less the I/O buffers.
+    budget: usize,
+    /// What phases 2 and 3 hold: the budget less what the tap holds beside them.
+    held: usize,
+    n_vertices: u64,
+    /// Vertices per slab: consecutive index ranges whose vertex bytes fit half of `held`.
+    per_slab: u64,
+    n_slabs: usize,
+}
+
+impl ExternalPlan {
+    /// `reserve`: what a tap holds beside phases 2 and 3 ([`SoupTap::reserve`]).
+    fn new(header: &PlyHeader, opts: &SoupOptions, reserve: u64) -> ExternalPlan {
+        let layout = VertexLayout::new(header.attrs);
+        let budget = opts.mem.saturating_sub(IO_RESERVE).max(opts.mem / 2) as usize;
+        let held = budget.saturating_sub(reserve as usize).max(budget / 4);
+        let n_vertices = header.vertex_count();
+        let per_slab = ((held / 2 / layout.size) as u64).clamp(1, u32::MAX as u64);
+        let n_slabs = n_vertices.div_ceil(per_slab).max(1) as usize;
+        ExternalPlan { layout, budget, held, n_vertices, per_slab, n_slabs }
+    }
+}
+
+/// What phase 1 leaves for phase 2.
+struct SlabCorners {
+    body: BodyStats,
+    /// The packed vertex file, in index order.
+    vpath: PathBuf,
+    /// Each slab's bucket file of corner records, and its record count.
+    buckets: Vec<(PathBuf, u64)>,
+    /// The bounding box of every vertex (as encoded), for a tap.
+    vertex_bbox: Aabb,
+    /// Bytes of a corner record's slot (4 or 8).
+    slot_bytes: usize,
+}
+
+/// Phase 1: one pass over the PLY; vertices to the vertex file, corners
+/// distributed by vertex slab.
+fn distribute_by_slab(input: &Path, header: &PlyHeader, opts: &SoupOptions, progress: &Progress, plan: &ExternalPlan, scratch: &Path) -> Result<SlabCorners> {
+    let vpath = scratch.join("vertices.bin");
     // Narrow slots unless the faces alone (one triangle each) outgrow them;
     // polygons can still do so, and then phase 1 starts again wide.
     let mut slot_bytes = if header.face_count().saturating_mul(3) <= opts.narrow_slots { 4 } else { 8 };
-    let (body, corner_buckets, vertex_bbox) = loop {
+    loop {
         let vfile = File::create(&vpath).ctx(&vpath, "create vertex file")?;
         let mut sink = ExternalSink {
-            layout,
+            layout: plan.layout,
             vfile: BufWriter::with_capacity(SEQ_BUF, vfile),
             vpath: &vpath,
             vbuf: Vec::new(),
-            per_slab,
-            corners: BucketFiles::create(scratch.path(), "corners", n_slabs, corner_rec(slot_bytes), budget)?,
+            per_slab: plan.per_slab,
+            corners: BucketFiles::create(scratch, "corners", plan.n_slabs, corner_rec(slot_bytes), plan.budget)?,
             next_tri: 0,
             slot_bytes,
             narrow_slots: opts.narrow_slots,
@@ -444,24 +504,36 @@ fn build_external(
         }
         let ExternalSink { vfile, corners, bbox, .. } = sink;
         vfile.into_inner().map_err(|e| e.into_error()).ctx(&vpath, "write vertex file")?;
-        break (body, corners.finish()?, bbox);
-    };
-    progress.finish();
-    let crec = corner_rec(slot_bytes);
+        return Ok(SlabCorners { body, buckets: corners.finish()?, vpath, vertex_bbox: bbox, slot_bytes });
+    }
+}
 
-    let t1 = Instant::now();
-    // Phase 2: slab by slab, the slab's vertices in memory (read in sequence
-    // from the vertex file), its corners dereferenced and distributed by slot.
+/// What phase 2 leaves for phase 3.
+struct Joined {
+    /// Every corner's vertex, distributed by slot.
+    buckets: SlotBuckets,
+    /// The soup's bounding box (its corners'), for the tap.
+    bbox: Aabb,
+    /// Bytes read back from (and written to) the slabs' corner buckets.
+    corner_bucket_bytes: u64,
+}
+
+/// Phase 2: slab by slab, the slab's vertices in memory (read in sequence
+/// from the vertex file), its corners dereferenced and distributed by slot;
+/// the tap sees each triangle's first corner.
+fn join_slabs(plan: &ExternalPlan, scratch: &Path, slabs: SlabCorners, quiet: bool, tap: &mut Option<&mut dyn SoupTap>) -> Result<Joined> {
+    let SlabCorners { body, vpath, buckets: corner_buckets, vertex_bbox, slot_bytes } = slabs;
+    let (layout, s, per_slab, n_vertices) = (plan.layout, plan.layout.size, plan.per_slab, plan.n_vertices);
+    let crec = corner_rec(slot_bytes);
     let n_corners = body.triangles * 3;
-    let join_progress = Progress::items(n_corners, "joining", opts.quiet);
+    let join_progress = Progress::items(n_corners, "joining", quiet);
     // Phase 3 places a slot range beside what the tap holds.
-    let mut buckets = SlotBuckets::new(scratch.path(), n_corners, s, held, held / 2)?;
+    let mut buckets = SlotBuckets::new(scratch, n_corners, s, plan.held, plan.held / 2)?;
     let mut vfile = File::open(&vpath).ctx(&vpath, "open vertex file")?;
     let mut slab = vec![0u8; per_slab.min(n_vertices) as usize * s];
     let mut chunk = vec![0u8; SEQ_BUF / crec * crec];
     let mut done = 0u64;
     let mut corner_bucket_bytes = 0;
-    // The soup's bounding box (its corners'), for the tap.
     let mut bbox = Aabb::EMPTY;
     let with_bbox = tap.is_some();
     if let Some(t) = tap.as_mut() {
@@ -509,17 +581,37 @@ fn build_external(
     drop((vfile, slab, chunk, firsts));
     let _ = std::fs::remove_file(&vpath);
     join_progress.finish();
+    Ok(Joined { buckets, bbox, corner_bucket_bytes })
+}
 
-    let t2 = Instant::now();
-    // Phase 3: each slot range placed in memory, written as triangles in order.
+/// What phase 3 wrote.
+struct Written {
+    /// The soup's header (also when the tap took the triangles and no file was written).
+    header: SoupHeader,
+    slot_buckets: u64,
+    slot_bucket_bytes: u64,
+    mode: TapMode,
+}
+
+/// Phase 3: each slot range placed in memory, written as triangles in order
+/// to the soup and shown to the tap; no soup file when the tap takes them.
+fn write_slots(
+    output: &Path,
+    opts: &SoupOptions,
+    layout: VertexLayout,
+    body: &BodyStats,
+    buckets: SlotBuckets,
+    bbox: Aabb,
+    tap: &mut Option<&mut dyn SoupTap>,
+) -> Result<Written> {
+    let s = layout.size;
     let write_progress = Progress::items(body.triangles, "writing", opts.quiet);
     let mode = match tap.as_mut() {
         Some(t) => t.begin(&bbox, layout)?,
         None => TapMode::Sees,
     };
-    // No soup file when the tap takes the triangles.
     let mut soup = match mode {
-        TapMode::Sees => Some(SoupWriter::create(output, header.attrs, opts.replace, opts.scratch)?),
+        TapMode::Sees => Some(SoupWriter::create(output, layout.attrs, opts.replace, opts.scratch)?),
         TapMode::Takes => None,
     };
     let mut written = 0u64;
@@ -539,27 +631,14 @@ fn build_external(
     })?;
     write_progress.finish();
     debug_assert_eq!(written, body.triangles);
-    let h = match soup {
+    let header = match soup {
         Some(soup) => soup.commit(body.vertices, body.faces, body.degenerate)?,
         // The header the soup would have had: the same corners' box.
         None => {
-            SoupHeader { attrs: header.attrs, triangles: written, input_vertices: body.vertices, input_faces: body.faces, degenerate: body.degenerate, bbox }
+            SoupHeader { attrs: layout.attrs, triangles: written, input_vertices: body.vertices, input_faces: body.faces, degenerate: body.degenerate, bbox }
         }
     };
-    let phase_seconds = [(t1 - t0).as_secs_f64(), (t2 - t1).as_secs_f64(), t2.elapsed().as_secs_f64()];
-    Ok(SoupReport {
-        header: h,
-        body,
-        input_bytes: 0,
-        external: true,
-        vertex_slabs: n_slabs as u64,
-        corner_bucket_bytes,
-        slot_buckets,
-        slot_bucket_bytes,
-        phase_seconds,
-        seconds: 0.0,
-        written: mode == TapMode::Sees,
-    })
+    Ok(Written { header, slot_buckets, slot_bucket_bytes, mode })
 }
 
 /// Append-only bucket files of fixed-size records, one write buffer of
