@@ -5,42 +5,26 @@
 //! (polygons fan-triangulated, degenerate triangles dropped and counted),
 //! each corner carrying exactly the input's attributes, plus a [`SoupReport`].
 //!
-//! Two paths, same output byte for byte:
-//! * **in memory** when the vertex table fits in ¾ of the budget and vertices
-//!   precede faces in the file: one pass, faces dereferenced on the fly;
-//! * **external** otherwise, never random-accessing the disk:
-//!   1. stream the PLY once: vertices go to a packed vertex file in index
-//!      order; vertex indices are cut into K consecutive *slabs*, each
-//!      slab's vertex bytes fitting half the budget, and each triangle
-//!      corner becomes a record (index within its slab, slot = 3·triangle +
-//!      corner, 8 bytes while slots fit 32 bits, else 12) appended to its
-//!      slab's bucket file;
-//!   2. slab by slab: read the slab's vertices from the vertex file (the
-//!      slabs are consecutive ranges of it, so the file is read once, in
-//!      order) into memory, then stream the slab's bucket, each corner
-//!      becoming (slot, vertex bytes) by a lookup in memory, distributed to
-//!      bucket files by slot range (slots are dense; each range's vertex
-//!      bytes fit the budget);
-//!   3. each slot bucket is placed in memory by slot and written out as
-//!      triangles, in order.
+//! Two paths, same output byte for byte: **in memory** (one pass, faces
+//! dereferenced on the fly) when the vertex table fits in ¾ of the budget and
+//! vertices precede faces; **external** otherwise, in three phases:
+//! 1. one pass over the PLY: vertices to a packed vertex file, each corner
+//!    to the bucket file of its vertex's *slab* (a consecutive index range);
+//! 2. slab by slab: the slab's vertices in memory, its corners dereferenced
+//!    there and distributed to bucket files by slot range (slot = 3·triangle + corner);
+//! 3. each slot range placed in memory and written out as triangles, in order.
 //!
-//!   No comparison sort: corners are only distributed, by slab and by slot
-//!   range, so no record is ever compared or merged, and the only random
-//!   access (corner → vertex) is in RAM, as on the in-memory path.
+//! Invariants of the external path: the disk is only read and written in
+//! sequence; no record is ever compared or merged (corners are distributed by
+//! dense keys, never sorted); the only random access (corner → vertex) is in
+//! RAM; each phase holds within the budget.
 //!
-//! Budget split: phase 1 holds only write buffers (the slab buckets', at
-//! most about the budget less I/O buffers, together); in phase 2 one slab
-//! and the slot buckets' write buffers share it, half each of the budget
-//! less what a [`SoupTap`] reserves; phase 3 places slot buckets (one per
-//! thread) in the budget less that reserve.
+//! A [`SoupTap`] sees the external path's corners (phase 2) and triangles
+//! (phase 3) and holds its [`SoupTap::reserve`] out of the budget: `build`
+//! counts and fills level 0's octree cells this way, and then no soup file is
+//! written ([`TapMode::Takes`], [`SoupReport::written`]).
 //!
-//! A [`SoupTap`] sees each triangle's first corner in phase 2 (with the
-//! input's vertex box beforehand) and phase 3's triangles as they are
-//! placed (with the soup's bounding box, gathered in phase 2, beforehand),
-//! and holds its [`SoupTap::reserve`] out of both phases' budget: `build`
-//! counts level 0's octree cells in phase 2 and routes the triangles to
-//! them in phase 3, and then no soup file is written at all
-//! ([`TapMode::Takes`], [`SoupReport::written`]).
+//! The records, the budget split and the tap in detail: `docs/ply-and-soup.md`.
 
 pub mod format;
 
@@ -334,7 +318,7 @@ fn build_in_memory(input: &Path, output: &Path, header: &PlyHeader, opts: &SoupO
 /// A corner record of the external path: the vertex's index within its
 /// slab (u32) and the corner's slot (`slot_bytes`: u32 while slots fit,
 /// else u64), little endian. Narrow records are a third fewer bytes to
-/// write and read back (1.4 GB at 120 M triangles).
+/// write and read back.
 fn corner_rec(slot_bytes: usize) -> usize {
     4 + slot_bytes
 }
