@@ -12,7 +12,7 @@ use octolod::view::viewer::ViewOptions;
 #[cfg(feature = "view")]
 use octolod::view::window::WindowOptions;
 use octolod::{mem, ply, soup, Result};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 #[cfg(feature = "view")]
 use std::time::Duration;
@@ -81,154 +81,25 @@ enum Cmd {
     /// Per level: nodes, triangles, bytes, error range, build time.
     Info { store: PathBuf },
     /// Export a store as a 3D Tiles 1.1 tileset (tileset.json + one GLB per tile) for web viewers and Cesium.
-    Tiles {
-        store: PathBuf,
-        /// Output directory (tileset.json, t/*.glb).
-        #[arg(short, long)]
-        output: PathBuf,
-        /// Quantized attributes (KHR_mesh_quantization).
-        #[arg(long)]
-        quantize: bool,
-        /// meshopt-compressed buffers (EXT_meshopt_compression, with an uncompressed fallback).
-        #[arg(long)]
-        compress: bool,
-        /// Working-memory budget (e.g. 512M).
-        #[arg(long, default_value = mem::DEFAULT_BUDGET_ARG)]
-        mem: String,
-        /// Split a level's cell while it holds more triangles than this.
-        #[arg(long, default_value_t = 32768)]
-        tile_tris: u64,
-        /// Up axis of the model: auto (as `view`), x, y, z, -x, -y or -z.
-        #[arg(long, default_value = "auto")]
-        up: String,
-        /// Print the report as JSON.
-        #[arg(long)]
-        json: bool,
-    },
+    Tiles(TilesArgs),
     /// Write a cut of a store as one indexed PLY, or glTF by the output's
     /// extension (OUT.glb, or OUT.gltf + OUT.bin): a whole level, or the cut at an error.
-    Extract {
-        store: PathBuf,
-        /// The whole level L (default 0, the input).
-        #[arg(long, conflicts_with = "max_error")]
-        level: Option<u8>,
-        /// The cut whose every part has error at most E (object space, or `0.1%` of the diagonal).
-        #[arg(long, value_name = "E")]
-        max_error: Option<String>,
-        #[arg(short, long)]
-        output: PathBuf,
-        /// Do not weld vertices shared between nodes (streams, no level in memory).
-        #[arg(long)]
-        no_weld: bool,
-        /// glTF outputs: KHR_mesh_quantization (16-bit positions, 8-bit normals, 16-bit uvs).
-        #[arg(long)]
-        quantize: bool,
-        /// glTF outputs: EXT_meshopt_compression of the vertex and index buffers.
-        #[arg(long)]
-        compress: bool,
-    },
+    Extract(ExtractArgs),
     /// One mesh of the size (or error) asked: builds a store in a scratch
     /// directory, then reduces its nearest level to exactly that size.
     #[command(group(clap::ArgGroup::new("target").required(true).args(["target_tris", "target_ratio", "target_error"])))]
-    Simplify {
-        input: PathBuf,
-        #[arg(short, long)]
-        output: PathBuf,
-        /// Output triangles (within 1 %).
-        #[arg(long, value_name = "N")]
-        target_tris: Option<u64>,
-        /// Output triangles as a fraction of the input's (e.g. 0.1).
-        #[arg(long, value_name = "R")]
-        target_ratio: Option<f64>,
-        /// The smallest mesh whose measured Hausdorff distance to the input
-        /// (both directions) is at most E (object space, or `0.1%` of the diagonal).
-        #[arg(long, value_name = "E")]
-        target_error: Option<String>,
-        /// Node simplifier: collapse (quadric edge collapse, accurate) or
-        /// cluster (generalized-quadric vertex clustering, fast).
-        #[arg(long, default_value = "collapse")]
-        simplifier: octolod::manifest::Simplifier,
-        /// Metro samples per direction when checking --target-error
-        /// [default: metro's own, 10 × the larger face count].
-        #[arg(long)]
-        verify_samples: Option<u64>,
-        /// Print the report as JSON.
-        #[arg(long)]
-        json: bool,
-        #[command(flatten)]
-        params: BuildArgs,
-    },
+    Simplify(SimplifyArgs),
     /// Two-sided Metro surface distance between meshes A and B (PLY paths or STORE@L).
     ///
     /// Exit status: 0 within every given threshold, 3 when one is exceeded, 1 on errors.
-    Metro {
-        /// Reference mesh: a PLY, or STORE@L for level L of an octolod store.
-        a: String,
-        /// Compared mesh: a PLY, or STORE@L.
-        b: String,
-        /// Samples per direction (default: 10 × the larger face count).
-        #[arg(long)]
-        samples: Option<u64>,
-        /// Seed of the face samples' randomness.
-        #[arg(long, default_value_t = 1)]
-        seed: u64,
-        /// Print one JSON object instead of the table.
-        #[arg(long)]
-        json: bool,
-        /// Fail (exit 3) when the two-sided Hausdorff distance exceeds this (0.01, or 0.1% of A's bbox diagonal).
-        #[arg(long)]
-        max_hausdorff: Option<String>,
-        /// Fail (exit 3) when the RMS distance over both directions exceeds this.
-        #[arg(long)]
-        max_rms: Option<String>,
-        /// Fail (exit 3) when the mean distance over both directions exceeds this.
-        #[arg(long)]
-        max_mean: Option<String>,
-        /// Memory budget (default 512M): pages STORE@L operands' nodes in and out; given, PLYs (held whole) must fit it too.
-        #[arg(long)]
-        mem: Option<String>,
-    },
+    Metro(MetroArgs),
     /// Render frames offscreen along a camera path (PNG + per-frame statistics).
     ///
     /// Works without a display (e.g. Mesa lavapipe). With --full-res, also
     /// renders the path from every leaf at full resolution and reports PSNR
     /// and the fraction of differing pixels per frame.
     #[cfg_attr(not(feature = "view"), command(about = "Render frames offscreen (not in this build: it has no `view` feature)", long_about = None))]
-    Render {
-        store: PathBuf,
-        /// Camera path JSON (default: an orbit of --frames frames).
-        #[arg(long)]
-        camera_path: Option<PathBuf>,
-        #[arg(long, default_value_t = 60)]
-        frames: usize,
-        /// Up axis of the default orbit and of path files that name none:
-        /// auto (Y, or a height field's thin axis), x, y, z, -x, -y or -z.
-        #[arg(long, default_value = "auto")]
-        up: String,
-        /// Output directory (PNG frames, stats.csv, stats.json).
-        #[arg(short = 'o', long, visible_alias = "output")]
-        out: PathBuf,
-        #[arg(long, default_value_t = 960)]
-        width: u32,
-        #[arg(long, default_value_t = 540)]
-        height: u32,
-        #[command(flatten)]
-        view: ViewArgs,
-        /// Also render a full-resolution reference and compare.
-        #[arg(long)]
-        full_res: bool,
-        /// Draw everything at level 0 (the baseline) instead of the budgeted cut.
-        #[arg(long)]
-        brute_force: bool,
-        /// After the path, keep rendering its last pose until loading settles (at most N frames).
-        #[arg(long, default_value_t = 600)]
-        settle: usize,
-        #[arg(long)]
-        wireframe: bool,
-        /// Channel difference above which a pixel counts as different.
-        #[arg(long, default_value_t = 16)]
-        diff_tolerance: u8,
-    },
+    Render(RenderArgs),
     /// Open an interactive window on a store (needs a display; `render` works without).
     ///
     /// Examine (1): drag orbits, right/shift-drag pans, wheel dollies. Fly (2), walk (3):
@@ -266,6 +137,154 @@ enum Cmd {
         #[arg(long)]
         open: bool,
     },
+}
+
+// The arguments of the commands with many: each command's function takes
+// its own. No `///` comments on these structs: clap would take one for the
+// command's about text, which is the variant's.
+
+#[derive(clap::Args)]
+struct TilesArgs {
+    store: PathBuf,
+    /// Output directory (tileset.json, t/*.glb).
+    #[arg(short, long)]
+    output: PathBuf,
+    /// Quantized attributes (KHR_mesh_quantization).
+    #[arg(long)]
+    quantize: bool,
+    /// meshopt-compressed buffers (EXT_meshopt_compression, with an uncompressed fallback).
+    #[arg(long)]
+    compress: bool,
+    /// Working-memory budget (e.g. 512M).
+    #[arg(long, default_value = mem::DEFAULT_BUDGET_ARG)]
+    mem: String,
+    /// Split a level's cell while it holds more triangles than this.
+    #[arg(long, default_value_t = 32768)]
+    tile_tris: u64,
+    /// Up axis of the model: auto (as `view`), x, y, z, -x, -y or -z.
+    #[arg(long, default_value = "auto")]
+    up: String,
+    /// Print the report as JSON.
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(clap::Args)]
+struct ExtractArgs {
+    store: PathBuf,
+    /// The whole level L (default 0, the input).
+    #[arg(long, conflicts_with = "max_error")]
+    level: Option<u8>,
+    /// The cut whose every part has error at most E (object space, or `0.1%` of the diagonal).
+    #[arg(long, value_name = "E")]
+    max_error: Option<String>,
+    #[arg(short, long)]
+    output: PathBuf,
+    /// Do not weld vertices shared between nodes (streams, no level in memory).
+    #[arg(long)]
+    no_weld: bool,
+    /// glTF outputs: KHR_mesh_quantization (16-bit positions, 8-bit normals, 16-bit uvs).
+    #[arg(long)]
+    quantize: bool,
+    /// glTF outputs: EXT_meshopt_compression of the vertex and index buffers.
+    #[arg(long)]
+    compress: bool,
+}
+
+#[derive(clap::Args)]
+struct SimplifyArgs {
+    input: PathBuf,
+    #[arg(short, long)]
+    output: PathBuf,
+    /// Output triangles (within 1 %).
+    #[arg(long, value_name = "N")]
+    target_tris: Option<u64>,
+    /// Output triangles as a fraction of the input's (e.g. 0.1).
+    #[arg(long, value_name = "R")]
+    target_ratio: Option<f64>,
+    /// The smallest mesh whose measured Hausdorff distance to the input
+    /// (both directions) is at most E (object space, or `0.1%` of the diagonal).
+    #[arg(long, value_name = "E")]
+    target_error: Option<String>,
+    /// Node simplifier: collapse (quadric edge collapse, accurate) or
+    /// cluster (generalized-quadric vertex clustering, fast).
+    #[arg(long, default_value = "collapse")]
+    simplifier: octolod::manifest::Simplifier,
+    /// Metro samples per direction when checking --target-error
+    /// [default: metro's own, 10 × the larger face count].
+    #[arg(long)]
+    verify_samples: Option<u64>,
+    /// Print the report as JSON.
+    #[arg(long)]
+    json: bool,
+    #[command(flatten)]
+    params: BuildArgs,
+}
+
+#[derive(clap::Args)]
+struct MetroArgs {
+    /// Reference mesh: a PLY, or STORE@L for level L of an octolod store.
+    a: String,
+    /// Compared mesh: a PLY, or STORE@L.
+    b: String,
+    /// Samples per direction (default: 10 × the larger face count).
+    #[arg(long)]
+    samples: Option<u64>,
+    /// Seed of the face samples' randomness.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Print one JSON object instead of the table.
+    #[arg(long)]
+    json: bool,
+    /// Fail (exit 3) when the two-sided Hausdorff distance exceeds this (0.01, or 0.1% of A's bbox diagonal).
+    #[arg(long)]
+    max_hausdorff: Option<String>,
+    /// Fail (exit 3) when the RMS distance over both directions exceeds this.
+    #[arg(long)]
+    max_rms: Option<String>,
+    /// Fail (exit 3) when the mean distance over both directions exceeds this.
+    #[arg(long)]
+    max_mean: Option<String>,
+    /// Memory budget (default 512M): pages STORE@L operands' nodes in and out; given, PLYs (held whole) must fit it too.
+    #[arg(long)]
+    mem: Option<String>,
+}
+
+#[derive(clap::Args)]
+struct RenderArgs {
+    store: PathBuf,
+    /// Camera path JSON (default: an orbit of --frames frames).
+    #[arg(long)]
+    camera_path: Option<PathBuf>,
+    #[arg(long, default_value_t = 60)]
+    frames: usize,
+    /// Up axis of the default orbit and of path files that name none:
+    /// auto (Y, or a height field's thin axis), x, y, z, -x, -y or -z.
+    #[arg(long, default_value = "auto")]
+    up: String,
+    /// Output directory (PNG frames, stats.csv, stats.json).
+    #[arg(short = 'o', long, visible_alias = "output")]
+    out: PathBuf,
+    #[arg(long, default_value_t = 960)]
+    width: u32,
+    #[arg(long, default_value_t = 540)]
+    height: u32,
+    #[command(flatten)]
+    view: ViewArgs,
+    /// Also render a full-resolution reference and compare.
+    #[arg(long)]
+    full_res: bool,
+    /// Draw everything at level 0 (the baseline) instead of the budgeted cut.
+    #[arg(long)]
+    brute_force: bool,
+    /// After the path, keep rendering its last pose until loading settles (at most N frames).
+    #[arg(long, default_value_t = 600)]
+    settle: usize,
+    #[arg(long)]
+    wireframe: bool,
+    /// Channel difference above which a pixel counts as different.
+    #[arg(long, default_value_t = 16)]
+    diff_tolerance: u8,
 }
 
 /// Command-line settings shared by `octolod view` and `octolod render`.
@@ -473,11 +492,11 @@ fn main() -> ExitCode {
     // reports for a command its reader stopped.
     let cli = Cli::parse();
     #[cfg(feature = "view")]
-    if matches!(cli.cmd, Cmd::Render { .. }) {
+    if matches!(cli.cmd, Cmd::Render(_)) {
         quiet_device_select();
     }
     #[cfg(feature = "view")]
-    if matches!(cli.cmd, Cmd::Render { .. } | Cmd::View { .. }) {
+    if matches!(cli.cmd, Cmd::Render(_) | Cmd::View { .. }) {
         // Before any wgpu or winit call (see octolod::view::quiet).
         octolod::view::quiet::quiet_wayland_probes();
     }
@@ -520,214 +539,234 @@ fn no_view() -> octolod::Error {
     octolod::Error::Usage("this octolod was built without the `view` feature (cargo install octolod --features view)".into())
 }
 
+/// Runs the command line's command; `--quiet` and `--force` go to the commands that take them.
 fn run(cli: Cli) -> Result<ExitCode> {
-    match cli.cmd {
-        Cmd::Soup { input, output, mem, external, json } => {
-            let opts = soup::SoupOptions {
-                mem: mem::parse_budget(&mem, "--mem")?,
-                quiet: cli.quiet,
-                force_external: external,
-                replace: cli.force,
-                ..Default::default()
-            };
-            let rep = soup::build_soup(&input, &output, &opts)?;
-            let peak = peak_rss();
-            if json {
-                out!("{}", serde_json::to_string(&rep.json(opts.mem, peak)).expect("the report serializes"));
-            } else {
-                out!("{}", rep.summary(peak));
-            }
-            Ok(ExitCode::SUCCESS)
-        }
-        #[cfg(not(feature = "view"))]
-        Cmd::Render { .. } | Cmd::View { .. } => Err(no_view()),
-        #[cfg(feature = "view")]
-        Cmd::Render { store, camera_path, frames, up, out, width, height, view, full_res, brute_force, settle, wireframe, diff_tolerance } => {
-            if frames == 0 {
-                return Err(octolod::Error::Usage("render: --frames must be at least 1".into()));
-            }
-            check_size(width, height)?;
-            let o = octolod::view::headless::RenderOptions {
-                store,
-                camera_path,
-                orbit_frames: frames,
-                up: Up::parse(&up)?,
-                out,
-                width,
-                height,
-                view: view.options()?,
-                full_res,
-                brute_force,
-                settle,
-                wireframe,
-                diff_tolerance,
-                quiet: cli.quiet,
-                force: cli.force,
-            };
-            let r = octolod::view::headless::render(&o)?;
-            let max_res = r.frames.iter().map(|f| f.stats.resident_bytes).max().unwrap_or(0);
-            let max_sel = r.frames.iter().map(|f| f.stats.select_ms).fold(0.0, f64::max);
-            let Some(last) = r.frames.last() else {
-                return Err(octolod::Error::Usage("render: no frame was rendered".into()));
-            };
-            let cmp = match (last.psnr_db, last.diff_fraction) {
-                (Some(p), Some(d)) => format!(", last frame vs full-res: PSNR {p:.1} dB, {:.3}% pixels differ", 100.0 * d),
-                _ => String::new(),
-            };
-            out!(
-                "render: {} frames -> {}; peak resident {} of {}; select <= {max_sel:.2} ms; last frame {} triangles{}{cmp}",
-                r.frames.len(),
-                r.out.display(),
-                octolod::progress::mib(max_res),
-                octolod::progress::mib(o.view.ram),
-                last.stats.triangles,
-                if last.stats.settled { " (settled)" } else { " (still loading)" }
-            );
-            // A settled cut coarser than asked: the budget stopped refinement.
-            let asked = o.view.select.max_error_px;
-            if o.view.select.distance_lod.is_none() && !o.brute_force && last.stats.max_error_px > asked * 1.001 {
-                eprintln!(
-                    "octolod: warning: the last frame's cut has {:.2} px of projected error where {asked} px was asked: --ram {} (or the triangle budget) held back refinement",
-                    last.stats.max_error_px,
-                    octolod::progress::bytes(o.view.ram)
-                );
-            }
-            Ok(ExitCode::SUCCESS)
-        }
-        #[cfg(feature = "view")]
-        Cmd::View { store, view, window } => octolod::view::window::run_window(window.options(store, view.options()?, cli.quiet)?).map(|()| ExitCode::SUCCESS),
-        Cmd::PlyInfo { input, header_only } => ply_info(&input, header_only, cli.quiet).map(|()| ExitCode::SUCCESS),
-        Cmd::Serve { input, port, bind, open } => {
-            let o = octolod::serve::ServeOptions { port, bind, quiet: cli.quiet, ..Default::default() };
-            let server = octolod::serve::bind(&input, &o)?;
-            out!("serving {} (tileset: {})", server.url(), server.tileset_url());
-            if open {
-                octolod::serve::open_browser(&server.url(), cli.quiet);
-            }
-            server.run().map(|()| ExitCode::SUCCESS)
-        }
-        Cmd::Metro { a, b, samples, seed, json, max_hausdorff, max_rms, max_mean, mem } => {
-            use octolod::metro::{Limits, MemOptions, Options, RunOptions, Source};
-            let limits = Limits::parse(max_hausdorff.as_deref(), max_rms.as_deref(), max_mean.as_deref())?;
-            let options = Options::checked(samples, seed, cli.quiet)?;
-            let mem = MemOptions::parse(mem.as_deref())?;
-            let run = RunOptions { a: Source::parse(&a)?, b: Source::parse(&b)?, options, mem, limits, json };
-            if !octolod::metro::run(&run)? {
-                return Ok(ExitCode::from(octolod::metro::EXIT_THRESHOLD));
-            }
-            Ok(ExitCode::SUCCESS)
-        }
-        Cmd::Build { input, output, params, simplifier } => {
-            let mut o = params.options(cli.quiet, cli.force)?;
-            o.params.simplifier = simplifier;
-            let r = octolod::pipeline::build_store(&input, &output, &o)?;
-            print_build(&r)?;
-            Ok(ExitCode::SUCCESS)
-        }
+    let Cli { quiet, force, cmd } = cli;
+    match cmd {
+        Cmd::Soup { input, output, mem, external, json } => cmd_soup(&input, &output, &mem, external, json, quiet, force),
+        Cmd::Build { input, output, params, simplifier } => cmd_build(&input, &output, &params, simplifier, quiet, force),
         Cmd::Info { store } => info(&store).map(|()| ExitCode::SUCCESS),
-        Cmd::Tiles { store, output, quantize, compress, mem, tile_tris, up, json } => {
-            let s = octolod::store::Store::open(&store)?;
-            let o = octolod::tiles::TilesOptions {
-                quantize,
-                compress,
-                mem: mem::parse_budget(&mem, "--mem")?,
-                tile_tris,
-                up: Up::parse(&up)?,
-                quiet: cli.quiet || json,
-                force: cli.force,
-            };
-            let r = octolod::tiles::export(&s, &output, &o)?;
-            if json {
-                out!("{}", serde_json::to_string_pretty(&r).expect("the report serializes"));
-            } else {
-                out!(
-                    "tiles: {} tiles ({} with content, depth {}), {} triangles of which {} skirt, from {} store triangles; {} for a {} store ({:.2}x); {:.2} s, {:.2} M store tri/s -> {}",
-                    r.tiles,
-                    r.contents,
-                    r.depth,
-                    r.triangles,
-                    r.skirt_triangles,
-                    r.store_triangles,
-                    octolod::progress::mib(r.tileset_bytes),
-                    octolod::progress::mib(r.store_bytes),
-                    r.tileset_bytes as f64 / r.store_bytes.max(1) as f64,
-                    r.seconds,
-                    r.mtris_per_s,
-                    output.display()
-                );
-            }
-            Ok(ExitCode::SUCCESS)
+        Cmd::Tiles(args) => cmd_tiles(args, quiet, force),
+        Cmd::Extract(args) => cmd_extract(args, force),
+        Cmd::Simplify(args) => cmd_simplify(args, quiet, force),
+        Cmd::Metro(args) => cmd_metro(args, quiet),
+        #[cfg(not(feature = "view"))]
+        Cmd::Render(_) | Cmd::View { .. } => Err(no_view()),
+        #[cfg(feature = "view")]
+        Cmd::Render(args) => cmd_render(args, quiet, force),
+        #[cfg(feature = "view")]
+        Cmd::View { store, view, window } => octolod::view::window::run_window(window.options(store, view.options()?, quiet)?).map(|()| ExitCode::SUCCESS),
+        Cmd::PlyInfo { input, header_only } => ply_info(&input, header_only, quiet).map(|()| ExitCode::SUCCESS),
+        Cmd::Serve { input, port, bind, open } => cmd_serve(&input, port, bind, open, quiet),
+    }
+}
+
+fn cmd_soup(input: &Path, output: &Path, mem: &str, external: bool, json: bool, quiet: bool, force: bool) -> Result<ExitCode> {
+    let opts = soup::SoupOptions { mem: mem::parse_budget(mem, "--mem")?, quiet, force_external: external, replace: force, ..Default::default() };
+    let rep = soup::build_soup(input, output, &opts)?;
+    let peak = peak_rss();
+    if json {
+        out!("{}", serde_json::to_string(&rep.json(opts.mem, peak)).expect("the report serializes"));
+    } else {
+        out!("{}", rep.summary(peak));
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn cmd_build(input: &Path, output: &Path, params: &BuildArgs, simplifier: octolod::manifest::Simplifier, quiet: bool, force: bool) -> Result<ExitCode> {
+    let mut o = params.options(quiet, force)?;
+    o.params.simplifier = simplifier;
+    let r = octolod::pipeline::build_store(input, output, &o)?;
+    print_build(&r)?;
+    Ok(ExitCode::SUCCESS)
+}
+
+fn cmd_tiles(args: TilesArgs, quiet: bool, force: bool) -> Result<ExitCode> {
+    let TilesArgs { store, output, quantize, compress, mem, tile_tris, up, json } = args;
+    let s = octolod::store::Store::open(&store)?;
+    let o = octolod::tiles::TilesOptions {
+        quantize,
+        compress,
+        mem: mem::parse_budget(&mem, "--mem")?,
+        tile_tris,
+        up: Up::parse(&up)?,
+        quiet: quiet || json,
+        force,
+    };
+    let r = octolod::tiles::export(&s, &output, &o)?;
+    if json {
+        out!("{}", serde_json::to_string_pretty(&r).expect("the report serializes"));
+    } else {
+        out!(
+            "tiles: {} tiles ({} with content, depth {}), {} triangles of which {} skirt, from {} store triangles; {} for a {} store ({:.2}x); {:.2} s, {:.2} M store tri/s -> {}",
+            r.tiles,
+            r.contents,
+            r.depth,
+            r.triangles,
+            r.skirt_triangles,
+            r.store_triangles,
+            octolod::progress::mib(r.tileset_bytes),
+            octolod::progress::mib(r.store_bytes),
+            r.tileset_bytes as f64 / r.store_bytes.max(1) as f64,
+            r.seconds,
+            r.mtris_per_s,
+            output.display()
+        );
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn cmd_extract(args: ExtractArgs, force: bool) -> Result<ExitCode> {
+    let ExtractArgs { store, level, max_error, output, no_weld, quantize, compress } = args;
+    let s = octolod::store::Store::open(&store)?;
+    let spec = match max_error {
+        Some(e) => {
+            let t = octolod::metro::Threshold::parse(&e)?;
+            octolod::pipeline::CutSpec::MaxError(t.limit(s.header.bbox.diagonal()))
         }
-        Cmd::Extract { store, level, max_error, output, no_weld, quantize, compress } => {
-            let s = octolod::store::Store::open(&store)?;
-            let spec = match max_error {
-                Some(e) => {
-                    let t = octolod::metro::Threshold::parse(&e)?;
-                    octolod::pipeline::CutSpec::MaxError(t.limit(s.header.bbox.diagonal()))
-                }
-                None => octolod::pipeline::CutSpec::Level(level.unwrap_or(0)),
-            };
-            let gltf = octolod::gltf::GltfOptions { quantize, compress };
-            let (nv, nf) = octolod::pipeline::extract_as(&s, spec, &output, !no_weld, cli.force, &gltf)?;
-            out!("extract: {}: {nv} vertices, {nf} triangles -> {}", spec.describe(), output.display());
-            Ok(ExitCode::SUCCESS)
-        }
-        Cmd::Simplify { input, output, target_tris, target_ratio, target_error, simplifier, verify_samples, json, params } => {
-            use octolod::simplify::{SimplifyOptions, Target};
-            let _input = octolod::io::protect(&input);
-            octolod::io::check_output(&output, octolod::io::OutputKind::Ply, cli.force)?;
-            let threshold = target_error.as_deref().map(octolod::metro::Threshold::parse).transpose()?;
-            octolod::simplify::check_options(target_tris, target_ratio, verify_samples)?;
-            let bo = params.options(cli.quiet || json, false)?;
-            let tmp = octolod::io::scratch_dir(&output)?;
-            let dir = tmp.path().join("store.octolod");
-            let r = octolod::pipeline::build_store(&input, &dir, &bo)?;
-            if !json {
-                print_build(&r)?;
-            }
-            let s = octolod::store::Store::open(&dir)?;
-            let target = match (target_tris, target_ratio, threshold) {
-                (Some(n), _, _) => Target::Tris(n),
-                (_, Some(r), _) => Target::Ratio(r),
-                (_, _, Some(t)) => Target::Error(t.limit(s.header.bbox.diagonal())),
-                _ => unreachable!("clap requires one target"),
-            };
-            let o = SimplifyOptions { target, simplifier, mem: bo.params.mem, verify_samples, force: cli.force };
-            let rep = octolod::simplify::simplify_store(&s, &output, &o)?;
-            if json {
-                out!("{}", serde_json::to_string_pretty(&rep).expect("the report serializes"));
-            } else {
-                out!(
-                    "simplify: {} from {} ({} triangles, {:?}, {}): {} vertices, {} triangles -> {}",
-                    match rep.target_triangles {
-                        Some(n) => format!("{n} triangles asked"),
-                        None => format!(
-                            "error <= {:e} asked, measured {:e} after {} tries",
-                            rep.target_error.unwrap_or(f64::NAN),
-                            rep.hausdorff.unwrap_or(f64::NAN),
-                            rep.tries
-                        ),
-                    },
-                    rep.start,
-                    rep.start_triangles,
-                    simplifier,
-                    rep.route,
-                    rep.vertices,
-                    rep.triangles,
-                    output.display()
-                );
-                if let Some(n) = &rep.note {
-                    eprintln!("simplify: {n}");
-                }
-            }
-            if !rep.reached {
-                eprintln!("simplify: target not met (see above); the closest mesh was written");
-                // Returning (not `exit`) drops the scratch store first.
-                return Ok(ExitCode::from(3));
-            }
-            Ok(ExitCode::SUCCESS)
+        None => octolod::pipeline::CutSpec::Level(level.unwrap_or(0)),
+    };
+    let gltf = octolod::gltf::GltfOptions { quantize, compress };
+    let (nv, nf) = octolod::pipeline::extract_as(&s, spec, &output, !no_weld, force, &gltf)?;
+    out!("extract: {}: {nv} vertices, {nf} triangles -> {}", spec.describe(), output.display());
+    Ok(ExitCode::SUCCESS)
+}
+
+/// `simplify`: a store built in a scratch directory (dropped, with the
+/// directory, when this returns), then reduced to the target.
+fn cmd_simplify(args: SimplifyArgs, quiet: bool, force: bool) -> Result<ExitCode> {
+    use octolod::simplify::{SimplifyOptions, Target};
+    let SimplifyArgs { input, output, target_tris, target_ratio, target_error, simplifier, verify_samples, json, params } = args;
+    let _input = octolod::io::protect(&input);
+    octolod::io::check_output(&output, octolod::io::OutputKind::Ply, force)?;
+    let threshold = target_error.as_deref().map(octolod::metro::Threshold::parse).transpose()?;
+    octolod::simplify::check_options(target_tris, target_ratio, verify_samples)?;
+    let bo = params.options(quiet || json, false)?;
+    let tmp = octolod::io::scratch_dir(&output)?;
+    let dir = tmp.path().join("store.octolod");
+    let r = octolod::pipeline::build_store(&input, &dir, &bo)?;
+    if !json {
+        print_build(&r)?;
+    }
+    let s = octolod::store::Store::open(&dir)?;
+    let target = match (target_tris, target_ratio, threshold) {
+        (Some(n), _, _) => Target::Tris(n),
+        (_, Some(r), _) => Target::Ratio(r),
+        (_, _, Some(t)) => Target::Error(t.limit(s.header.bbox.diagonal())),
+        _ => unreachable!("clap requires one target"),
+    };
+    let o = SimplifyOptions { target, simplifier, mem: bo.params.mem, verify_samples, force };
+    let rep = octolod::simplify::simplify_store(&s, &output, &o)?;
+    if json {
+        out!("{}", serde_json::to_string_pretty(&rep).expect("the report serializes"));
+    } else {
+        out!(
+            "simplify: {} from {} ({} triangles, {:?}, {}): {} vertices, {} triangles -> {}",
+            match rep.target_triangles {
+                Some(n) => format!("{n} triangles asked"),
+                None => format!(
+                    "error <= {:e} asked, measured {:e} after {} tries",
+                    rep.target_error.unwrap_or(f64::NAN),
+                    rep.hausdorff.unwrap_or(f64::NAN),
+                    rep.tries
+                ),
+            },
+            rep.start,
+            rep.start_triangles,
+            simplifier,
+            rep.route,
+            rep.vertices,
+            rep.triangles,
+            output.display()
+        );
+        if let Some(n) = &rep.note {
+            eprintln!("simplify: {n}");
         }
     }
+    if !rep.reached {
+        eprintln!("simplify: target not met (see above); the closest mesh was written");
+        // Returning (not `exit`) drops the scratch store first.
+        return Ok(ExitCode::from(3));
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn cmd_metro(args: MetroArgs, quiet: bool) -> Result<ExitCode> {
+    use octolod::metro::{Limits, MemOptions, Options, RunOptions, Source};
+    let MetroArgs { a, b, samples, seed, json, max_hausdorff, max_rms, max_mean, mem } = args;
+    let limits = Limits::parse(max_hausdorff.as_deref(), max_rms.as_deref(), max_mean.as_deref())?;
+    let options = Options::checked(samples, seed, quiet)?;
+    let mem = MemOptions::parse(mem.as_deref())?;
+    let run = RunOptions { a: Source::parse(&a)?, b: Source::parse(&b)?, options, mem, limits, json };
+    if !octolod::metro::run(&run)? {
+        return Ok(ExitCode::from(octolod::metro::EXIT_THRESHOLD));
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+#[cfg(feature = "view")]
+fn cmd_render(args: RenderArgs, quiet: bool, force: bool) -> Result<ExitCode> {
+    let RenderArgs { store, camera_path, frames, up, out, width, height, view, full_res, brute_force, settle, wireframe, diff_tolerance } = args;
+    if frames == 0 {
+        return Err(octolod::Error::Usage("render: --frames must be at least 1".into()));
+    }
+    check_size(width, height)?;
+    let o = octolod::view::headless::RenderOptions {
+        store,
+        camera_path,
+        orbit_frames: frames,
+        up: Up::parse(&up)?,
+        out,
+        width,
+        height,
+        view: view.options()?,
+        full_res,
+        brute_force,
+        settle,
+        wireframe,
+        diff_tolerance,
+        quiet,
+        force,
+    };
+    let r = octolod::view::headless::render(&o)?;
+    let max_res = r.frames.iter().map(|f| f.stats.resident_bytes).max().unwrap_or(0);
+    let max_sel = r.frames.iter().map(|f| f.stats.select_ms).fold(0.0, f64::max);
+    let Some(last) = r.frames.last() else {
+        return Err(octolod::Error::Usage("render: no frame was rendered".into()));
+    };
+    let cmp = match (last.psnr_db, last.diff_fraction) {
+        (Some(p), Some(d)) => format!(", last frame vs full-res: PSNR {p:.1} dB, {:.3}% pixels differ", 100.0 * d),
+        _ => String::new(),
+    };
+    out!(
+        "render: {} frames -> {}; peak resident {} of {}; select <= {max_sel:.2} ms; last frame {} triangles{}{cmp}",
+        r.frames.len(),
+        r.out.display(),
+        octolod::progress::mib(max_res),
+        octolod::progress::mib(o.view.ram),
+        last.stats.triangles,
+        if last.stats.settled { " (settled)" } else { " (still loading)" }
+    );
+    // A settled cut coarser than asked: the budget stopped refinement.
+    let asked = o.view.select.max_error_px;
+    if o.view.select.distance_lod.is_none() && !o.brute_force && last.stats.max_error_px > asked * 1.001 {
+        eprintln!(
+            "octolod: warning: the last frame's cut has {:.2} px of projected error where {asked} px was asked: --ram {} (or the triangle budget) held back refinement",
+            last.stats.max_error_px,
+            octolod::progress::bytes(o.view.ram)
+        );
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn cmd_serve(input: &Path, port: u16, bind: std::net::IpAddr, open: bool, quiet: bool) -> Result<ExitCode> {
+    let o = octolod::serve::ServeOptions { port, bind, quiet, ..Default::default() };
+    let server = octolod::serve::bind(input, &o)?;
+    out!("serving {} (tileset: {})", server.url(), server.tileset_url());
+    if open {
+        octolod::serve::open_browser(&server.url(), quiet);
+    }
+    server.run().map(|()| ExitCode::SUCCESS)
 }
 
 struct BboxSink {

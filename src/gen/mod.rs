@@ -200,33 +200,16 @@ const SLIVER_ASPECT: f64 = 1e-6;
 const SLIVER_MAX_ROWS: u64 = 1 << 17;
 const OFFSET_CENTER: f64 = 1e6;
 
-impl Generator {
-    pub fn new(opts: &GenOptions) -> Generator {
-        let tris = opts.tris.clamp(1, MAX_TRIS);
+impl Kind {
+    /// The shape's parameters for about `tris` triangles (already clamped),
+    /// drawing from `rng`, the generator's seeded stream, in a fixed order.
+    fn new(shape: Shape, tris: u64, rng: &mut Rng) -> Kind {
         let t = tris as f64;
-        let mut rng = Rng::new(opts.seed, opts.shape as u64 + 1);
-        let sphere_count = |a: u64, b: u64, c: u64| 4 * (a * b + b * c + a * c);
-        let kind = match opts.shape {
-            Shape::Sphere | Shape::Open | Shape::Duplicates | Shape::Offset => {
-                let (open, dup) = (opts.shape == Shape::Open, opts.shape == Shape::Duplicates);
-                let n = if open {
-                    box_dims(tris, |a, b, c| sphere_count(a, b, c) - 2 * a * b)
-                } else if dup {
-                    box_dims(tris, |a, b, c| 2 * sphere_count(a, b, c))
-                } else {
-                    box_dims(tris, sphere_count)
-                };
-                let (radius, center, waves) = if opts.shape == Shape::Offset {
-                    // 1e-3 absolute detail on radius 0.5.
-                    (0.5, [OFFSET_CENTER; 3], Waves::random(&mut rng, 6, false, (6.0, 20.0), 2e-3 / 6f64.sqrt()))
-                } else {
-                    (1.0, [0.0; 3], Waves::random(&mut rng, 6, false, (2.0, 7.0), 0.05 / 6f64.sqrt()))
-                };
-                Kind::Sphere { lat: BoxLattice::new(n), waves, radius, center, open, dup }
-            }
+        match shape {
+            Shape::Sphere | Shape::Open | Shape::Duplicates | Shape::Offset => Kind::sphere(shape, tris, rng),
             Shape::Terrain | Shape::Plane => {
                 let (w, h) = grid_dims(t / 2.0, 1.0, 1);
-                let waves = if opts.shape == Shape::Terrain { Waves::octaves(&mut rng, 5, 2, TAU * 1.5, 0.12) } else { Waves::none() };
+                let waves = if shape == Shape::Terrain { Waves::octaves(rng, 5, 2, TAU * 1.5, 0.12) } else { Waves::none() };
                 Kind::Grid { w, h, waves }
             }
             Shape::Cylinder => {
@@ -243,71 +226,104 @@ impl Generator {
                 let h = ((t / (2 * w + dg) as f64).round() as u64).max(1);
                 Kind::Slivers { w, h, dg }
             }
-            Shape::Instances => {
-                let mut best = (u64::MAX, u64::MAX, 10, 4);
-                for a in 6..=24u64 {
-                    for b in 4..=12u64 {
-                        let per = 2 * a * b;
-                        if !(48..=160).contains(&per) {
-                            continue;
-                        }
-                        let k = ((t / per as f64).round() as u64).max(1);
-                        let key = ((k * per).abs_diff(tris), per.abs_diff(80));
-                        if key < (best.0, best.1) {
-                            best = (key.0, key.1, a, b);
-                        }
-                    }
-                }
-                let torus = Torus::new(best.2, best.3);
-                let count = ((t / torus.face_count() as f64).round() as u64).max(1);
-                Kind::Instances { torus, count }
-            }
+            Shape::Instances => Kind::instances(tris),
             Shape::Fan => {
                 let p = (tris / 2).max(1);
                 let q = (tris - tris / 2).max(3);
                 Kind::Fan { p, q }
             }
             Shape::Single => Kind::Single,
-            Shape::Scan => {
-                let waves = Waves::octaves(&mut rng, 4, 2, TAU * 2.0, 0.03);
-                let holes: Vec<([f64; 2], f64)> = (0..7).map(|_| ([rng.range(0.2, 0.8), rng.range(0.2, 0.8)], rng.range(0.02, 0.06))).collect();
-                let phase = rng.range(0.0, TAU);
-                // Which cells the scanner saw, on a coarse mask grid (so
-                // building is O(rows + mask), whatever the triangle count).
-                let m = SCAN_MASK;
-                let coarse: Vec<bool> = (0..m * m)
-                    .map(|i| scan_keeps((i % m) as f64 / m as f64 + 0.5 / m as f64, (i / m) as f64 / m as f64 + 0.5 / m as f64, &holes, phase))
-                    .collect();
-                let share = (coarse.iter().filter(|&&k| k).count() as f64 / (m * m) as f64).max(0.01);
-                let (w, h) = grid_dims(t / 2.0 / share, 1.0, 4);
-                let (mx, my) = (m.min(w), m.min(h));
-                let col_first: Vec<u64> = (0..=mx).map(|c| c * w / mx).collect();
-                let sampled = |cx: u64, cy: u64| coarse[((cy * m / my) * m + cx * m / mx) as usize];
-                // A grid too small to sample the mask keeps everything.
-                let none = (0..my).all(|cy| (0..mx).all(|cx| !sampled(cx, cy)));
-                let seen = |cx: u64, cy: u64| none || sampled(cx, cy);
-                let mut prefix = Vec::with_capacity(((mx + 1) * my) as usize);
-                for cy in 0..my {
-                    let mut acc = 0u64;
-                    for cx in 0..mx {
-                        prefix.push(acc);
-                        if seen(cx, cy) {
-                            acc += col_first[cx as usize + 1] - col_first[cx as usize];
-                        }
-                    }
-                    prefix.push(acc);
-                }
-                let mut row_off = Vec::with_capacity(h as usize + 1);
-                let mut kept = 0u64;
-                for tt in 0..h {
-                    row_off.push(kept);
-                    kept += prefix[((tt * my / h) * (mx + 1) + mx) as usize];
-                }
-                row_off.push(kept);
-                Kind::Scan { w, h, waves, noise: 0.15 / w as f64, mx, my, col_first, prefix, row_off }
-            }
+            Shape::Scan => Kind::scan(tris, rng),
+        }
+    }
+
+    /// Sphere, Open, Duplicates and Offset: a cube-sphere lattice sized so
+    /// the shape's own face count (a cap fewer, or every face twice) is near `tris`.
+    fn sphere(shape: Shape, tris: u64, rng: &mut Rng) -> Kind {
+        let sphere_count = |a: u64, b: u64, c: u64| 4 * (a * b + b * c + a * c);
+        let (open, dup) = (shape == Shape::Open, shape == Shape::Duplicates);
+        let n = if open {
+            box_dims(tris, |a, b, c| sphere_count(a, b, c) - 2 * a * b)
+        } else if dup {
+            box_dims(tris, |a, b, c| 2 * sphere_count(a, b, c))
+        } else {
+            box_dims(tris, sphere_count)
         };
-        let (nv, nf) = match &kind {
+        let (radius, center, waves) = if shape == Shape::Offset {
+            // 1e-3 absolute detail on radius 0.5.
+            (0.5, [OFFSET_CENTER; 3], Waves::random(rng, 6, false, (6.0, 20.0), 2e-3 / 6f64.sqrt()))
+        } else {
+            (1.0, [0.0; 3], Waves::random(rng, 6, false, (2.0, 7.0), 0.05 / 6f64.sqrt()))
+        };
+        Kind::Sphere { lat: BoxLattice::new(n), waves, radius, center, open, dup }
+    }
+
+    /// Instances: the torus (48..=160 triangles, nearest 80 on ties) whose
+    /// whole copies come nearest `tris`, and how many copies.
+    fn instances(tris: u64) -> Kind {
+        let t = tris as f64;
+        let mut best = (u64::MAX, u64::MAX, 10, 4);
+        for a in 6..=24u64 {
+            for b in 4..=12u64 {
+                let per = 2 * a * b;
+                if !(48..=160).contains(&per) {
+                    continue;
+                }
+                let k = ((t / per as f64).round() as u64).max(1);
+                let key = ((k * per).abs_diff(tris), per.abs_diff(80));
+                if key < (best.0, best.1) {
+                    best = (key.0, key.1, a, b);
+                }
+            }
+        }
+        let torus = Torus::new(best.2, best.3);
+        let count = ((t / torus.face_count() as f64).round() as u64).max(1);
+        Kind::Instances { torus, count }
+    }
+
+    /// Scan: the depth grid and its kept-cell tables (see [`Kind::Scan`]).
+    fn scan(tris: u64, rng: &mut Rng) -> Kind {
+        let t = tris as f64;
+        let waves = Waves::octaves(rng, 4, 2, TAU * 2.0, 0.03);
+        let holes: Vec<([f64; 2], f64)> = (0..7).map(|_| ([rng.range(0.2, 0.8), rng.range(0.2, 0.8)], rng.range(0.02, 0.06))).collect();
+        let phase = rng.range(0.0, TAU);
+        // Which cells the scanner saw, on a coarse mask grid (so
+        // building is O(rows + mask), whatever the triangle count).
+        let m = SCAN_MASK;
+        let coarse: Vec<bool> =
+            (0..m * m).map(|i| scan_keeps((i % m) as f64 / m as f64 + 0.5 / m as f64, (i / m) as f64 / m as f64 + 0.5 / m as f64, &holes, phase)).collect();
+        let share = (coarse.iter().filter(|&&k| k).count() as f64 / (m * m) as f64).max(0.01);
+        let (w, h) = grid_dims(t / 2.0 / share, 1.0, 4);
+        let (mx, my) = (m.min(w), m.min(h));
+        let col_first: Vec<u64> = (0..=mx).map(|c| c * w / mx).collect();
+        let sampled = |cx: u64, cy: u64| coarse[((cy * m / my) * m + cx * m / mx) as usize];
+        // A grid too small to sample the mask keeps everything.
+        let none = (0..my).all(|cy| (0..mx).all(|cx| !sampled(cx, cy)));
+        let seen = |cx: u64, cy: u64| none || sampled(cx, cy);
+        let mut prefix = Vec::with_capacity(((mx + 1) * my) as usize);
+        for cy in 0..my {
+            let mut acc = 0u64;
+            for cx in 0..mx {
+                prefix.push(acc);
+                if seen(cx, cy) {
+                    acc += col_first[cx as usize + 1] - col_first[cx as usize];
+                }
+            }
+            prefix.push(acc);
+        }
+        let mut row_off = Vec::with_capacity(h as usize + 1);
+        let mut kept = 0u64;
+        for tt in 0..h {
+            row_off.push(kept);
+            kept += prefix[((tt * my / h) * (mx + 1) + mx) as usize];
+        }
+        row_off.push(kept);
+        Kind::Scan { w, h, waves, noise: 0.15 / w as f64, mx, my, col_first, prefix, row_off }
+    }
+
+    /// Vertex and face counts.
+    fn counts(&self) -> (u64, u64) {
+        match self {
             Kind::Sphere { lat, open, dup, .. } => {
                 let [n0, n1, _] = lat.n;
                 let closed = 2 * lat.qoff[6];
@@ -327,7 +343,16 @@ impl Generator {
             Kind::Fan { p, q } => (2 + p + q, p + q),
             Kind::Single => (3, 1),
             Kind::Scan { w, h, row_off, .. } => ((w + 1) * (h + 1), 2 * row_off[*h as usize]),
-        };
+        }
+    }
+}
+
+impl Generator {
+    pub fn new(opts: &GenOptions) -> Generator {
+        let tris = opts.tris.clamp(1, MAX_TRIS);
+        let mut rng = Rng::new(opts.seed, opts.shape as u64 + 1);
+        let kind = Kind::new(opts.shape, tris, &mut rng);
+        let (nv, nf) = kind.counts();
         assert!(nv <= u32::MAX as u64 + 1, "{nv} vertices do not fit u32 indices");
         Generator { shape: opts.shape, seed: opts.seed, attrs: opts.attrs, kind, nv, nf }
     }

@@ -5,42 +5,26 @@
 //! (polygons fan-triangulated, degenerate triangles dropped and counted),
 //! each corner carrying exactly the input's attributes, plus a [`SoupReport`].
 //!
-//! Two paths, same output byte for byte:
-//! * **in memory** when the vertex table fits in ¾ of the budget and vertices
-//!   precede faces in the file: one pass, faces dereferenced on the fly;
-//! * **external** otherwise, never random-accessing the disk:
-//!   1. stream the PLY once: vertices go to a packed vertex file in index
-//!      order; vertex indices are cut into K consecutive *slabs*, each
-//!      slab's vertex bytes fitting half the budget, and each triangle
-//!      corner becomes a record (index within its slab, slot = 3·triangle +
-//!      corner, 8 bytes while slots fit 32 bits, else 12) appended to its
-//!      slab's bucket file;
-//!   2. slab by slab: read the slab's vertices from the vertex file (the
-//!      slabs are consecutive ranges of it, so the file is read once, in
-//!      order) into memory, then stream the slab's bucket, each corner
-//!      becoming (slot, vertex bytes) by a lookup in memory, distributed to
-//!      bucket files by slot range (slots are dense; each range's vertex
-//!      bytes fit the budget);
-//!   3. each slot bucket is placed in memory by slot and written out as
-//!      triangles, in order.
+//! Two paths, same output byte for byte: **in memory** (one pass, faces
+//! dereferenced on the fly) when the vertex table fits in ¾ of the budget and
+//! vertices precede faces; **external** otherwise, in three phases:
+//! 1. one pass over the PLY: vertices to a packed vertex file, each corner
+//!    to the bucket file of its vertex's *slab* (a consecutive index range);
+//! 2. slab by slab: the slab's vertices in memory, its corners dereferenced
+//!    there and distributed to bucket files by slot range (slot = 3·triangle + corner);
+//! 3. each slot range placed in memory and written out as triangles, in order.
 //!
-//!   No comparison sort: corners are only distributed, by slab and by slot
-//!   range, so no record is ever compared or merged, and the only random
-//!   access (corner → vertex) is in RAM, as on the in-memory path.
+//! Invariants of the external path: the disk is only read and written in
+//! sequence; no record is ever compared or merged (corners are distributed by
+//! dense keys, never sorted); the only random access (corner → vertex) is in
+//! RAM; each phase holds within the budget.
 //!
-//! Budget split: phase 1 holds only write buffers (the slab buckets', at
-//! most about the budget less I/O buffers, together); in phase 2 one slab
-//! and the slot buckets' write buffers share it, half each of the budget
-//! less what a [`SoupTap`] reserves; phase 3 places slot buckets (one per
-//! thread) in the budget less that reserve.
+//! A [`SoupTap`] sees the external path's corners (phase 2) and triangles
+//! (phase 3) and holds its [`SoupTap::reserve`] out of the budget: `build`
+//! counts and fills level 0's octree cells this way, and then no soup file is
+//! written ([`TapMode::Takes`], [`SoupReport::written`]).
 //!
-//! A [`SoupTap`] sees each triangle's first corner in phase 2 (with the
-//! input's vertex box beforehand) and phase 3's triangles as they are
-//! placed (with the soup's bounding box, gathered in phase 2, beforehand),
-//! and holds its [`SoupTap::reserve`] out of both phases' budget: `build`
-//! counts level 0's octree cells in phase 2 and routes the triangles to
-//! them in phase 3, and then no soup file is written at all
-//! ([`TapMode::Takes`], [`SoupReport::written`]).
+//! The records, the budget split and the tap in detail: `docs/ply-and-soup.md`.
 
 pub mod format;
 
@@ -334,7 +318,7 @@ fn build_in_memory(input: &Path, output: &Path, header: &PlyHeader, opts: &SoupO
 /// A corner record of the external path: the vertex's index within its
 /// slab (u32) and the corner's slot (`slot_bytes`: u32 while slots fit,
 /// else u64), little endian. Narrow records are a third fewer bytes to
-/// write and read back (1.4 GB at 120 M triangles).
+/// write and read back.
 fn corner_rec(slot_bytes: usize) -> usize {
     4 + slot_bytes
 }
@@ -389,6 +373,8 @@ impl BodySink for ExternalSink<'_> {
     }
 }
 
+/// The external path: three phases (see the module doc), each a function
+/// below, in a scratch directory next to `output`.
 fn build_external(
     input: &Path,
     output: &Path,
@@ -397,32 +383,90 @@ fn build_external(
     progress: &Progress,
     mut tap: Option<&mut dyn SoupTap>,
 ) -> Result<SoupReport> {
-    let layout = VertexLayout::new(header.attrs);
-    let s = layout.size;
     let scratch = crate::io::scratch_dir(output)?;
-    let budget = opts.mem.saturating_sub(IO_RESERVE).max(opts.mem / 2) as usize;
-    // What phases 2 and 3 hold: the budget less what the tap holds beside them.
-    let held = budget.saturating_sub(tap.as_ref().map_or(0, |t| t.reserve()) as usize).max(budget / 4);
-    // Vertex slabs: consecutive index ranges whose vertex bytes fit half of that.
-    let n_vertices = header.vertex_count();
-    let per_slab = ((held / 2 / s) as u64).clamp(1, u32::MAX as u64);
-    let n_slabs = n_vertices.div_ceil(per_slab).max(1) as usize;
+    let plan = ExternalPlan::new(header, opts, tap.as_ref().map_or(0, |t| t.reserve()));
 
     let t0 = Instant::now();
-    // Phase 1: one pass over the PLY; corners distributed by vertex slab.
-    let vpath = scratch.path().join("vertices.bin");
+    let slabs = distribute_by_slab(input, header, opts, progress, &plan, scratch.path())?;
+    progress.finish();
+    let body = slabs.body;
+
+    let t1 = Instant::now();
+    let joined = join_slabs(&plan, scratch.path(), slabs, opts.quiet, &mut tap)?;
+
+    let t2 = Instant::now();
+    let written = write_slots(output, opts, plan.layout, &body, joined.buckets, joined.bbox, &mut tap)?;
+    let phase_seconds = [(t1 - t0).as_secs_f64(), (t2 - t1).as_secs_f64(), t2.elapsed().as_secs_f64()];
+    Ok(SoupReport {
+        header: written.header,
+        body,
+        input_bytes: 0,
+        external: true,
+        vertex_slabs: plan.n_slabs as u64,
+        corner_bucket_bytes: joined.corner_bucket_bytes,
+        slot_buckets: written.slot_buckets,
+        slot_bucket_bytes: written.slot_bucket_bytes,
+        phase_seconds,
+        seconds: 0.0,
+        written: written.mode == TapMode::Sees,
+    })
+}
+
+/// How the external path splits its budget and cuts the vertex indices into slabs.
+struct ExternalPlan {
+    layout: VertexLayout,
+    /// The budget less the I/O buffers.
+    budget: usize,
+    /// What phases 2 and 3 hold: the budget less what the tap holds beside them.
+    held: usize,
+    n_vertices: u64,
+    /// Vertices per slab: consecutive index ranges whose vertex bytes fit half of `held`.
+    per_slab: u64,
+    n_slabs: usize,
+}
+
+impl ExternalPlan {
+    /// `reserve`: what a tap holds beside phases 2 and 3 ([`SoupTap::reserve`]).
+    fn new(header: &PlyHeader, opts: &SoupOptions, reserve: u64) -> ExternalPlan {
+        let layout = VertexLayout::new(header.attrs);
+        let budget = opts.mem.saturating_sub(IO_RESERVE).max(opts.mem / 2) as usize;
+        let held = budget.saturating_sub(reserve as usize).max(budget / 4);
+        let n_vertices = header.vertex_count();
+        let per_slab = ((held / 2 / layout.size) as u64).clamp(1, u32::MAX as u64);
+        let n_slabs = n_vertices.div_ceil(per_slab).max(1) as usize;
+        ExternalPlan { layout, budget, held, n_vertices, per_slab, n_slabs }
+    }
+}
+
+/// What phase 1 leaves for phase 2.
+struct SlabCorners {
+    body: BodyStats,
+    /// The packed vertex file, in index order.
+    vpath: PathBuf,
+    /// Each slab's bucket file of corner records, and its record count.
+    buckets: Vec<(PathBuf, u64)>,
+    /// The bounding box of every vertex (as encoded), for a tap.
+    vertex_bbox: Aabb,
+    /// Bytes of a corner record's slot (4 or 8).
+    slot_bytes: usize,
+}
+
+/// Phase 1: one pass over the PLY; vertices to the vertex file, corners
+/// distributed by vertex slab.
+fn distribute_by_slab(input: &Path, header: &PlyHeader, opts: &SoupOptions, progress: &Progress, plan: &ExternalPlan, scratch: &Path) -> Result<SlabCorners> {
+    let vpath = scratch.join("vertices.bin");
     // Narrow slots unless the faces alone (one triangle each) outgrow them;
     // polygons can still do so, and then phase 1 starts again wide.
     let mut slot_bytes = if header.face_count().saturating_mul(3) <= opts.narrow_slots { 4 } else { 8 };
-    let (body, corner_buckets, vertex_bbox) = loop {
+    loop {
         let vfile = File::create(&vpath).ctx(&vpath, "create vertex file")?;
         let mut sink = ExternalSink {
-            layout,
+            layout: plan.layout,
             vfile: BufWriter::with_capacity(SEQ_BUF, vfile),
             vpath: &vpath,
             vbuf: Vec::new(),
-            per_slab,
-            corners: BucketFiles::create(scratch.path(), "corners", n_slabs, corner_rec(slot_bytes), budget)?,
+            per_slab: plan.per_slab,
+            corners: BucketFiles::create(scratch, "corners", plan.n_slabs, corner_rec(slot_bytes), plan.budget)?,
             next_tri: 0,
             slot_bytes,
             narrow_slots: opts.narrow_slots,
@@ -444,24 +488,36 @@ fn build_external(
         }
         let ExternalSink { vfile, corners, bbox, .. } = sink;
         vfile.into_inner().map_err(|e| e.into_error()).ctx(&vpath, "write vertex file")?;
-        break (body, corners.finish()?, bbox);
-    };
-    progress.finish();
-    let crec = corner_rec(slot_bytes);
+        return Ok(SlabCorners { body, buckets: corners.finish()?, vpath, vertex_bbox: bbox, slot_bytes });
+    }
+}
 
-    let t1 = Instant::now();
-    // Phase 2: slab by slab, the slab's vertices in memory (read in sequence
-    // from the vertex file), its corners dereferenced and distributed by slot.
+/// What phase 2 leaves for phase 3.
+struct Joined {
+    /// Every corner's vertex, distributed by slot.
+    buckets: SlotBuckets,
+    /// The soup's bounding box (its corners'), for the tap.
+    bbox: Aabb,
+    /// Bytes read back from (and written to) the slabs' corner buckets.
+    corner_bucket_bytes: u64,
+}
+
+/// Phase 2: slab by slab, the slab's vertices in memory (read in sequence
+/// from the vertex file), its corners dereferenced and distributed by slot;
+/// the tap sees each triangle's first corner.
+fn join_slabs(plan: &ExternalPlan, scratch: &Path, slabs: SlabCorners, quiet: bool, tap: &mut Option<&mut dyn SoupTap>) -> Result<Joined> {
+    let SlabCorners { body, vpath, buckets: corner_buckets, vertex_bbox, slot_bytes } = slabs;
+    let (layout, s, per_slab, n_vertices) = (plan.layout, plan.layout.size, plan.per_slab, plan.n_vertices);
+    let crec = corner_rec(slot_bytes);
     let n_corners = body.triangles * 3;
-    let join_progress = Progress::items(n_corners, "joining", opts.quiet);
+    let join_progress = Progress::items(n_corners, "joining", quiet);
     // Phase 3 places a slot range beside what the tap holds.
-    let mut buckets = SlotBuckets::new(scratch.path(), n_corners, s, held, held / 2)?;
+    let mut buckets = SlotBuckets::new(scratch, n_corners, s, plan.held, plan.held / 2)?;
     let mut vfile = File::open(&vpath).ctx(&vpath, "open vertex file")?;
     let mut slab = vec![0u8; per_slab.min(n_vertices) as usize * s];
     let mut chunk = vec![0u8; SEQ_BUF / crec * crec];
     let mut done = 0u64;
     let mut corner_bucket_bytes = 0;
-    // The soup's bounding box (its corners'), for the tap.
     let mut bbox = Aabb::EMPTY;
     let with_bbox = tap.is_some();
     if let Some(t) = tap.as_mut() {
@@ -509,17 +565,37 @@ fn build_external(
     drop((vfile, slab, chunk, firsts));
     let _ = std::fs::remove_file(&vpath);
     join_progress.finish();
+    Ok(Joined { buckets, bbox, corner_bucket_bytes })
+}
 
-    let t2 = Instant::now();
-    // Phase 3: each slot range placed in memory, written as triangles in order.
+/// What phase 3 wrote.
+struct Written {
+    /// The soup's header (also when the tap took the triangles and no file was written).
+    header: SoupHeader,
+    slot_buckets: u64,
+    slot_bucket_bytes: u64,
+    mode: TapMode,
+}
+
+/// Phase 3: each slot range placed in memory, written as triangles in order
+/// to the soup and shown to the tap; no soup file when the tap takes them.
+fn write_slots(
+    output: &Path,
+    opts: &SoupOptions,
+    layout: VertexLayout,
+    body: &BodyStats,
+    buckets: SlotBuckets,
+    bbox: Aabb,
+    tap: &mut Option<&mut dyn SoupTap>,
+) -> Result<Written> {
+    let s = layout.size;
     let write_progress = Progress::items(body.triangles, "writing", opts.quiet);
     let mode = match tap.as_mut() {
         Some(t) => t.begin(&bbox, layout)?,
         None => TapMode::Sees,
     };
-    // No soup file when the tap takes the triangles.
     let mut soup = match mode {
-        TapMode::Sees => Some(SoupWriter::create(output, header.attrs, opts.replace, opts.scratch)?),
+        TapMode::Sees => Some(SoupWriter::create(output, layout.attrs, opts.replace, opts.scratch)?),
         TapMode::Takes => None,
     };
     let mut written = 0u64;
@@ -539,27 +615,14 @@ fn build_external(
     })?;
     write_progress.finish();
     debug_assert_eq!(written, body.triangles);
-    let h = match soup {
+    let header = match soup {
         Some(soup) => soup.commit(body.vertices, body.faces, body.degenerate)?,
         // The header the soup would have had: the same corners' box.
         None => {
-            SoupHeader { attrs: header.attrs, triangles: written, input_vertices: body.vertices, input_faces: body.faces, degenerate: body.degenerate, bbox }
+            SoupHeader { attrs: layout.attrs, triangles: written, input_vertices: body.vertices, input_faces: body.faces, degenerate: body.degenerate, bbox }
         }
     };
-    let phase_seconds = [(t1 - t0).as_secs_f64(), (t2 - t1).as_secs_f64(), t2.elapsed().as_secs_f64()];
-    Ok(SoupReport {
-        header: h,
-        body,
-        input_bytes: 0,
-        external: true,
-        vertex_slabs: n_slabs as u64,
-        corner_bucket_bytes,
-        slot_buckets,
-        slot_bucket_bytes,
-        phase_seconds,
-        seconds: 0.0,
-        written: mode == TapMode::Sees,
-    })
+    Ok(Written { header, slot_buckets, slot_bucket_bytes, mode })
 }
 
 /// Append-only bucket files of fixed-size records, one write buffer of
