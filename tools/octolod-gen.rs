@@ -51,7 +51,7 @@ struct Args {
     /// Names of the texture-coordinate properties.
     #[arg(long, value_enum, default_value = "uv")]
     uv_names: UvNamesArg,
-    /// Colors as float in \[0,1\] instead of uchar.
+    /// Colors as float (0 to 1) instead of uchar.
     #[arg(long)]
     float_colors: bool,
     /// Add a `float quality` vertex property between x and y (reader test).

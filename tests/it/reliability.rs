@@ -265,8 +265,11 @@ fn a_closed_pipe_ends_quietly() {
     let d = tempfile::tempdir().unwrap();
     let a = d.path().join("a.ply");
     gen("sphere", 20_000, &a);
-    let mut child = Command::new(bin()).args(["ply-info", s(&a)]).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap();
-    drop(child.stdout.take());
+    // The read end is closed before the child starts: its first write
+    // fails, however fast it runs.
+    let (reader, writer) = std::io::pipe().unwrap();
+    drop(reader);
+    let child = Command::new(bin()).args(["ply-info", s(&a)]).stdout(writer).stderr(Stdio::piped()).spawn().unwrap();
     let o = child.wait_with_output().unwrap();
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!err.contains("panicked") && !err.contains("Broken pipe"), "{err}");
