@@ -2,7 +2,7 @@
 
 use clap::{Parser, Subcommand};
 use octolod::mesh::Aabb;
-use octolod::ply::read::{read_body, BodySink};
+use octolod::ply::read::BodySink;
 use octolod::progress::{peak_rss, Progress};
 use octolod::view::camera::Up;
 #[cfg(feature = "view")]
@@ -113,7 +113,9 @@ enum Cmd {
         #[command(flatten)]
         window: WindowArgs,
     },
-    /// Print a PLY's header, element counts, attribute set and bounding box.
+    /// Print an input's header (PLY, STL or OBJ), counts, attribute set,
+    /// bounding box and decode speed.
+    #[command(alias = "info-input")]
     PlyInfo {
         input: PathBuf,
         /// Only parse the header (no bbox, no body validation).
@@ -836,23 +838,42 @@ fn info(dir: &std::path::Path) -> Result<()> {
 }
 
 fn ply_info(input: &std::path::Path, header_only: bool, quiet: bool) -> Result<()> {
-    let h = ply::read_header(input)?;
+    use octolod::input::Details;
+    let len = std::fs::metadata(input).map(|m| m.len()).unwrap_or(0);
+    let scan = Progress::bytes(len, "scanning", quiet || octolod::input::Format::of(input)? == octolod::input::Format::Ply);
+    let h = octolod::input::read_header(input, &scan)?;
+    scan.finish();
     out!("file: {}", input.display());
-    out!("format: {}", h.encoding.header_name());
-    out!("header bytes: {}", h.body_offset);
-    for c in &h.comments {
-        out!("comment: {c}");
-    }
-    for e in &h.elements {
-        let props: Vec<String> = e
-            .props
-            .iter()
-            .map(|p| match p.ty {
-                ply::PropType::Scalar(s) => format!("{} {}", s.name(), p.name),
-                ply::PropType::List(c, s) => format!("list {} {} {}", c.name(), s.name(), p.name),
-            })
-            .collect();
-        out!("element {} {}: {}", e.name, e.count, props.join(", "));
+    match &h.details {
+        Details::Ply(p) => {
+            out!("format: {}", p.encoding.header_name());
+            out!("header bytes: {}", p.body_offset);
+            for c in &p.comments {
+                out!("comment: {c}");
+            }
+            for e in &p.elements {
+                let props: Vec<String> = e
+                    .props
+                    .iter()
+                    .map(|p| match p.ty {
+                        ply::PropType::Scalar(s) => format!("{} {}", s.name(), p.name),
+                        ply::PropType::List(c, s) => format!("list {} {} {}", c.name(), s.name(), p.name),
+                    })
+                    .collect();
+                out!("element {} {}: {}", e.name, e.count, props.join(", "));
+            }
+        }
+        Details::Stl(i) => {
+            out!("format: STL {}", if i.binary { "binary" } else { "ascii" });
+            out!("name: {}", i.name);
+        }
+        Details::Obj(i) => {
+            out!("format: OBJ");
+            out!("v: {}, vt: {}, vn: {}, f: {} ({} corners)", i.positions, i.texcoords, i.normals, i.faces, i.corners);
+            for m in &i.mtllibs {
+                out!("mtllib: {m}");
+            }
+        }
     }
     out!("vertices: {}", h.vertex_count());
     out!("faces: {}", h.face_count());
@@ -861,11 +882,10 @@ fn ply_info(input: &std::path::Path, header_only: bool, quiet: bool) -> Result<(
     if header_only {
         return Ok(());
     }
-    let len = std::fs::metadata(input).map(|m| m.len()).unwrap_or(0);
-    let progress = Progress::bytes(len, "scanning", quiet);
+    let progress = Progress::bytes(len, "decoding", quiet);
     let mut sink = BboxSink { bbox: Aabb::EMPTY };
     let t0 = std::time::Instant::now();
-    let st = read_body(input, &h, &mut sink, &progress)?;
+    let st = octolod::input::read_body(input, &h, octolod::mem::DEFAULT_BUDGET, &mut sink, &progress)?;
     let secs = t0.elapsed().as_secs_f64();
     progress.finish();
     let b = sink.bbox;

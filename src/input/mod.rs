@@ -1,13 +1,171 @@
-//! Input formats beyond PLY: STL ([`stl`]) and OBJ ([`obj`]), each read as
-//! the PLY body reader reads a PLY.
+//! Inputs: PLY ([`crate::ply`]), STL ([`stl`]) and OBJ ([`obj`]), each read
+//! as the PLY body reader reads a PLY.
 //!
-//! Takes: a path. Gives: a first look at the file (counts, attributes) and
-//! a body reader that calls a [`BodySink`](crate::ply::read::BodySink)
-//! with every vertex in index order, then every triangle (polygons
-//! fan-triangulated, triangles with a repeated corner dropped and counted),
-//! in sequential passes over the file, never holding the mesh in memory —
-//! so the soup stage's out-of-core dereference serves every format alike.
-//! Bad input is an error naming the file, line or byte offset.
+//! Takes: a path (the format by extension, else by content). Gives: an
+//! [`InputHeader`] (format, attributes, counts) and a body reader that
+//! calls a [`BodySink`] with every vertex in index order, then every
+//! triangle (polygons fan-triangulated, triangles with a repeated corner
+//! dropped and counted), in sequential passes over the file, never holding
+//! the mesh in memory — so the soup stage's out-of-core dereference serves
+//! every format alike. Bad input is an error naming the file, line or byte
+//! offset.
 
 pub mod obj;
 pub mod stl;
+
+use crate::error::{Error, Location, Result};
+use crate::mesh::AttrSet;
+use crate::ply::read::{BodySink, BodyStats, CollectSink};
+use crate::ply::PlyHeader;
+use crate::progress::Progress;
+use std::io::Read;
+use std::path::Path;
+
+/// A mesh file format octolod reads.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Format {
+    Ply,
+    Stl,
+    Obj,
+}
+
+impl Format {
+    pub fn name(self) -> &'static str {
+        match self {
+            Format::Ply => "PLY",
+            Format::Stl => "STL",
+            Format::Obj => "OBJ",
+        }
+    }
+
+    /// By extension (case-insensitive), else by the first bytes.
+    pub fn of(path: &Path) -> Result<Format> {
+        let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
+        match ext.as_deref() {
+            Some("ply") => return Ok(Format::Ply),
+            Some("stl") => return Ok(Format::Stl),
+            Some("obj") => return Ok(Format::Obj),
+            _ => {}
+        }
+        let (f, len) = crate::io::open_regular(path, "open")?;
+        let mut head = Vec::with_capacity(512);
+        f.take(512).read_to_end(&mut head).map_err(|e| Error::io(path, "read", e))?;
+        if head.starts_with(b"ply") {
+            Ok(Format::Ply)
+        } else if stl::looks_like_stl(&head, len) {
+            Ok(Format::Stl)
+        } else if obj::looks_like_obj(&head) {
+            Ok(Format::Obj)
+        } else {
+            Err(Error::input(
+                Location { file: path.to_path_buf(), offset: Some(0), ..Default::default() },
+                "not a mesh file octolod reads (PLY, STL or OBJ, by extension or content)",
+            ))
+        }
+    }
+}
+
+/// What each format's first look found.
+#[derive(Clone, Debug)]
+pub enum Details {
+    Ply(PlyHeader),
+    Stl(stl::StlInfo),
+    Obj(obj::ObjInfo),
+}
+
+/// An input's format, attributes and counts.
+#[derive(Clone, Debug)]
+pub struct InputHeader {
+    pub format: Format,
+    pub attrs: AttrSet,
+    /// Vertices the body gives (an STL's kept corners; an OBJ's positions,
+    /// or its distinct corners when they carry uvs or normals).
+    pub vertices: u64,
+    /// Faces (an STL's triangles).
+    pub faces: u64,
+    /// Every vertex comes before the first face (always, but for PLYs that
+    /// declare faces first).
+    pub vertices_first: bool,
+    /// Byte offset of the body (PLY), for errors.
+    pub body_offset: u64,
+    pub details: Details,
+}
+
+impl InputHeader {
+    pub fn vertex_count(&self) -> u64 {
+        self.vertices
+    }
+    pub fn face_count(&self) -> u64 {
+        self.faces
+    }
+    /// The PLY header, for a PLY.
+    pub fn ply(&self) -> Option<&PlyHeader> {
+        match &self.details {
+            Details::Ply(h) => Some(h),
+            _ => None,
+        }
+    }
+}
+
+/// Reads what the input says of itself: a PLY's header, an STL's header
+/// (binary) or one counting pass (ascii), an OBJ's counting pass.
+pub fn read_header(path: &Path, progress: &Progress) -> Result<InputHeader> {
+    Ok(match Format::of(path)? {
+        Format::Ply => {
+            let h = crate::ply::read_header(path)?;
+            InputHeader {
+                format: Format::Ply,
+                attrs: h.attrs,
+                vertices: h.vertex_count(),
+                faces: h.face_count(),
+                vertices_first: h.face_elem.is_some_and(|f| h.vertex_elem < f),
+                body_offset: h.body_offset,
+                details: Details::Ply(h),
+            }
+        }
+        Format::Stl => {
+            let i = stl::read_info(path)?;
+            let faces = i.triangles;
+            InputHeader {
+                format: Format::Stl,
+                attrs: AttrSet::POSITION_ONLY,
+                vertices: 3 * faces,
+                faces,
+                vertices_first: true,
+                body_offset: 0,
+                details: Details::Stl(i),
+            }
+        }
+        Format::Obj => {
+            let i = obj::read_info(path, progress)?;
+            InputHeader {
+                format: Format::Obj,
+                attrs: i.attrs,
+                vertices: i.vertices,
+                faces: i.faces,
+                vertices_first: true,
+                body_offset: 0,
+                details: Details::Obj(i),
+            }
+        }
+    })
+}
+
+/// Streams the body to `sink`: every vertex in index order, then every
+/// triangle. `mem` bounds what a reader may hold (an OBJ's attribute
+/// tables).
+pub fn read_body(path: &Path, header: &InputHeader, mem: u64, sink: &mut dyn BodySink, progress: &Progress) -> Result<BodyStats> {
+    match &header.details {
+        Details::Ply(h) => crate::ply::read::read_body(path, h, sink, progress),
+        Details::Stl(i) => stl::read_body(path, i, sink, progress),
+        Details::Obj(i) => obj::read_body(path, i, mem, sink, progress),
+    }
+}
+
+/// A whole input in memory (tests, metro, the benchmark's peers).
+pub fn read_all(path: &Path, mem: u64) -> Result<(InputHeader, CollectSink, BodyStats)> {
+    let header = read_header(path, &Progress::hidden())?;
+    let mut sink = CollectSink::default();
+    let stats = read_body(path, &header, mem, &mut sink, &Progress::hidden())?;
+    Ok((header, sink, stats))
+}

@@ -80,7 +80,7 @@ pub enum Source {
 }
 
 impl Source {
-    /// `PATH.ply` or `STORE@L`. A spec is a store when the part before the
+    /// `PATH.ply` (or `.stl`, `.obj`) or `STORE@L`. A spec is a store when the part before the
     /// last `@` is a directory (or the whole spec names nothing and the part
     /// after `@` is a number); a bare store directory is a usage error.
     pub fn parse(spec: &str) -> Result<Source> {
@@ -117,10 +117,10 @@ fn loc(path: &Path) -> Location {
     Location { file: path.to_path_buf(), ..Default::default() }
 }
 
-/// Reads a whole PLY (any format the reader takes; polygons fan-triangulated,
+/// Reads a whole input file (PLY, STL or OBJ; polygons fan-triangulated,
 /// triangles with a repeated index dropped).
 pub fn load_ply(path: &Path) -> Result<Mesh> {
-    let (_, sink, _) = crate::ply::read::read_all(path)?;
+    let (_, sink, _) = crate::input::read_all(path, crate::mem::DEFAULT_BUDGET)?;
     if sink.vertices.len() as u64 > u32::MAX as u64 + 1 {
         return Err(Error::input(loc(path), format!("{} vertices: metro takes at most 2^32", sink.vertices.len())));
     }
@@ -233,7 +233,7 @@ pub fn compare_sources(sa: &Source, sb: &Source, opts: &Options, mem: &MemOption
     let mut ply_est = 0u64;
     for (s, name) in [(sa, "A"), (sb, "B")] {
         if let Source::Ply(p) = s {
-            let h = crate::ply::read_header(p)?;
+            let h = crate::input::read_header(p, &crate::progress::Progress::hidden())?;
             let e = ply_estimate(h.vertex_count(), h.face_count());
             if mem.explicit && e > mem.budget {
                 let (tmp, store) = level0_scratch_store(p, opts, mem)?;

@@ -31,8 +31,8 @@ pub mod format;
 use crate::error::{Error, IoContext, Location, Result};
 use crate::io::{WriteBehind, SEQ_BUF};
 use crate::mesh::{Aabb, Vertex, VertexLayout};
-use crate::ply::read::{read_body, BodySink, BodyStats};
-use crate::ply::{read_header, PlyHeader};
+use crate::input::{Format, InputHeader};
+use crate::ply::read::{BodySink, BodyStats};
 use crate::progress::Progress;
 use format::{SoupHeader, SoupWriter};
 use rayon::prelude::*;
@@ -225,12 +225,15 @@ pub fn build_soup_tapped(input: &Path, output: &Path, opts: &SoupOptions, tap: O
     }
     let _input = crate::io::protect(input);
     crate::io::check_output(output, crate::io::OutputKind::Soup, opts.replace)?;
-    let header = read_header(input)?;
-    check_has_faces(input, &header)?;
     let input_bytes = std::fs::metadata(input).ctx(input, "stat")?.len();
+    // An OBJ (or ascii STL) is counted in a first pass over the file.
+    let scan = Progress::bytes(input_bytes, "scanning", opts.quiet || Format::of(input)? == Format::Ply);
+    let header = crate::input::read_header(input, &scan)?;
+    scan.finish();
+    check_has_faces(input, &header)?;
     let layout = VertexLayout::new(header.attrs);
     let vertex_table = header.vertex_count().saturating_mul(layout.size as u64);
-    let vertices_first = header.face_elem.is_some_and(|f| header.vertex_elem < f);
+    let vertices_first = header.vertices_first;
     let in_memory = !opts.force_external && vertices_first && vertex_table <= opts.mem / 4 * 3;
     let progress = Progress::bytes(input_bytes, "reading", opts.quiet);
     let mut report =
@@ -241,7 +244,7 @@ pub fn build_soup_tapped(input: &Path, output: &Path, opts: &SoupOptions, tap: O
     Ok(report)
 }
 
-fn check_has_faces(input: &Path, header: &PlyHeader) -> Result<()> {
+fn check_has_faces(input: &Path, header: &InputHeader) -> Result<()> {
     if header.face_count() == 0 {
         let loc = Location { file: input.to_path_buf(), element: Some("face".into()), offset: Some(header.body_offset), ..Default::default() };
         return Err(Error::input(loc, "the file declares no faces: nothing to turn into a triangle soup"));
@@ -249,7 +252,7 @@ fn check_has_faces(input: &Path, header: &PlyHeader) -> Result<()> {
     Ok(())
 }
 
-fn no_triangles_error(input: &Path, header: &PlyHeader, body: &BodyStats) -> Error {
+fn no_triangles_error(input: &Path, header: &InputHeader, body: &BodyStats) -> Error {
     let loc = Location { file: input.to_path_buf(), element: Some("face".into()), ..Default::default() };
     Error::input(loc, format!("all {} faces are degenerate (repeated vertex indices): no triangle left", header.face_count().max(body.faces)))
 }
@@ -287,12 +290,12 @@ impl BodySink for InMemorySink<'_> {
     }
 }
 
-fn build_in_memory(input: &Path, output: &Path, header: &PlyHeader, opts: &SoupOptions, progress: &Progress) -> Result<SoupReport> {
+fn build_in_memory(input: &Path, output: &Path, header: &InputHeader, opts: &SoupOptions, progress: &Progress) -> Result<SoupReport> {
     let layout = VertexLayout::new(header.attrs);
     let mut soup = SoupWriter::create(output, header.attrs, opts.replace, opts.scratch)?;
     let mut sink =
         InMemorySink { table: Vec::with_capacity(header.vertex_count() as usize * layout.size), layout, soup: &mut soup, rec: vec![0; 3 * layout.size] };
-    let body = read_body(input, header, &mut sink, progress)?;
+    let body = crate::input::read_body(input, header, opts.mem, &mut sink, progress)?;
     drop(sink);
     if body.triangles == 0 {
         return Err(no_triangles_error(input, header, &body));
@@ -378,7 +381,7 @@ impl BodySink for ExternalSink<'_> {
 fn build_external(
     input: &Path,
     output: &Path,
-    header: &PlyHeader,
+    header: &InputHeader,
     opts: &SoupOptions,
     progress: &Progress,
     mut tap: Option<&mut dyn SoupTap>,
@@ -427,7 +430,7 @@ struct ExternalPlan {
 
 impl ExternalPlan {
     /// `reserve`: what a tap holds beside phases 2 and 3 ([`SoupTap::reserve`]).
-    fn new(header: &PlyHeader, opts: &SoupOptions, reserve: u64) -> ExternalPlan {
+    fn new(header: &InputHeader, opts: &SoupOptions, reserve: u64) -> ExternalPlan {
         let layout = VertexLayout::new(header.attrs);
         let budget = opts.mem.saturating_sub(IO_RESERVE).max(opts.mem / 2) as usize;
         let held = budget.saturating_sub(reserve as usize).max(budget / 4);
@@ -453,7 +456,7 @@ struct SlabCorners {
 
 /// Phase 1: one pass over the PLY; vertices to the vertex file, corners
 /// distributed by vertex slab.
-fn distribute_by_slab(input: &Path, header: &PlyHeader, opts: &SoupOptions, progress: &Progress, plan: &ExternalPlan, scratch: &Path) -> Result<SlabCorners> {
+fn distribute_by_slab(input: &Path, header: &InputHeader, opts: &SoupOptions, progress: &Progress, plan: &ExternalPlan, scratch: &Path) -> Result<SlabCorners> {
     let vpath = scratch.join("vertices.bin");
     // Narrow slots unless the faces alone (one triangle each) outgrow them;
     // polygons can still do so, and then phase 1 starts again wide.
@@ -473,7 +476,7 @@ fn distribute_by_slab(input: &Path, header: &PlyHeader, opts: &SoupOptions, prog
             overflow: false,
             bbox: Aabb::EMPTY,
         };
-        let body = match read_body(input, header, &mut sink, progress) {
+        let body = match crate::input::read_body(input, header, opts.mem, &mut sink, progress) {
             Err(_) if sink.overflow => {
                 // The files are created afresh (truncated) on the next try.
                 drop(sink);

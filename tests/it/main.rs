@@ -21,6 +21,7 @@ mod bad_input;
 mod cli;
 mod fuzz_regressions;
 mod gltf;
+mod inputs;
 #[cfg(feature = "view")]
 mod gpu;
 mod lod;

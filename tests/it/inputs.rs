@@ -1,0 +1,124 @@
+//! Inputs beyond PLY (issue 33): an STL (binary and ascii) or an OBJ of a
+//! mesh builds the same level 0 as the PLY of that mesh — the same
+//! triangles with bit-equal positions — and bad files are errors naming
+//! the file and the place, with nothing left behind.
+
+use crate::common::{build_from, err, gen_ply, octolod, s};
+use octolod::gen::Shape;
+use octolod::mesh::IndexedMesh;
+use octolod::store::Store;
+use std::io::Write;
+use std::path::Path;
+
+/// Level 0's triangles as position bits, sorted.
+fn level0(st: &Store) -> Vec<[[u64; 3]; 3]> {
+    let mut tris = Vec::new();
+    for i in st.level_nodes(0) {
+        let m = st.read_node(i).unwrap().mesh;
+        tris.extend(m.triangles.iter().map(|t| t.map(|v| m.vertices[v as usize].pos.map(f64::to_bits))));
+    }
+    tris.sort_unstable();
+    tris
+}
+
+/// The mesh's positions as the PLY stores them (float32).
+fn f32_pos(m: &IndexedMesh, v: u32) -> [f32; 3] {
+    m.vertices[v as usize].pos.map(|c| c as f32)
+}
+
+fn write_stl_binary(path: &Path, m: &IndexedMesh) {
+    let mut b = Vec::with_capacity(84 + 50 * m.triangles.len());
+    let mut header = [b' '; 80];
+    header[..21].copy_from_slice(b"solid binary, really!");
+    b.extend_from_slice(&header);
+    b.extend_from_slice(&(m.triangles.len() as u32).to_le_bytes());
+    for t in &m.triangles {
+        b.extend_from_slice(&[0u8; 12]);
+        for &v in t {
+            for c in f32_pos(m, v) {
+                b.extend_from_slice(&c.to_le_bytes());
+            }
+        }
+        b.extend_from_slice(&[0, 0]);
+    }
+    std::fs::write(path, b).unwrap();
+}
+
+fn write_stl_ascii(path: &Path, m: &IndexedMesh) {
+    let mut w = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
+    writeln!(w, "solid test").unwrap();
+    for t in &m.triangles {
+        writeln!(w, "  facet normal 0 0 0\n    outer loop").unwrap();
+        for &v in t {
+            let p = f32_pos(m, v);
+            writeln!(w, "      vertex {:?} {:?} {:?}", p[0], p[1], p[2]).unwrap();
+        }
+        writeln!(w, "    endloop\n  endfacet").unwrap();
+    }
+    writeln!(w, "endsolid test").unwrap();
+}
+
+/// Positions (shortest round-trip decimals of the f32 values), then faces;
+/// every other face with negative (relative) indices.
+fn write_obj(path: &Path, m: &IndexedMesh) {
+    let mut w = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
+    writeln!(w, "# octolod test\no mesh").unwrap();
+    for v in 0..m.vertices.len() as u32 {
+        let p = f32_pos(m, v).map(|c| c as f64);
+        writeln!(w, "v {:?} {:?} {:?}", p[0], p[1], p[2]).unwrap();
+    }
+    let n = m.vertices.len() as i64;
+    for (k, t) in m.triangles.iter().enumerate() {
+        if k % 2 == 0 {
+            writeln!(w, "f {} {} {}", t[0] + 1, t[1] + 1, t[2] + 1).unwrap();
+        } else {
+            let r = t.map(|v| v as i64 - n);
+            writeln!(w, "f {} {} {}", r[0], r[1], r[2]).unwrap();
+        }
+    }
+}
+
+#[test]
+fn stl_and_obj_build_the_level_0_of_the_same_ply() {
+    let d = tempfile::tempdir().unwrap();
+    let (ply, m) = gen_ply(d.path(), Shape::Scan, 20_000, 0);
+    let want = build_from(d.path(), &ply, 2000);
+    let want0 = level0(&want);
+    assert!(want0.len() > 15_000);
+    let inputs = [("bin.stl", write_stl_binary as fn(&Path, &IndexedMesh)), ("ascii.stl", write_stl_ascii), ("mesh.obj", write_obj)];
+    for (name, write) in inputs {
+        let p = d.path().join(name);
+        write(&p, &m);
+        let got = build_from(d.path(), &p, 2000);
+        assert_eq!(level0(&got), want0, "{name}: level 0 differs from the PLY's");
+        assert_eq!(got.top_level(), want.top_level(), "{name}");
+        // The command line takes it too, and says what it is.
+        let o = octolod(&["info-input", s(&p)]);
+        assert!(o.status.success(), "{name}: {}", err(&o));
+        let out = String::from_utf8_lossy(&o.stdout);
+        assert!(out.contains(&format!("triangles (after fan triangulation): {}", m.triangles.len())), "{name}: {out}");
+    }
+}
+
+#[test]
+fn bad_stl_and_obj_name_the_file_and_the_place() {
+    let d = tempfile::tempdir().unwrap();
+    let tri = "v 0 0 0\nv 1 0 0\nv 0 1 0\n";
+    let cases: [(&str, Vec<u8>, &str); 5] = [
+        ("short.stl", [vec![b'x'; 80], 3u32.to_le_bytes().to_vec(), vec![0u8; 100]].concat(), "bytes"),
+        ("nan.stl", b"solid a\nfacet normal 0 0 0\nouter loop\nvertex nan 0 0\nvertex 1 0 0\nvertex 0 1 0\nendloop\nendfacet\nendsolid a\n".to_vec(), "line 4"),
+        ("zero.obj", format!("{tri}f 0 1 2\n").into_bytes(), "line 4"),
+        ("range.obj", format!("{tri}f 1 2 4\n").into_bytes(), "line 4"),
+        ("float.obj", b"v 0 0 0\nv 1 0 x\nv 0 1 0\nf 1 2 3\n".to_vec(), "line 2"),
+    ];
+    for (name, bytes, place) in cases {
+        let p = d.path().join(name);
+        std::fs::write(&p, bytes).unwrap();
+        let out = d.path().join(format!("{name}.octolod"));
+        let o = octolod(&["build", s(&p), "-o", s(&out), "--quiet"]);
+        let e = err(&o);
+        assert_eq!(o.status.code(), Some(1), "{name}: {e}");
+        assert!(e.contains(name) && e.contains(place), "{name}: wants the file and {place:?}: {e}");
+        assert!(!out.exists(), "{name}: output left behind");
+    }
+}
