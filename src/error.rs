@@ -1,5 +1,5 @@
 //! Errors with the context a user needs to fix their input: the file, the
-//! element, the record and the byte offset (or header line) where it broke.
+//! element, the record and the byte offset (or the line) where it broke.
 //!
 //! Takes: failures from every stage. Gives: one [`Error`] type whose message
 //! reads like `mesh.ply: element 'face' record 12 (byte 345): index 99 out of
@@ -13,7 +13,8 @@ use std::path::{Path, PathBuf};
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct Location {
     pub file: PathBuf,
-    /// 1-based header line, for header errors.
+    /// 1-based line: of a PLY header (header errors, no offset), or of a
+    /// line-based body such as an OBJ (with the byte offset).
     pub line: Option<u64>,
     pub element: Option<String>,
     /// 0-based record index within the element.
@@ -26,7 +27,7 @@ impl fmt::Display for Location {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(f, "{}", self.file.display())?;
         if let Some(l) = self.line {
-            write!(f, ": header line {l}")?;
+            write!(f, ": {} {l}", if self.offset.is_some() { "line" } else { "header line" })?;
         }
         if let Some(e) = &self.element {
             write!(f, ": element '{e}'")?;
