@@ -29,9 +29,9 @@
 pub mod format;
 
 use crate::error::{Error, IoContext, Location, Result};
+use crate::input::{Format, InputHeader};
 use crate::io::{WriteBehind, SEQ_BUF};
 use crate::mesh::{Aabb, Vertex, VertexLayout};
-use crate::input::{Format, InputHeader};
 use crate::ply::read::{BodySink, BodyStats};
 use crate::progress::Progress;
 use format::{SoupHeader, SoupWriter};

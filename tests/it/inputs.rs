@@ -3,7 +3,8 @@
 //! triangles with bit-equal positions — and bad files are errors naming
 //! the file and the place, with nothing left behind.
 
-use crate::common::{build_from, err, gen_ply, octolod, s};
+use crate::common::cli::{err, octolod, s};
+use crate::common::{build_from, gen_ply};
 use octolod::gen::Shape;
 use octolod::mesh::IndexedMesh;
 use octolod::store::Store;

@@ -21,9 +21,9 @@ mod bad_input;
 mod cli;
 mod fuzz_regressions;
 mod gltf;
-mod inputs;
 #[cfg(feature = "view")]
 mod gpu;
+mod inputs;
 mod lod;
 mod metro;
 mod octree;
