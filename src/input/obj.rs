@@ -1688,7 +1688,7 @@ mod tests {
     /// (same number text): `cargo test --release --lib input::obj -- --ignored --nocapture`
     /// (`OBJ_SPEED_TRIS` sets the size).
     #[test]
-    #[ignore]
+    #[ignore = "a decode-speed measurement on a 2 M-triangle OBJ; run in release"]
     fn decode_speed_against_ply_ascii() {
         struct Count(u64, u64);
         impl BodySink for Count {

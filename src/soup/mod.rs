@@ -225,7 +225,7 @@ pub fn build_soup_tapped(input: &Path, output: &Path, opts: &SoupOptions, tap: O
     }
     let _input = crate::io::protect(input);
     crate::io::check_output(output, crate::io::OutputKind::Soup, opts.replace)?;
-    let input_bytes = std::fs::metadata(input).ctx(input, "stat")?.len();
+    let input_bytes = crate::io::open_regular(input, "open")?.1;
     // An OBJ (or ascii STL) is counted in a first pass over the file.
     let scan = Progress::bytes(input_bytes, "scanning", opts.quiet || Format::of(input)? == Format::Ply);
     let header = crate::input::read_header(input, &scan)?;
