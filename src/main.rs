@@ -874,6 +874,10 @@ fn ply_info(input: &std::path::Path, header_only: bool, quiet: bool) -> Result<(
                 out!("mtllib: {m}");
             }
         }
+        Details::Gltf(i) => {
+            out!("format: glTF");
+            out!("primitives: {}", i.primitives);
+        }
     }
     out!("vertices: {}", h.vertex_count());
     out!("faces: {}", h.face_count());

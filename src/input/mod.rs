@@ -1,4 +1,5 @@
-//! Inputs: PLY ([`crate::ply`]), STL ([`stl`]) and OBJ ([`obj`]), each read
+//! Inputs: PLY ([`crate::ply`]), STL ([`stl`]), OBJ ([`obj`]) and glTF
+//! ([`gltf`]), each read
 //! as the PLY body reader reads a PLY.
 //!
 //! Takes: a path (the format by extension, else by content). Gives: an
@@ -10,6 +11,7 @@
 //! every format alike. Bad input is an error naming the file, line or byte
 //! offset.
 
+pub mod gltf;
 pub mod obj;
 pub mod stl;
 
@@ -27,6 +29,7 @@ pub enum Format {
     Ply,
     Stl,
     Obj,
+    Gltf,
 }
 
 impl Format {
@@ -35,6 +38,7 @@ impl Format {
             Format::Ply => "PLY",
             Format::Stl => "STL",
             Format::Obj => "OBJ",
+            Format::Gltf => "glTF",
         }
     }
 
@@ -45,6 +49,7 @@ impl Format {
             Some("ply") => return Ok(Format::Ply),
             Some("stl") => return Ok(Format::Stl),
             Some("obj") => return Ok(Format::Obj),
+            Some("glb" | "gltf") => return Ok(Format::Gltf),
             _ => {}
         }
         let (f, len) = crate::io::open_regular(path, "open")?;
@@ -52,6 +57,8 @@ impl Format {
         f.take(512).read_to_end(&mut head).map_err(|e| Error::io(path, "read", e))?;
         if head.starts_with(b"ply") {
             Ok(Format::Ply)
+        } else if gltf::looks_like_gltf(&head) {
+            Ok(Format::Gltf)
         } else if stl::looks_like_stl(&head, len) {
             Ok(Format::Stl)
         } else if obj::looks_like_obj(&head) {
@@ -59,7 +66,7 @@ impl Format {
         } else {
             Err(Error::input(
                 Location { file: path.to_path_buf(), offset: Some(0), ..Default::default() },
-                "not a mesh file octolod reads (PLY, STL or OBJ, by extension or content)",
+                "not a mesh file octolod reads (PLY, STL, OBJ or glTF, by extension or content)",
             ))
         }
     }
@@ -71,6 +78,7 @@ pub enum Details {
     Ply(PlyHeader),
     Stl(stl::StlInfo),
     Obj(obj::ObjInfo),
+    Gltf(gltf::GltfInfo),
 }
 
 /// An input's format, attributes and counts.
@@ -148,6 +156,18 @@ pub fn read_header(path: &Path, progress: &Progress) -> Result<InputHeader> {
                 details: Details::Obj(i),
             }
         }
+        Format::Gltf => {
+            let i = gltf::read_info(path)?;
+            InputHeader {
+                format: Format::Gltf,
+                attrs: i.attrs,
+                vertices: i.vertices,
+                faces: i.triangles,
+                vertices_first: true,
+                body_offset: 0,
+                details: Details::Gltf(i),
+            }
+        }
     })
 }
 
@@ -159,6 +179,7 @@ pub fn read_body(path: &Path, header: &InputHeader, mem: u64, sink: &mut dyn Bod
         Details::Ply(h) => crate::ply::read::read_body(path, h, sink, progress),
         Details::Stl(i) => stl::read_body(path, i, sink, progress),
         Details::Obj(i) => obj::read_body(path, i, mem, sink, progress),
+        Details::Gltf(i) => gltf::read_body(path, i, sink, progress),
     }
 }
 

@@ -1,0 +1,1059 @@
+//! glTF 2.0 input (`.glb`, or `.gltf` JSON with external buffers): see [`super`].
+//!
+//! Takes: a path. Gives: [`read_info`], a first look (the triangle
+//! primitives reachable from the default scene, their vertex and triangle
+//! counts, the attributes every one of them has), and [`read_body`], which
+//! feeds a [`BodySink`] every primitive instance's vertices (a first pass,
+//! positions and normals in world space: node transforms composed down the
+//! hierarchy in f64), then its triangles offset by the vertices before it
+//! (a second pass).
+//!
+//! Supported: the GLB container (JSON and BIN chunks) and `.gltf` with
+//! buffers in files beside it (URIs relative to the file, %-escapes
+//! decoded); modes 4 (triangles), 5 (strip) and 6 (fan), points and lines
+//! skipped; indices `u8`/`u16`/`u32` or none; POSITION as `f32` or, under
+//! KHR_mesh_quantization, (normalized) 8/16-bit integers; NORMAL, COLOR_0
+//! (linear, stored as sRGB bytes) and TEXCOORD_0 when every primitive has
+//! them; byte strides honoured; node `matrix` or T·R·S; a negative
+//! determinant flips the winding. Refused with an error naming it: `data:`
+//! URIs, sparse accessors, accessors without a bufferView,
+//! EXT_meshopt_compression and any other extension in `extensionsRequired`
+//! that changes geometry.
+//!
+//! Accessors are read by positioned reads of just their byte range, so
+//! files above 4 GiB work and memory stays per primitive. Bad input is an
+//! error naming the file and the JSON path (and byte range) at fault.
+
+use crate::error::{Error, Location, Result};
+use crate::mesh::{AttrSet, Vertex};
+use crate::ply::read::{BodySink, BodyStats};
+use crate::progress::Progress;
+use serde::Deserialize;
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::Read;
+use std::os::unix::fs::FileExt;
+use std::path::{Path, PathBuf};
+
+/// What [`read_info`] learned about a glTF file.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct GltfInfo {
+    /// Vertices of every triangle primitive instance.
+    pub vertices: u64,
+    /// Triangles they make (degenerate ones included).
+    pub triangles: u64,
+    /// Triangle primitive instances (a mesh used by two nodes counts twice).
+    pub primitives: u64,
+    /// Attributes every primitive has.
+    pub attrs: AttrSet,
+    /// File size (the `.gltf`/`.glb`, not its buffers).
+    pub bytes: u64,
+}
+
+const GLB_MAGIC: &[u8; 4] = b"glTF";
+const CHUNK_JSON: u32 = 0x4E4F_534A;
+const CHUNK_BIN: u32 = 0x004E_4942;
+/// Largest JSON accepted (a guard against reading a huge file whole).
+const MAX_JSON: u64 = 1 << 30;
+const BATCH: usize = 1 << 15;
+/// Deepest node hierarchy followed (also stops cycles).
+const MAX_DEPTH: usize = 1024;
+
+/// Extensions in `extensionsRequired` that are read, or that do not change
+/// the geometry (materials, textures, lights).
+fn extension_ok(name: &str) -> bool {
+    name == "KHR_mesh_quantization"
+        || name.starts_with("KHR_materials_")
+        || matches!(name, "KHR_texture_basisu" | "EXT_texture_webp" | "EXT_texture_avif" | "KHR_lights_punctual")
+}
+
+#[derive(Deserialize, Default)]
+#[serde(default, rename_all = "camelCase")]
+struct Doc {
+    asset: Option<serde_json::Value>,
+    scene: Option<usize>,
+    scenes: Vec<Scene>,
+    nodes: Vec<Node>,
+    meshes: Vec<Mesh>,
+    accessors: Vec<Accessor>,
+    buffer_views: Vec<BufferView>,
+    buffers: Vec<Buffer>,
+    extensions_used: Vec<String>,
+    extensions_required: Vec<String>,
+}
+
+#[derive(Deserialize, Default)]
+#[serde(default)]
+struct Scene {
+    nodes: Vec<usize>,
+}
+
+#[derive(Deserialize, Default)]
+#[serde(default)]
+struct Node {
+    children: Vec<usize>,
+    mesh: Option<usize>,
+    matrix: Option<[f64; 16]>,
+    translation: Option<[f64; 3]>,
+    rotation: Option<[f64; 4]>,
+    scale: Option<[f64; 3]>,
+}
+
+#[derive(Deserialize, Default)]
+#[serde(default)]
+struct Mesh {
+    primitives: Vec<Primitive>,
+}
+
+#[derive(Deserialize, Default)]
+#[serde(default)]
+struct Primitive {
+    attributes: BTreeMap<String, usize>,
+    indices: Option<usize>,
+    mode: Option<u32>,
+}
+
+#[derive(Deserialize, Default)]
+#[serde(default, rename_all = "camelCase")]
+struct Accessor {
+    buffer_view: Option<usize>,
+    byte_offset: u64,
+    component_type: u32,
+    normalized: bool,
+    count: u64,
+    #[serde(rename = "type")]
+    kind: String,
+    sparse: Option<serde_json::Value>,
+}
+
+#[derive(Deserialize, Default)]
+#[serde(default, rename_all = "camelCase")]
+struct BufferView {
+    buffer: usize,
+    byte_offset: u64,
+    byte_length: u64,
+    byte_stride: Option<u64>,
+    extensions: BTreeMap<String, serde_json::Value>,
+}
+
+#[derive(Deserialize, Default)]
+#[serde(default, rename_all = "camelCase")]
+struct Buffer {
+    uri: Option<String>,
+    byte_length: u64,
+}
+
+/// One triangle primitive instance: where it is, its world matrix (column-major).
+struct Prim {
+    what: String,
+    m: [f64; 16],
+    mode: u32,
+    pos: usize,
+    normal: Option<usize>,
+    color: Option<usize>,
+    uv: Option<usize>,
+    indices: Option<usize>,
+    /// Vertices (the POSITION count) and index count (or the vertex count).
+    verts: u64,
+    corners: u64,
+}
+
+/// A buffer: the file holding it, where it starts, its length.
+struct Buf {
+    file: File,
+    path: PathBuf,
+    base: u64,
+    len: u64,
+}
+
+/// The parsed document with its buffers opened.
+struct Gltf {
+    path: PathBuf,
+    doc: Doc,
+    bufs: Vec<Buf>,
+    prims: Vec<Prim>,
+    attrs: AttrSet,
+    bytes: u64,
+    quantized: bool,
+}
+
+fn err(path: &Path, msg: impl Into<String>) -> Error {
+    Error::input(Location { file: path.to_path_buf(), ..Default::default() }, msg)
+}
+
+fn err_at(path: &Path, offset: u64, msg: impl Into<String>) -> Error {
+    Error::input(Location { file: path.to_path_buf(), offset: Some(offset), ..Default::default() }, msg)
+}
+
+/// Whether `head` (a file's first bytes) looks like glTF: the GLB magic,
+/// or JSON (`{` first) that names an `"asset"`.
+pub fn looks_like_gltf(head: &[u8]) -> bool {
+    if head.starts_with(GLB_MAGIC) {
+        return true;
+    }
+    let start = head.iter().position(|b| !b.is_ascii_whitespace()).unwrap_or(head.len());
+    let s = &head[start..];
+    let s = s.strip_prefix(b"\xEF\xBB\xBF".as_slice()).unwrap_or(s);
+    s.first() == Some(&b'{') && s.windows(7).any(|w| w == b"\"asset\"")
+}
+
+/// Reads what a glTF file holds: its triangle primitives' counts and
+/// common attributes (the JSON only; buffers are opened and their sizes
+/// checked, not read).
+pub fn read_info(path: &Path) -> Result<GltfInfo> {
+    let g = Gltf::open(path)?;
+    let vertices = g.prims.iter().map(|p| p.verts).sum();
+    let triangles = g.prims.iter().map(|p| tri_count(p.mode, p.corners)).sum();
+    Ok(GltfInfo { vertices, triangles, primitives: g.prims.len() as u64, attrs: g.attrs, bytes: g.bytes })
+}
+
+/// Reads the primitives of the glTF `path` that [`read_info`] described,
+/// feeding `sink` every vertex, then every triangle (see the module
+/// documentation).
+pub fn read_body(path: &Path, info: &GltfInfo, sink: &mut dyn BodySink, progress: &Progress) -> Result<BodyStats> {
+    let g = Gltf::open(path)?;
+    let now = GltfInfo {
+        vertices: g.prims.iter().map(|p| p.verts).sum(),
+        triangles: g.prims.iter().map(|p| tri_count(p.mode, p.corners)).sum(),
+        primitives: g.prims.len() as u64,
+        attrs: g.attrs,
+        bytes: g.bytes,
+    };
+    if &now != info {
+        return Err(err(path, "the file changed since it was first read"));
+    }
+    let mut stats = BodyStats { bytes: g.bytes, ..Default::default() };
+    // First pass: vertices.
+    let mut first = 0u64;
+    let mut batch = Vec::with_capacity(BATCH);
+    for p in &g.prims {
+        let vs = g.vertices(p)?;
+        progress.inc(vs.len() as u64);
+        for chunk in vs.chunks(BATCH) {
+            batch.clear();
+            batch.extend_from_slice(chunk);
+            sink.vertices(first, &batch)?;
+            first += chunk.len() as u64;
+        }
+    }
+    stats.vertices = first;
+    // Second pass: triangles.
+    let mut offset = 0u64;
+    let mut tris: Vec<[u64; 3]> = Vec::with_capacity(BATCH);
+    for p in &g.prims {
+        let idx = match p.indices {
+            Some(a) => g.indices(a, &format!("{}.indices", p.what), p.verts)?,
+            None => (0..p.verts).collect(),
+        };
+        let flip = det3(&p.m) < 0.0;
+        let n = idx.len();
+        let count = tri_count(p.mode, n as u64) as usize;
+        for i in 0..count {
+            let t = match p.mode {
+                4 => [idx[3 * i], idx[3 * i + 1], idx[3 * i + 2]],
+                5 if i % 2 == 0 => [idx[i], idx[i + 1], idx[i + 2]],
+                5 => [idx[i + 1], idx[i], idx[i + 2]],
+                _ => [idx[i + 1], idx[i + 2], idx[0]],
+            };
+            stats.faces += 1;
+            if t[0] == t[1] || t[1] == t[2] || t[0] == t[2] {
+                stats.degenerate += 1;
+                continue;
+            }
+            let t = if flip { [t[0], t[2], t[1]] } else { t };
+            tris.push(t.map(|k| k + offset));
+            if tris.len() == BATCH {
+                sink.triangles(&tris)?;
+                stats.triangles += tris.len() as u64;
+                tris.clear();
+            }
+        }
+        offset += p.verts;
+    }
+    if !tris.is_empty() {
+        sink.triangles(&tris)?;
+        stats.triangles += tris.len() as u64;
+    }
+    Ok(stats)
+}
+
+fn tri_count(mode: u32, corners: u64) -> u64 {
+    match mode {
+        4 => corners / 3,
+        _ => corners.saturating_sub(2),
+    }
+}
+
+fn mat_mul(a: &[f64; 16], b: &[f64; 16]) -> [f64; 16] {
+    let mut r = [0.0; 16];
+    for c in 0..4 {
+        for row in 0..4 {
+            r[c * 4 + row] = (0..4).map(|k| a[k * 4 + row] * b[c * 4 + k]).sum();
+        }
+    }
+    r
+}
+
+const IDENTITY: [f64; 16] = [1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0];
+
+/// A node's local matrix (column-major): `matrix`, else T·R·S.
+fn local(n: &Node) -> [f64; 16] {
+    if let Some(m) = n.matrix {
+        return m;
+    }
+    let [tx, ty, tz] = n.translation.unwrap_or([0.0; 3]);
+    let [x, y, z, w] = n.rotation.unwrap_or([0.0, 0.0, 0.0, 1.0]);
+    let [sx, sy, sz] = n.scale.unwrap_or([1.0; 3]);
+    let r = [
+        1.0 - 2.0 * (y * y + z * z),
+        2.0 * (x * y + z * w),
+        2.0 * (x * z - y * w),
+        2.0 * (x * y - z * w),
+        1.0 - 2.0 * (x * x + z * z),
+        2.0 * (y * z + x * w),
+        2.0 * (x * z + y * w),
+        2.0 * (y * z - x * w),
+        1.0 - 2.0 * (x * x + y * y),
+    ];
+    [r[0] * sx, r[1] * sx, r[2] * sx, 0.0, r[3] * sy, r[4] * sy, r[5] * sy, 0.0, r[6] * sz, r[7] * sz, r[8] * sz, 0.0, tx, ty, tz, 1.0]
+}
+
+/// Determinant of the upper-left 3×3 of a column-major 4×4.
+fn det3(m: &[f64; 16]) -> f64 {
+    m[0] * (m[5] * m[10] - m[9] * m[6]) - m[4] * (m[1] * m[10] - m[9] * m[2]) + m[8] * (m[1] * m[6] - m[5] * m[2])
+}
+
+/// The inverse-transpose of the upper-left 3×3 (row-major 3×3), for normals.
+fn normal_matrix(m: &[f64; 16]) -> [[f64; 3]; 3] {
+    // Cofactor matrix = det * inverse-transpose; the scale does not matter
+    // as normals are renormalised (a negative determinant is kept by the sign).
+    let a = |r: usize, c: usize| m[c * 4 + r];
+    let mut co = [[0.0; 3]; 3];
+    for (r, row) in co.iter_mut().enumerate() {
+        for (c, v) in row.iter_mut().enumerate() {
+            let (r1, r2) = ((r + 1) % 3, (r + 2) % 3);
+            let (c1, c2) = ((c + 1) % 3, (c + 2) % 3);
+            *v = a(r1, c1) * a(r2, c2) - a(r1, c2) * a(r2, c1);
+        }
+    }
+    let s = if det3(m) < 0.0 { -1.0 } else { 1.0 };
+    co.map(|row| row.map(|v| v * s))
+}
+
+fn linear_to_srgb(c: f64) -> f64 {
+    let c = c.clamp(0.0, 1.0);
+    if c <= 0.003_130_8 {
+        12.92 * c
+    } else {
+        1.055 * c.powf(1.0 / 2.4) - 0.055
+    }
+}
+
+fn percent_decode(s: &str) -> String {
+    let b = s.as_bytes();
+    let mut out = Vec::with_capacity(b.len());
+    let mut i = 0;
+    while i < b.len() {
+        if b[i] == b'%' && i + 2 < b.len() && s.is_char_boundary(i + 3) {
+            if let Ok(v) = u8::from_str_radix(&s[i + 1..i + 3], 16) {
+                out.push(v);
+                i += 3;
+                continue;
+            }
+        }
+        out.push(b[i]);
+        i += 1;
+    }
+    String::from_utf8_lossy(&out).into_owned()
+}
+
+fn components(kind: &str) -> Option<usize> {
+    Some(match kind {
+        "SCALAR" => 1,
+        "VEC2" => 2,
+        "VEC3" => 3,
+        "VEC4" => 4,
+        "MAT2" => 4,
+        "MAT3" => 9,
+        "MAT4" => 16,
+        _ => return None,
+    })
+}
+
+fn component_size(t: u32) -> Option<u64> {
+    Some(match t {
+        5120 | 5121 => 1,
+        5122 | 5123 => 2,
+        5125 | 5126 => 4,
+        _ => return None,
+    })
+}
+
+fn type_name(t: u32) -> String {
+    match t {
+        5120 => "i8".into(),
+        5121 => "u8".into(),
+        5122 => "i16".into(),
+        5123 => "u16".into(),
+        5125 => "u32".into(),
+        5126 => "f32".into(),
+        t => format!("componentType {t}"),
+    }
+}
+
+impl Gltf {
+    fn open(path: &Path) -> Result<Gltf> {
+        let (mut file, len) = crate::io::open_regular(path, "open")?;
+        let mut head = [0u8; 12];
+        let n = file.read_at(&mut head, 0).map_err(|e| Error::io(path, "read", e))?;
+        let (json, glb_bin) = if n >= 4 && &head[..4] == GLB_MAGIC {
+            if n < 12 || len < 20 {
+                return Err(err_at(path, 0, format!("GLB: {len} bytes is too short for the 12-byte header and a chunk header")));
+            }
+            let version = u32::from_le_bytes(head[4..8].try_into().unwrap());
+            if version != 2 {
+                return Err(err_at(path, 4, format!("GLB version {version}: only glTF 2.0 is read")));
+            }
+            let total = u32::from_le_bytes(head[8..12].try_into().unwrap()) as u64;
+            if total != len {
+                return Err(err_at(path, 8, format!("GLB header says {total} bytes, the file has {len}")));
+            }
+            let (jlen, jtype) = chunk_head(&file, path, 12)?;
+            if jtype != CHUNK_JSON {
+                return Err(err_at(path, 16, format!("GLB: the first chunk is of type {jtype:#010x}, not JSON")));
+            }
+            if 20 + jlen > len {
+                return Err(err_at(path, 12, format!("GLB: the JSON chunk of {jlen} bytes runs past the end of the {len}-byte file")));
+            }
+            if jlen > MAX_JSON {
+                return Err(err_at(path, 12, format!("GLB: a JSON chunk of {jlen} bytes is too large")));
+            }
+            let mut json = vec![0u8; jlen as usize];
+            read_exact_at(&file, path, &mut json, 20)?;
+            let next = 20 + jlen.div_ceil(4) * 4;
+            let mut bin = None;
+            if next + 8 <= len {
+                let (blen, btype) = chunk_head(&file, path, next)?;
+                if btype == CHUNK_BIN {
+                    if next + 8 + blen > len {
+                        return Err(err_at(path, next, format!("GLB: the BIN chunk of {blen} bytes runs past the end of the {len}-byte file")));
+                    }
+                    bin = Some((next + 8, blen));
+                }
+            }
+            (json, bin)
+        } else {
+            if len > MAX_JSON {
+                return Err(err(path, format!("a glTF JSON of {len} bytes is too large")));
+            }
+            let mut json = Vec::with_capacity(len as usize);
+            file.read_to_end(&mut json).map_err(|e| Error::io(path, "read", e))?;
+            (json, None)
+        };
+        let doc: Doc = serde_json::from_slice(&json).map_err(|e| err(path, format!("glTF JSON: {e}")))?;
+        if doc.asset.is_none() {
+            return Err(err(path, "glTF JSON has no 'asset' (not a glTF file?)"));
+        }
+        for e in &doc.extensions_required {
+            if !extension_ok(e) {
+                return Err(err(path, format!("extensionsRequired: extension {e} is not supported")));
+            }
+        }
+        let quantized = doc.extensions_used.iter().any(|e| e == "KHR_mesh_quantization");
+        let mut bufs = Vec::with_capacity(doc.buffers.len());
+        for (i, b) in doc.buffers.iter().enumerate() {
+            let what = format!("buffers[{i}]");
+            let buf = match &b.uri {
+                None => {
+                    let Some((base, blen)) = glb_bin.filter(|_| i == 0) else {
+                        return Err(err(path, format!("{what}: no uri and no GLB BIN chunk")));
+                    };
+                    if b.byte_length > blen {
+                        return Err(err(path, format!("{what}: byteLength {} exceeds the {blen}-byte BIN chunk", b.byte_length)));
+                    }
+                    Buf { file: file.try_clone().map_err(|e| Error::io(path, "open", e))?, path: path.to_path_buf(), base, len: b.byte_length }
+                }
+                Some(u) if u.starts_with("data:") => {
+                    return Err(err(path, format!("{what}: data: URIs are not supported (use a .glb or a .bin file)")));
+                }
+                Some(u) => {
+                    let p = path.parent().unwrap_or(Path::new("")).join(percent_decode(u));
+                    let (f, flen) = crate::io::open_regular(&p, "open")?;
+                    if b.byte_length > flen {
+                        return Err(err(path, format!("{what}: byteLength {} exceeds the {flen} bytes of {}", b.byte_length, p.display())));
+                    }
+                    Buf { file: f, path: p, base: 0, len: b.byte_length }
+                }
+            };
+            bufs.push(buf);
+        }
+        let mut g = Gltf { path: path.to_path_buf(), doc, bufs, prims: Vec::new(), attrs: AttrSet::POSITION_ONLY, bytes: len, quantized };
+        g.collect()?;
+        Ok(g)
+    }
+
+    /// Finds the triangle primitives of the default scene with their world matrices.
+    fn collect(&mut self) -> Result<()> {
+        let d = &self.doc;
+        let roots: Vec<usize> = match d.scene.or(if d.scenes.is_empty() { None } else { Some(0) }) {
+            Some(s) => {
+                let Some(sc) = d.scenes.get(s) else {
+                    return Err(err(&self.path, format!("scene {s}: there are {} scenes", d.scenes.len())));
+                };
+                sc.nodes.clone()
+            }
+            None => {
+                // No scene: every root node (not a child of another).
+                let mut child = vec![false; d.nodes.len()];
+                for n in &d.nodes {
+                    for &c in &n.children {
+                        if let Some(x) = child.get_mut(c) {
+                            *x = true;
+                        }
+                    }
+                }
+                (0..d.nodes.len()).filter(|&i| !child[i]).collect()
+            }
+        };
+        let mut prims = Vec::new();
+        let mut stack: Vec<(usize, [f64; 16], usize)> = roots.iter().rev().map(|&r| (r, IDENTITY, 0)).collect();
+        while let Some((ni, parent, depth)) = stack.pop() {
+            let Some(n) = d.nodes.get(ni) else {
+                return Err(err(&self.path, format!("node {ni}: there are {} nodes", d.nodes.len())));
+            };
+            if depth > MAX_DEPTH {
+                return Err(err(&self.path, format!("nodes[{ni}]: the node hierarchy is deeper than {MAX_DEPTH} (a cycle?)")));
+            }
+            let m = mat_mul(&parent, &local(n));
+            if let Some(mi) = n.mesh {
+                let Some(mesh) = d.meshes.get(mi) else {
+                    return Err(err(&self.path, format!("nodes[{ni}].mesh: mesh {mi} of {}", d.meshes.len())));
+                };
+                for (pi, p) in mesh.primitives.iter().enumerate() {
+                    let what = format!("meshes[{mi}].primitives[{pi}]");
+                    let mode = p.mode.unwrap_or(4);
+                    if mode < 4 {
+                        continue; // points and lines: no triangles
+                    }
+                    if mode > 6 {
+                        return Err(err(&self.path, format!("{what}.mode: {mode} is not a glTF primitive mode")));
+                    }
+                    let Some(&pos) = p.attributes.get("POSITION") else {
+                        return Err(err(&self.path, format!("{what}.attributes: no POSITION")));
+                    };
+                    let verts = self.accessor(pos, &format!("{what}.attributes.POSITION"))?.count;
+                    let corners = match p.indices {
+                        Some(a) => self.accessor(a, &format!("{what}.indices"))?.count,
+                        None => verts,
+                    };
+                    if mode == 4 && corners % 3 != 0 {
+                        return Err(err(&self.path, format!("{what}: {corners} corners is not a multiple of 3 (mode 4, triangles)")));
+                    }
+                    prims.push(Prim {
+                        what,
+                        m,
+                        mode,
+                        pos,
+                        normal: p.attributes.get("NORMAL").copied(),
+                        color: p.attributes.get("COLOR_0").copied(),
+                        uv: p.attributes.get("TEXCOORD_0").copied(),
+                        indices: p.indices,
+                        verts,
+                        corners,
+                    });
+                }
+            }
+            for &c in n.children.iter().rev() {
+                stack.push((c, m, depth + 1));
+            }
+        }
+        let all = |f: fn(&Prim) -> bool| !prims.is_empty() && prims.iter().all(f);
+        let mut attrs = AttrSet::POSITION_ONLY;
+        attrs = attrs.with(AttrSet::NORMAL, all(|p| p.normal.is_some()));
+        attrs = attrs.with(AttrSet::COLOR, all(|p| p.color.is_some()));
+        attrs = attrs.with(AttrSet::UV, all(|p| p.uv.is_some()));
+        let rgba = attrs.color() && prims.iter().all(|p| p.color.and_then(|c| self.doc.accessors.get(c)).is_some_and(|a| a.kind == "VEC4"));
+        attrs = attrs.with(AttrSet::ALPHA, rgba);
+        self.prims = prims;
+        self.attrs = attrs;
+        Ok(())
+    }
+
+    fn accessor(&self, a: usize, what: &str) -> Result<&Accessor> {
+        self.doc.accessors.get(a).ok_or_else(|| err(&self.path, format!("{what}: accessor {a} of {}", self.doc.accessors.len())))
+    }
+
+    /// Reads accessor `a` as f64 values (normalized ones mapped to [0,1] or
+    /// [-1,1]), `ncomp` per element; `types` are the component types allowed.
+    fn read(&self, a: usize, what: &str, ncomp: &[usize], types: &[u32]) -> Result<(Vec<f64>, usize)> {
+        let acc = self.accessor(a, what)?;
+        let path = &self.path;
+        let Some(nc) = components(&acc.kind).filter(|n| ncomp.contains(n)) else {
+            return Err(err(path, format!("{what}: accessor {a} has type {}, not one of {ncomp:?} components", acc.kind)));
+        };
+        if !types.contains(&acc.component_type) {
+            let allowed: Vec<String> = types.iter().map(|&t| type_name(t)).collect();
+            return Err(err(
+                path,
+                format!("{what}: accessor {a} has components of {}, not supported here (allowed: {})", type_name(acc.component_type), allowed.join(", ")),
+            ));
+        }
+        if acc.sparse.is_some() {
+            return Err(err(path, format!("{what}: accessor {a} is sparse, which is not supported")));
+        }
+        let Some(bvi) = acc.buffer_view else {
+            return Err(err(path, format!("{what}: accessor {a} has no bufferView, which is not supported")));
+        };
+        let Some(bv) = self.doc.buffer_views.get(bvi) else {
+            return Err(err(path, format!("{what}: accessor {a}: bufferView {bvi} of {}", self.doc.buffer_views.len())));
+        };
+        if bv.extensions.contains_key("EXT_meshopt_compression") {
+            return Err(err(path, format!("{what}: accessor {a}: bufferView {bvi} uses EXT_meshopt_compression, which is not supported")));
+        }
+        let Some(buf) = self.bufs.get(bv.buffer) else {
+            return Err(err(path, format!("{what}: bufferViews[{bvi}]: buffer {} of {}", bv.buffer, self.bufs.len())));
+        };
+        let cs = component_size(acc.component_type).unwrap();
+        let esize = cs * nc as u64;
+        let stride = bv.byte_stride.filter(|&s| s > 0).unwrap_or(esize);
+        if stride < esize {
+            return Err(err(path, format!("{what}: accessor {a}: byteStride {stride} is less than the {esize}-byte element")));
+        }
+        let count = acc.count;
+        let span = if count == 0 { 0 } else { stride.checked_mul(count - 1).and_then(|s| s.checked_add(esize)).unwrap_or(u64::MAX) };
+        let start = bv.byte_offset.saturating_add(acc.byte_offset);
+        let end = start.saturating_add(span);
+        if acc.byte_offset.saturating_add(span) > bv.byte_length || bv.byte_offset.saturating_add(bv.byte_length) > buf.len {
+            return Err(err(
+                path,
+                format!(
+                    "{what}: accessor {a} reads bytes {start}..{end} of bufferView {bvi} (bytes {}..{} of a {}-byte buffer)",
+                    bv.byte_offset,
+                    bv.byte_offset.saturating_add(bv.byte_length),
+                    buf.len
+                ),
+            ));
+        }
+        if span > isize::MAX as u64 / 2 {
+            return Err(err(path, format!("{what}: accessor {a} of {span} bytes is too large")));
+        }
+        let mut raw = vec![0u8; span as usize];
+        read_exact_at(&buf.file, &buf.path, &mut raw, buf.base + start)?;
+        let mut out = Vec::with_capacity(count as usize * nc);
+        let t = acc.component_type;
+        let norm = acc.normalized;
+        for i in 0..count as usize {
+            let e = &raw[i * stride as usize..];
+            for c in 0..nc {
+                let o = c * cs as usize;
+                let v = match t {
+                    5120 => {
+                        let x = e[o] as i8 as f64;
+                        if norm {
+                            (x / 127.0).max(-1.0)
+                        } else {
+                            x
+                        }
+                    }
+                    5121 => {
+                        let x = e[o] as f64;
+                        if norm {
+                            x / 255.0
+                        } else {
+                            x
+                        }
+                    }
+                    5122 => {
+                        let x = i16::from_le_bytes([e[o], e[o + 1]]) as f64;
+                        if norm {
+                            (x / 32767.0).max(-1.0)
+                        } else {
+                            x
+                        }
+                    }
+                    5123 => {
+                        let x = u16::from_le_bytes([e[o], e[o + 1]]) as f64;
+                        if norm {
+                            x / 65535.0
+                        } else {
+                            x
+                        }
+                    }
+                    5125 => u32::from_le_bytes(e[o..o + 4].try_into().unwrap()) as f64,
+                    _ => f32::from_le_bytes(e[o..o + 4].try_into().unwrap()) as f64,
+                };
+                out.push(v);
+            }
+        }
+        Ok((out, nc))
+    }
+
+    /// A primitive's vertices in world space.
+    fn vertices(&self, p: &Prim) -> Result<Vec<Vertex>> {
+        let q: &[u32] = if self.quantized { &[5126, 5120, 5121, 5122, 5123] } else { &[5126] };
+        let what = format!("{}.attributes.POSITION", p.what);
+        let (pos, _) = self.read(p.pos, &what, &[3], q)?;
+        let n = p.verts as usize;
+        let mut vs = vec![Vertex::default(); n];
+        let m = &p.m;
+        for (i, v) in vs.iter_mut().enumerate() {
+            let [x, y, z] = [pos[3 * i], pos[3 * i + 1], pos[3 * i + 2]];
+            if !(x.is_finite() && y.is_finite() && z.is_finite()) {
+                return Err(err(&self.path, format!("{what}: vertex {i} has a non-finite position ({x}, {y}, {z})")));
+            }
+            v.pos = [0, 1, 2].map(|r| m[r] * x + m[4 + r] * y + m[8 + r] * z + m[12 + r]);
+        }
+        if self.attrs.normal() {
+            let nq: &[u32] = if self.quantized { &[5126, 5120, 5122] } else { &[5126] };
+            let (nr, _) = self.read(p.normal.unwrap(), &format!("{}.attributes.NORMAL", p.what), &[3], nq)?;
+            self.check_count(nr.len() / 3, n, &p.what, "NORMAL")?;
+            let nm = normal_matrix(m);
+            for (i, v) in vs.iter_mut().enumerate() {
+                let a = [nr[3 * i], nr[3 * i + 1], nr[3 * i + 2]];
+                let w = nm.map(|row| row[0] * a[0] + row[1] * a[1] + row[2] * a[2]);
+                let l = (w[0] * w[0] + w[1] * w[1] + w[2] * w[2]).sqrt();
+                v.normal = if l > 0.0 && l.is_finite() { w.map(|c| (c / l) as f32) } else { [0.0; 3] };
+            }
+        }
+        if self.attrs.color() {
+            let (c, nc) = self.read(p.color.unwrap(), &format!("{}.attributes.COLOR_0", p.what), &[3, 4], &[5126, 5121, 5123])?;
+            self.check_count(c.len() / nc, n, &p.what, "COLOR_0")?;
+            for (i, v) in vs.iter_mut().enumerate() {
+                for k in 0..3 {
+                    v.color[k] = (linear_to_srgb(c[nc * i + k]) * 255.0).round() as u8;
+                }
+                if nc == 4 {
+                    v.color[3] = (c[nc * i + 3].clamp(0.0, 1.0) * 255.0).round() as u8;
+                }
+            }
+        }
+        if self.attrs.uv() {
+            let (t, _) = self.read(p.uv.unwrap(), &format!("{}.attributes.TEXCOORD_0", p.what), &[2], &[5126, 5121, 5123, 5120, 5122])?;
+            self.check_count(t.len() / 2, n, &p.what, "TEXCOORD_0")?;
+            for (i, v) in vs.iter_mut().enumerate() {
+                v.uv = [t[2 * i] as f32, t[2 * i + 1] as f32];
+            }
+        }
+        Ok(vs)
+    }
+
+    fn check_count(&self, got: usize, want: usize, what: &str, attr: &str) -> Result<()> {
+        if got != want {
+            return Err(err(&self.path, format!("{what}.attributes.{attr}: {got} elements, POSITION has {want}")));
+        }
+        Ok(())
+    }
+
+    /// A primitive's indices, each checked against its vertex count.
+    fn indices(&self, a: usize, what: &str, verts: u64) -> Result<Vec<u64>> {
+        let (v, _) = self.read(a, what, &[1], &[5121, 5123, 5125])?;
+        v.into_iter()
+            .enumerate()
+            .map(|(i, x)| {
+                let x = x as u64;
+                if x >= verts {
+                    Err(err(&self.path, format!("{what}: index {i} is {x}, out of range (POSITION has {verts} vertices)")))
+                } else {
+                    Ok(x)
+                }
+            })
+            .collect()
+    }
+}
+
+fn chunk_head(file: &File, path: &Path, at: u64) -> Result<(u64, u32)> {
+    let mut h = [0u8; 8];
+    read_exact_at(file, path, &mut h, at)?;
+    Ok((u32::from_le_bytes(h[..4].try_into().unwrap()) as u64, u32::from_le_bytes(h[4..].try_into().unwrap())))
+}
+
+fn read_exact_at(file: &File, path: &Path, buf: &mut [u8], at: u64) -> Result<()> {
+    file.read_exact_at(buf, at).map_err(|e| {
+        if e.kind() == std::io::ErrorKind::UnexpectedEof {
+            err_at(path, at, format!("the file ends within the {} bytes read here", buf.len()))
+        } else {
+            Error::io(path, "read", e)
+        }
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mesh::IndexedMesh;
+    use crate::ply::read::CollectSink;
+    use serde_json::{json, Value};
+
+    fn glb(doc: &Value, bin: &[u8]) -> Vec<u8> {
+        let mut j = serde_json::to_vec(doc).unwrap();
+        while j.len() % 4 != 0 {
+            j.push(b' ');
+        }
+        let mut b = bin.to_vec();
+        while b.len() % 4 != 0 {
+            b.push(0);
+        }
+        let total = 12 + 8 + j.len() + 8 + b.len();
+        let mut out = Vec::new();
+        out.extend_from_slice(b"glTF");
+        out.extend_from_slice(&2u32.to_le_bytes());
+        out.extend_from_slice(&(total as u32).to_le_bytes());
+        out.extend_from_slice(&(j.len() as u32).to_le_bytes());
+        out.extend_from_slice(&CHUNK_JSON.to_le_bytes());
+        out.extend_from_slice(&j);
+        out.extend_from_slice(&(b.len() as u32).to_le_bytes());
+        out.extend_from_slice(&CHUNK_BIN.to_le_bytes());
+        out.extend_from_slice(&b);
+        out
+    }
+
+    fn f32s(v: &[f32]) -> Vec<u8> {
+        v.iter().flat_map(|x| x.to_le_bytes()).collect()
+    }
+
+    const QUAD: [[f32; 3]; 4] = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]];
+    const TRI: [[f32; 3]; 3] = [[0.0, 0.0, 5.0], [1.0, 0.0, 5.0], [0.0, 1.0, 5.0]];
+
+    /// Two meshes: mesh 0 = a u16-indexed quad and a u32-indexed triangle
+    /// read through a 16-byte stride; mesh 1 = a non-indexed triangle (the
+    /// quad's first three corners) on a child node.
+    fn sample() -> (Value, Vec<u8>) {
+        let mut bin = f32s(&QUAD.concat()); // 0..48
+        bin.extend([0u16, 1, 2, 0, 2, 3].iter().flat_map(|x| x.to_le_bytes())); // 48..60
+        for p in TRI {
+            // 60..108: stride 16
+            bin.extend(f32s(&p));
+            bin.extend([0xAAu8; 4]);
+        }
+        bin.extend([2u32, 1, 0].iter().flat_map(|x| x.to_le_bytes())); // 108..120
+        let doc = json!({
+            "asset": {"version": "2.0"},
+            "scene": 0,
+            "scenes": [{"nodes": [0]}],
+            "nodes": [
+                {"mesh": 0, "translation": [10.0, 0.0, 0.0], "scale": [2.0, 2.0, 2.0], "children": [1]},
+                {"mesh": 1, "translation": [0.0, 0.0, 1.0]},
+            ],
+            "meshes": [
+                {"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}, {"attributes": {"POSITION": 2}, "indices": 3, "mode": 4}]},
+                {"primitives": [{"attributes": {"POSITION": 4}}]},
+            ],
+            "accessors": [
+                {"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3"},
+                {"bufferView": 1, "componentType": 5123, "count": 6, "type": "SCALAR"},
+                {"bufferView": 2, "componentType": 5126, "count": 3, "type": "VEC3"},
+                {"bufferView": 3, "componentType": 5125, "count": 3, "type": "SCALAR"},
+                {"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3"},
+            ],
+            "bufferViews": [
+                {"buffer": 0, "byteOffset": 0, "byteLength": 48},
+                {"buffer": 0, "byteOffset": 48, "byteLength": 12},
+                {"buffer": 0, "byteOffset": 60, "byteLength": 48, "byteStride": 16},
+                {"buffer": 0, "byteOffset": 108, "byteLength": 12},
+            ],
+            "buffers": [{"byteLength": 120}],
+        });
+        (doc, bin)
+    }
+
+    fn check_sample(path: &Path) {
+        let info = read_info(path).unwrap();
+        assert_eq!(info, GltfInfo { vertices: 10, triangles: 4, primitives: 3, attrs: AttrSet::POSITION_ONLY, bytes: std::fs::metadata(path).unwrap().len() });
+        let mut sink = CollectSink::default();
+        let stats = read_body(path, &info, &mut sink, &Progress::hidden()).unwrap();
+        assert_eq!((stats.vertices, stats.triangles, stats.degenerate), (10, 4, 0));
+        let parent = |p: [f32; 3]| [p[0] as f64 * 2.0 + 10.0, p[1] as f64 * 2.0, p[2] as f64 * 2.0];
+        let mut want: Vec<[f64; 3]> = QUAD.iter().map(|&p| parent(p)).collect();
+        want.extend(TRI.iter().map(|&p| parent(p)));
+        want.extend(QUAD[..3].iter().map(|&p| parent([p[0], p[1], p[2] + 1.0])));
+        let got: Vec<[f64; 3]> = sink.vertices.iter().map(|v| v.pos).collect();
+        assert_eq!(got, want);
+        assert_eq!(sink.triangles, vec![[0, 1, 2], [0, 2, 3], [6, 5, 4], [7, 8, 9]]);
+        let (h, all, _) = super::super::read_all(path, 1 << 30).unwrap();
+        assert_eq!((h.format, h.vertices, h.faces), (super::super::Format::Gltf, 10, 4));
+        assert_eq!(all.triangles, sink.triangles);
+    }
+
+    #[test]
+    fn glb_two_meshes_transforms_strides_and_index_widths() {
+        let dir = tempfile::tempdir().unwrap();
+        let (doc, bin) = sample();
+        let p = dir.path().join("s.glb");
+        std::fs::write(&p, glb(&doc, &bin)).unwrap();
+        check_sample(&p);
+        // Found by content too.
+        let q = dir.path().join("s.mesh");
+        std::fs::copy(&p, &q).unwrap();
+        assert_eq!(super::super::Format::of(&q).unwrap(), super::super::Format::Gltf);
+    }
+
+    #[test]
+    fn gltf_with_an_external_bin() {
+        let dir = tempfile::tempdir().unwrap();
+        let (mut doc, bin) = sample();
+        doc["buffers"][0]["uri"] = json!("my%20data.bin");
+        std::fs::write(dir.path().join("my data.bin"), &bin).unwrap();
+        let p = dir.path().join("s.gltf");
+        std::fs::write(&p, serde_json::to_vec_pretty(&doc).unwrap()).unwrap();
+        check_sample(&p);
+        let q = dir.path().join("s.txt");
+        std::fs::copy(&p, &q).unwrap();
+        assert_eq!(super::super::Format::of(&q).unwrap(), super::super::Format::Gltf);
+    }
+
+    #[test]
+    fn strips_fans_rotation_and_mirroring() {
+        let dir = tempfile::tempdir().unwrap();
+        let bin = f32s(&QUAD.concat());
+        let s = std::f64::consts::FRAC_1_SQRT_2;
+        let doc = json!({
+            "asset": {"version": "2.0"},
+            "nodes": [
+                {"mesh": 0, "rotation": [0.0, 0.0, s, s]},
+                {"mesh": 1, "matrix": [-1.0,0.0,0.0,0.0, 0.0,1.0,0.0,0.0, 0.0,0.0,1.0,0.0, 0.0,0.0,0.0,1.0]},
+            ],
+            "meshes": [
+                {"primitives": [{"attributes": {"POSITION": 0}, "mode": 5}]},
+                {"primitives": [{"attributes": {"POSITION": 0}, "mode": 6}, {"attributes": {"POSITION": 0}, "mode": 1}]},
+            ],
+            "accessors": [{"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3"}],
+            "bufferViews": [{"buffer": 0, "byteLength": 48}],
+            "buffers": [{"byteLength": 48}],
+        });
+        let p = dir.path().join("s.glb");
+        std::fs::write(&p, glb(&doc, &bin)).unwrap();
+        let (h, sink, _) = super::super::read_all(&p, 1 << 30).unwrap();
+        assert_eq!((h.vertices, h.faces), (8, 4));
+        // Strip: (0,1,2), (2,1,3); fan: (1,2,0), (2,3,0), mirrored: corners 2 and 3 swapped.
+        assert_eq!(sink.triangles, vec![[0, 1, 2], [2, 1, 3], [5, 4, 6], [6, 4, 7]]);
+        // 90° about z: (1,0,0) -> (0,1,0).
+        let v = sink.vertices[1].pos;
+        assert!((v[0]).abs() < 1e-12 && (v[1] - 1.0).abs() < 1e-12, "{v:?}");
+        assert_eq!(sink.vertices[5].pos, [-1.0, 0.0, 0.0]);
+    }
+
+    fn grid(n: usize) -> IndexedMesh {
+        let mut vertices = Vec::new();
+        for y in 0..=n {
+            for x in 0..=n {
+                let (fx, fy) = (x as f64 / n as f64, y as f64 / n as f64);
+                vertices.push(Vertex {
+                    pos: [1000.0 + 3.0 * fx, -50.0 + 2.0 * fy, 7.0 + (fx * 6.0).sin() * 0.5],
+                    normal: [0.0, 0.0, 1.0],
+                    color: [(x * 20) as u8, (y * 20) as u8, 128, 255],
+                    uv: [fx as f32, fy as f32],
+                });
+            }
+        }
+        let mut triangles = Vec::new();
+        let w = (n + 1) as u32;
+        for y in 0..n as u32 {
+            for x in 0..n as u32 {
+                let a = y * w + x;
+                triangles.push([a, a + 1, a + w + 1]);
+                triangles.push([a, a + w + 1, a + w]);
+            }
+        }
+        IndexedMesh { vertices, triangles }
+    }
+
+    #[test]
+    fn round_trips_octolods_own_writer() {
+        let dir = tempfile::tempdir().unwrap();
+        let mesh = grid(8);
+        let attrs = AttrSet(AttrSet::NORMAL | AttrSet::COLOR | AttrSet::UV);
+        let diag = 13f64.sqrt() * 1.2;
+        for (name, quantize) in [("a.glb", false), ("b.gltf", false), ("c.glb", true)] {
+            let p = dir.path().join(name);
+            let opts = crate::gltf::GltfOptions { quantize, compress: false };
+            crate::gltf::write_mesh(&p, &mesh, attrs, &opts, false, "m").unwrap();
+            let (h, sink, stats) = super::super::read_all(&p, 1 << 30).unwrap();
+            assert_eq!(h.format, super::super::Format::Gltf);
+            assert_eq!(h.attrs, attrs, "{name}");
+            assert_eq!(stats.triangles, mesh.triangles.len() as u64, "{name}");
+            assert_eq!(sink.vertices.len(), mesh.vertices.len());
+            let tris: Vec<[u64; 3]> = mesh.triangles.iter().map(|t| t.map(u64::from)).collect();
+            assert_eq!(sink.triangles, tris);
+            let tol = if quantize { 1e-4 } else { 1e-6 } * diag;
+            for (a, b) in sink.vertices.iter().zip(&mesh.vertices) {
+                let d = (0..3).map(|k| (a.pos[k] - b.pos[k]).powi(2)).sum::<f64>().sqrt();
+                assert!(d <= tol, "{name}: {:?} vs {:?}", a.pos, b.pos);
+                assert_eq!(a.color[..3], b.color[..3], "{name}");
+                assert!((a.normal[2] - 1.0).abs() < 1e-6);
+                assert!((a.uv[0] - b.uv[0]).abs() < 1e-4 && (a.uv[1] - b.uv[1]).abs() < 1e-4);
+            }
+        }
+        // Meshopt-compressed output is refused by name.
+        let p = dir.path().join("d.glb");
+        crate::gltf::write_mesh(&p, &mesh, attrs, &crate::gltf::GltfOptions { quantize: false, compress: true }, false, "m").unwrap();
+        let e = read_info(&p).unwrap_err().to_string();
+        assert!(e.contains("EXT_meshopt_compression") && e.contains("d.glb"), "{e}");
+    }
+
+    fn err_of(dir: &Path, name: &str, bytes: &[u8]) -> String {
+        let p = dir.join(name);
+        std::fs::write(&p, bytes).unwrap();
+        let r = read_info(&p).and_then(|i| read_body(&p, &i, &mut CollectSink::default(), &Progress::hidden()));
+        let e = r.unwrap_err().to_string();
+        assert!(e.contains(name), "{e}");
+        e
+    }
+
+    #[test]
+    fn errors_name_the_file_and_what() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        let (doc, bin) = sample();
+        let mut g = glb(&doc, &bin);
+        g[8] ^= 4;
+        assert!(err_of(d, "len.glb", &g).contains("GLB header says"));
+        let mut g = glb(&doc, &bin);
+        g[4] = 1;
+        assert!(err_of(d, "ver.glb", &g).contains("version 1"));
+
+        let mut bad = doc.clone();
+        bad["accessors"][0]["count"] = json!(5);
+        let e = err_of(d, "range.glb", &glb(&bad, &bin));
+        assert!(e.contains("meshes[0].primitives[0].attributes.POSITION: accessor 0 reads bytes 0..60"), "{e}");
+
+        let mut bad = doc.clone();
+        bad["bufferViews"][0]["byteLength"] = json!(400);
+        let e = err_of(d, "view.glb", &glb(&bad, &bin));
+        assert!(e.contains("of a 120-byte buffer"), "{e}");
+
+        let mut b2 = bin.clone();
+        b2[48..50].copy_from_slice(&9u16.to_le_bytes());
+        let e = err_of(d, "index.glb", &glb(&doc, &b2));
+        assert!(e.contains("meshes[0].primitives[0].indices: index 0 is 9, out of range"), "{e}");
+
+        let mut b2 = bin.clone();
+        b2[4..8].copy_from_slice(&f32::NAN.to_le_bytes());
+        let e = err_of(d, "nan.glb", &glb(&doc, &b2));
+        assert!(e.contains("vertex 0 has a non-finite position"), "{e}");
+
+        let mut bad = doc.clone();
+        bad["accessors"][1]["componentType"] = json!(5126);
+        let e = err_of(d, "ctype.glb", &glb(&bad, &bin));
+        assert!(e.contains("indices: accessor 1 has components of f32, not supported"), "{e}");
+
+        let mut bad = doc.clone();
+        bad["accessors"][0]["componentType"] = json!(5122);
+        let e = err_of(d, "quant.glb", &glb(&bad, &bin));
+        assert!(e.contains("components of i16"), "{e}");
+
+        let mut bad = doc.clone();
+        bad["extensionsRequired"] = json!(["KHR_draco_mesh_compression"]);
+        assert!(err_of(d, "ext.glb", &glb(&bad, &bin)).contains("extension KHR_draco_mesh_compression is not supported"));
+
+        let mut bad = doc.clone();
+        bad["buffers"][0]["uri"] = json!("data:application/octet-stream;base64,AAAA");
+        assert!(err_of(d, "data.gltf", &serde_json::to_vec(&bad).unwrap()).contains("data: URIs are not supported"));
+
+        let mut bad = doc.clone();
+        bad["accessors"][0]["sparse"] = json!({"count": 1});
+        assert!(err_of(d, "sparse.glb", &glb(&bad, &bin)).contains("sparse"));
+
+        assert!(err_of(d, "json.gltf", b"{\"asset\": ").contains("glTF JSON"));
+        assert!(err_of(d, "short.glb", b"glTF\x02\0\0\0").contains("too short"));
+    }
+}
