@@ -15,13 +15,16 @@
 //! KHR_mesh_quantization, (normalized) 8/16-bit integers; NORMAL, COLOR_0
 //! (linear, stored as sRGB bytes) and TEXCOORD_0 when every primitive has
 //! them; byte strides honoured; node `matrix` or T·R·S; a negative
-//! determinant flips the winding. Refused with an error naming it: `data:`
-//! URIs, sparse accessors, accessors without a bufferView,
-//! EXT_meshopt_compression and any other extension in `extensionsRequired`
-//! that changes geometry.
+//! determinant flips the winding; EXT_meshopt_compression bufferViews
+//! (modes ATTRIBUTES, TRIANGLES, INDICES; filters OCTAHEDRAL, QUATERNION,
+//! EXPONENTIAL, COLOR) decoded with the `meshopt` crate, fallback buffers
+//! without data allowed. Refused with an error naming it: `data:` URIs,
+//! sparse accessors, accessors without a bufferView, and any other
+//! extension in `extensionsRequired` that changes geometry (Draco, ...).
 //!
-//! Accessors are read by positioned reads of just their byte range, so
-//! files above 4 GiB work and memory stays per primitive. Bad input is an
+//! Accessors are read by positioned reads of just their byte range (a
+//! compressed bufferView: its compressed range, decoded whole), so files
+//! above 4 GiB work and memory stays per primitive. Bad input is an
 //! error naming the file and the JSON path (and byte range) at fault.
 
 use crate::error::{Error, Location, Result};
@@ -63,6 +66,7 @@ const MAX_DEPTH: usize = 1024;
 /// the geometry (materials, textures, lights).
 fn extension_ok(name: &str) -> bool {
     name == "KHR_mesh_quantization"
+        || name == "EXT_meshopt_compression"
         || name.starts_with("KHR_materials_")
         || matches!(name, "KHR_texture_basisu" | "EXT_texture_webp" | "EXT_texture_avif" | "KHR_lights_punctual")
 }
@@ -141,6 +145,20 @@ struct BufferView {
 struct Buffer {
     uri: Option<String>,
     byte_length: u64,
+    extensions: BTreeMap<String, serde_json::Value>,
+}
+
+/// A bufferView's `EXT_meshopt_compression` object.
+#[derive(Deserialize, Default)]
+#[serde(default, rename_all = "camelCase")]
+struct Meshopt {
+    buffer: usize,
+    byte_offset: u64,
+    byte_length: u64,
+    byte_stride: u64,
+    count: u64,
+    mode: String,
+    filter: Option<String>,
 }
 
 /// One triangle primitive instance: where it is, its world matrix (column-major).
@@ -170,7 +188,8 @@ struct Buf {
 struct Gltf {
     path: PathBuf,
     doc: Doc,
-    bufs: Vec<Buf>,
+    /// `None`: a meshopt fallback buffer with no data.
+    bufs: Vec<Option<Buf>>,
     prims: Vec<Prim>,
     attrs: AttrSet,
     bytes: u64,
@@ -464,6 +483,10 @@ impl Gltf {
         for (i, b) in doc.buffers.iter().enumerate() {
             let what = format!("buffers[{i}]");
             let buf = match &b.uri {
+                None if b.extensions.contains_key("EXT_meshopt_compression") && (i != 0 || glb_bin.is_none()) => {
+                    bufs.push(None);
+                    continue;
+                }
                 None => {
                     let Some((base, blen)) = glb_bin.filter(|_| i == 0) else {
                         return Err(err(path, format!("{what}: no uri and no GLB BIN chunk")));
@@ -485,7 +508,7 @@ impl Gltf {
                     Buf { file: f, path: p, base: 0, len: b.byte_length }
                 }
             };
-            bufs.push(buf);
+            bufs.push(Some(buf));
         }
         let mut g = Gltf { path: path.to_path_buf(), doc, bufs, prims: Vec::new(), attrs: AttrSet::POSITION_ONLY, bytes: len, quantized };
         g.collect()?;
@@ -607,38 +630,35 @@ impl Gltf {
         let Some(bv) = self.doc.buffer_views.get(bvi) else {
             return Err(err(path, format!("{what}: accessor {a}: bufferView {bvi} of {}", self.doc.buffer_views.len())));
         };
-        if bv.extensions.contains_key("EXT_meshopt_compression") {
-            return Err(err(path, format!("{what}: accessor {a}: bufferView {bvi} uses EXT_meshopt_compression, which is not supported")));
-        }
-        let Some(buf) = self.bufs.get(bv.buffer) else {
-            return Err(err(path, format!("{what}: bufferViews[{bvi}]: buffer {} of {}", bv.buffer, self.bufs.len())));
-        };
         let cs = component_size(acc.component_type).unwrap();
         let esize = cs * nc as u64;
-        let stride = bv.byte_stride.filter(|&s| s > 0).unwrap_or(esize);
-        if stride < esize {
-            return Err(err(path, format!("{what}: accessor {a}: byteStride {stride} is less than the {esize}-byte element")));
-        }
         let count = acc.count;
-        let span = if count == 0 { 0 } else { stride.checked_mul(count - 1).and_then(|s| s.checked_add(esize)).unwrap_or(u64::MAX) };
-        let start = bv.byte_offset.saturating_add(acc.byte_offset);
-        let end = start.saturating_add(span);
-        if acc.byte_offset.saturating_add(span) > bv.byte_length || bv.byte_offset.saturating_add(bv.byte_length) > buf.len {
-            return Err(err(
-                path,
-                format!(
-                    "{what}: accessor {a} reads bytes {start}..{end} of bufferView {bvi} (bytes {}..{} of a {}-byte buffer)",
-                    bv.byte_offset,
-                    bv.byte_offset.saturating_add(bv.byte_length),
-                    buf.len
-                ),
-            ));
-        }
-        if span > isize::MAX as u64 / 2 {
-            return Err(err(path, format!("{what}: accessor {a} of {span} bytes is too large")));
-        }
-        let mut raw = vec![0u8; span as usize];
-        read_exact_at(&buf.file, &buf.path, &mut raw, buf.base + start)?;
+        let (raw, stride) = match bv.extensions.get("EXT_meshopt_compression") {
+            Some(ext) => self.meshopt(a, bvi, bv, ext, what, esize, count)?,
+            None => {
+                let Some(Some(buf)) = self.bufs.get(bv.buffer) else {
+                    return Err(err(path, format!("{what}: bufferViews[{bvi}]: buffer {} of {} (or one without data)", bv.buffer, self.bufs.len())));
+                };
+                let stride = bv.byte_stride.filter(|&s| s > 0).unwrap_or(esize);
+                let span = span(stride, esize, count, what, a, path)?;
+                let start = bv.byte_offset.saturating_add(acc.byte_offset);
+                let end = start.saturating_add(span);
+                if acc.byte_offset.saturating_add(span) > bv.byte_length || bv.byte_offset.saturating_add(bv.byte_length) > buf.len {
+                    return Err(err(
+                        path,
+                        format!(
+                            "{what}: accessor {a} reads bytes {start}..{end} of bufferView {bvi} (bytes {}..{} of a {}-byte buffer)",
+                            bv.byte_offset,
+                            bv.byte_offset.saturating_add(bv.byte_length),
+                            buf.len
+                        ),
+                    ));
+                }
+                let mut raw = vec![0u8; span as usize];
+                read_exact_at(&buf.file, &buf.path, &mut raw, buf.base + start)?;
+                (raw, stride)
+            }
+        };
         let mut out = Vec::with_capacity(count as usize * nc);
         let t = acc.component_type;
         let norm = acc.normalized;
@@ -686,6 +706,84 @@ impl Gltf {
             }
         }
         Ok((out, nc))
+    }
+
+    /// Decodes an `EXT_meshopt_compression` bufferView and gives the bytes
+    /// accessor `a` reads from it (from its first element) and the stride.
+    #[allow(clippy::too_many_arguments)]
+    fn meshopt(&self, a: usize, bvi: usize, bv: &BufferView, ext: &serde_json::Value, what: &str, esize: u64, count: u64) -> Result<(Vec<u8>, u64)> {
+        let path = &self.path;
+        let here = format!("{what}: accessor {a}: bufferViews[{bvi}].extensions.EXT_meshopt_compression");
+        let m: Meshopt = serde_json::from_value(ext.clone()).map_err(|e| err(path, format!("{here}: {e}")))?;
+        let Some(Some(buf)) = self.bufs.get(m.buffer) else {
+            return Err(err(path, format!("{here}: buffer {} of {} (or one without data)", m.buffer, self.bufs.len())));
+        };
+        let end = m.byte_offset.saturating_add(m.byte_length);
+        if end > buf.len {
+            return Err(err(path, format!("{here}: reads bytes {}..{end} of a {}-byte buffer", m.byte_offset, buf.len)));
+        }
+        let vs = m.byte_stride;
+        let total = m.count.checked_mul(vs).filter(|&t| t <= bv.byte_length && t < (isize::MAX as u64) / 2);
+        let ok_stride = match m.mode.as_str() {
+            "ATTRIBUTES" => vs > 0 && vs % 4 == 0 && vs <= 256,
+            _ => vs == 2 || vs == 4,
+        };
+        let Some(total) = total.filter(|_| ok_stride) else {
+            return Err(err(
+                path,
+                format!("{here}: count {} × byteStride {vs} does not fit bufferView of {} bytes (or a bad stride)", m.count, bv.byte_length),
+            ));
+        };
+        let mut src = vec![0u8; m.byte_length as usize];
+        read_exact_at(&buf.file, &buf.path, &mut src, buf.base + m.byte_offset)?;
+        let mut dst = vec![0u8; total as usize];
+        let (n, vsz) = (m.count as usize, vs as usize);
+        // SAFETY: dst holds count × stride bytes, src is a slice of its length.
+        let rc = unsafe {
+            let d = dst.as_mut_ptr().cast();
+            match m.mode.as_str() {
+                "ATTRIBUTES" => meshopt::ffi::meshopt_decodeVertexBuffer(d, n, vsz, src.as_ptr(), src.len()),
+                "TRIANGLES" if n % 3 == 0 => meshopt::ffi::meshopt_decodeIndexBuffer(d, n, vsz, src.as_ptr(), src.len()),
+                "INDICES" => meshopt::ffi::meshopt_decodeIndexSequence(d, n, vsz, src.as_ptr(), src.len()),
+                _ => return Err(err(path, format!("{here}: mode {:?} with count {n} is not supported", m.mode))),
+            }
+        };
+        if rc != 0 {
+            return Err(err(path, format!("{here}: meshopt decoding failed (code {rc})")));
+        }
+        let filter = m.filter.as_deref().unwrap_or("NONE");
+        let fits = match filter {
+            "OCTAHEDRAL" | "COLOR" => vs == 4 || vs == 8,
+            "QUATERNION" => vs == 8,
+            _ => true,
+        };
+        if !fits || (filter != "NONE" && m.mode != "ATTRIBUTES") {
+            return Err(err(path, format!("{here}: filter {filter} with byteStride {vs} and mode {} is not valid", m.mode)));
+        }
+        // SAFETY: dst holds count × stride bytes, strides checked above.
+        unsafe {
+            let d = dst.as_mut_ptr().cast();
+            match filter {
+                "NONE" => {}
+                "OCTAHEDRAL" => meshopt::ffi::meshopt_decodeFilterOct(d, n, vsz),
+                "QUATERNION" => meshopt::ffi::meshopt_decodeFilterQuat(d, n, vsz),
+                "EXPONENTIAL" => meshopt::ffi::meshopt_decodeFilterExp(d, n, vsz),
+                "COLOR" => meshopt::ffi::meshopt_decodeFilterColor(d, n, vsz),
+                f => return Err(err(path, format!("{here}: filter {f} is not supported"))),
+            }
+        }
+        let stride = bv.byte_stride.filter(|&s| s > 0).unwrap_or(esize);
+        let acc = &self.doc.accessors[a];
+        let span = span(stride, esize, count, what, a, path)?;
+        let end = acc.byte_offset.saturating_add(span);
+        if end > total.min(bv.byte_length) {
+            return Err(err(
+                path,
+                format!("{here}: accessor {a} reads bytes {}..{end} of a {}-byte decoded bufferView", acc.byte_offset, total.min(bv.byte_length)),
+            ));
+        }
+        dst.drain(..acc.byte_offset as usize);
+        Ok((dst, stride))
     }
 
     /// A primitive's vertices in world space.
@@ -759,6 +857,18 @@ impl Gltf {
             })
             .collect()
     }
+}
+
+/// Bytes `count` elements of `esize` bytes `stride` apart span.
+fn span(stride: u64, esize: u64, count: u64, what: &str, a: usize, path: &Path) -> Result<u64> {
+    if stride < esize {
+        return Err(err(path, format!("{what}: accessor {a}: byteStride {stride} is less than the {esize}-byte element")));
+    }
+    let span = if count == 0 { 0 } else { stride.checked_mul(count - 1).and_then(|s| s.checked_add(esize)).unwrap_or(u64::MAX) };
+    if span > isize::MAX as u64 / 2 {
+        return Err(err(path, format!("{what}: accessor {a} of {span} bytes is too large")));
+    }
+    Ok(span)
 }
 
 fn chunk_head(file: &File, path: &Path, at: u64) -> Result<(u64, u32)> {
@@ -963,17 +1073,24 @@ mod tests {
         let mesh = grid(8);
         let attrs = AttrSet(AttrSet::NORMAL | AttrSet::COLOR | AttrSet::UV);
         let diag = 13f64.sqrt() * 1.2;
-        for (name, quantize) in [("a.glb", false), ("b.gltf", false), ("c.glb", true)] {
+        let cases = [("a.glb", false, false), ("b.gltf", false, false), ("c.glb", true, false), ("d.glb", false, true), ("e.gltf", true, true)];
+        for (name, quantize, compress) in cases {
             let p = dir.path().join(name);
-            let opts = crate::gltf::GltfOptions { quantize, compress: false };
+            let opts = crate::gltf::GltfOptions { quantize, compress };
             crate::gltf::write_mesh(&p, &mesh, attrs, &opts, false, "m").unwrap();
             let (h, sink, stats) = super::super::read_all(&p, 1 << 30).unwrap();
             assert_eq!(h.format, super::super::Format::Gltf);
             assert_eq!(h.attrs, attrs, "{name}");
             assert_eq!(stats.triangles, mesh.triangles.len() as u64, "{name}");
             assert_eq!(sink.vertices.len(), mesh.vertices.len());
-            let tris: Vec<[u64; 3]> = mesh.triangles.iter().map(|t| t.map(u64::from)).collect();
-            assert_eq!(sink.triangles, tris);
+            // The meshopt index codec may rotate a triangle's corners (winding kept).
+            let rot = |t: [u64; 3]| {
+                let k = (0..3).min_by_key(|&k| t[k]).unwrap();
+                [t[k], t[(k + 1) % 3], t[(k + 2) % 3]]
+            };
+            let tris: Vec<[u64; 3]> = mesh.triangles.iter().map(|t| rot(t.map(u64::from))).collect();
+            let got: Vec<[u64; 3]> = sink.triangles.iter().map(|&t| rot(t)).collect();
+            assert_eq!(got, tris, "{name}");
             let tol = if quantize { 1e-4 } else { 1e-6 } * diag;
             for (a, b) in sink.vertices.iter().zip(&mesh.vertices) {
                 let d = (0..3).map(|k| (a.pos[k] - b.pos[k]).powi(2)).sum::<f64>().sqrt();
@@ -983,11 +1100,15 @@ mod tests {
                 assert!((a.uv[0] - b.uv[0]).abs() < 1e-4 && (a.uv[1] - b.uv[1]).abs() < 1e-4);
             }
         }
-        // Meshopt-compressed output is refused by name.
-        let p = dir.path().join("d.glb");
+        // A corrupt meshopt stream is an error naming the extension.
+        let p = dir.path().join("f.glb");
         crate::gltf::write_mesh(&p, &mesh, attrs, &crate::gltf::GltfOptions { quantize: false, compress: true }, false, "m").unwrap();
-        let e = read_info(&p).unwrap_err().to_string();
-        assert!(e.contains("EXT_meshopt_compression") && e.contains("d.glb"), "{e}");
+        let mut bytes = std::fs::read(&p).unwrap();
+        let jlen = u32::from_le_bytes(bytes[12..16].try_into().unwrap()) as usize;
+        let bin = 20 + jlen + 8;
+        bytes[bin] ^= 0xff; // the vertex stream's header byte
+        let e = err_of(dir.path(), "f.glb", &bytes);
+        assert!(e.contains("EXT_meshopt_compression") && e.contains("meshopt decoding failed"), "{e}");
     }
 
     fn err_of(dir: &Path, name: &str, bytes: &[u8]) -> String {
