@@ -1111,6 +1111,50 @@ mod tests {
         assert!(e.contains("EXT_meshopt_compression") && e.contains("meshopt decoding failed"), "{e}");
     }
 
+    #[test]
+    fn meshopt_octahedral_normals() {
+        let dir = tempfile::tempdir().unwrap();
+        let normals: [[f32; 4]; 4] = [[0.0, 0.0, 1.0, 0.0], [0.6, 0.0, 0.8, 0.0], [0.0, -0.6, 0.8, 0.0], [-1.0, 0.0, 0.0, 0.0]];
+        let flat: Vec<f32> = normals.concat();
+        let mut filtered = [0i8; 16];
+        let mut enc = vec![0u8; 1024];
+        // SAFETY: 4 elements of 4 bytes (i8 × 4) and 4 floats each; enc is large enough.
+        let n = unsafe {
+            meshopt::ffi::meshopt_encodeFilterOct(filtered.as_mut_ptr().cast(), 4, 4, 8, flat.as_ptr());
+            meshopt::ffi::meshopt_encodeVertexBuffer(enc.as_mut_ptr(), enc.len(), filtered.as_ptr().cast(), 4, 4)
+        };
+        assert!(n > 0);
+        let mut bin = f32s(&QUAD.concat());
+        bin.extend_from_slice(&enc[..n]);
+        let doc = json!({
+            "asset": {"version": "2.0"},
+            "extensionsUsed": ["KHR_mesh_quantization", "EXT_meshopt_compression"],
+            "extensionsRequired": ["KHR_mesh_quantization", "EXT_meshopt_compression"],
+            "nodes": [{"mesh": 0}],
+            "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "NORMAL": 1}, "indices": null, "mode": 6}]}],
+            "accessors": [
+                {"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3"},
+                {"bufferView": 1, "componentType": 5120, "normalized": true, "count": 4, "type": "VEC3"},
+            ],
+            "bufferViews": [
+                {"buffer": 0, "byteLength": 48},
+                {"buffer": 1, "byteLength": 16, "byteStride": 4, "extensions": {"EXT_meshopt_compression": {
+                    "buffer": 0, "byteOffset": 48, "byteLength": n, "byteStride": 4, "count": 4, "mode": "ATTRIBUTES", "filter": "OCTAHEDRAL"}}},
+            ],
+            "buffers": [{"byteLength": 48 + n}, {"byteLength": 16, "extensions": {"EXT_meshopt_compression": {"fallback": true}}}],
+        });
+        let p = dir.path().join("n.glb");
+        std::fs::write(&p, glb(&doc, &bin)).unwrap();
+        let (h, sink, _) = super::super::read_all(&p, 1 << 30).unwrap();
+        assert_eq!(h.attrs, AttrSet(AttrSet::NORMAL));
+        assert_eq!(sink.triangles, vec![[1, 2, 0], [2, 3, 0]]);
+        for (v, w) in sink.vertices.iter().zip(&normals) {
+            for k in 0..3 {
+                assert!((v.normal[k] - w[k]).abs() < 0.02, "{:?} vs {w:?}", v.normal);
+            }
+        }
+    }
+
     fn err_of(dir: &Path, name: &str, bytes: &[u8]) -> String {
         let p = dir.join(name);
         std::fs::write(&p, bytes).unwrap();
