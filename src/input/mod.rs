@@ -1,14 +1,16 @@
 //! Inputs: PLY ([`crate::ply`]), STL ([`stl`]), OBJ ([`obj`]) and glTF
-//! ([`gltf`]), each read
-//! as the PLY body reader reads a PLY.
+//! ([`gltf`]), each read as the PLY body reader reads a PLY.
 //!
 //! Takes: a path (the format by extension, else by content). Gives: an
 //! [`InputHeader`] (format, attributes, counts) and a body reader that
 //! calls a [`BodySink`] with every vertex in index order, then every
 //! triangle (polygons fan-triangulated, triangles with a repeated corner
-//! dropped and counted), in sequential passes over the file, never holding
-//! the mesh in memory — so the soup stage's out-of-core dereference serves
-//! every format alike. Bad input is an error naming the file, line or byte
+//! dropped and counted), in sequential passes over the file (or positioned
+//! reads of a glTF's accessors), never holding the mesh in memory — so the
+//! soup stage's out-of-core dereference serves every format alike. Two
+//! exceptions, bounded: an OBJ whose corners carry uvs or normals is split
+//! into vertices in memory within `--mem`, and a meshopt-compressed glTF
+//! buffer view is decoded whole. Bad input is an error naming the file, line or byte
 //! offset.
 
 pub mod gltf;

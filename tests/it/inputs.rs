@@ -1,4 +1,4 @@
-//! Inputs beyond PLY (issue 33): an STL (binary and ascii) or an OBJ of a
+//! Inputs beyond PLY (issue 33): an STL (binary and ascii), an OBJ or a GLB of a
 //! mesh builds the same level 0 as the PLY of that mesh — the same
 //! triangles with bit-equal positions — and bad files are errors naming
 //! the file and the place, with nothing left behind.
@@ -102,10 +102,11 @@ fn stl_and_obj_build_the_level_0_of_the_same_ply() {
 }
 
 #[test]
-fn bad_stl_and_obj_name_the_file_and_the_place() {
+fn bad_stl_obj_and_glb_name_the_file_and_the_place() {
     let d = tempfile::tempdir().unwrap();
     let tri = "v 0 0 0\nv 1 0 0\nv 0 1 0\n";
-    let cases: [(&str, Vec<u8>, &str); 5] = [
+    let cases: [(&str, Vec<u8>, &str); 6] = [
+        ("short.glb", [b"glTF".to_vec(), 2u32.to_le_bytes().to_vec(), 255u32.to_le_bytes().to_vec()].concat(), "byte offset 0"),
         ("short.stl", [vec![b'x'; 80], 3u32.to_le_bytes().to_vec(), vec![0u8; 100]].concat(), "bytes"),
         ("nan.stl", b"solid a\nfacet normal 0 0 0\nouter loop\nvertex nan 0 0\nvertex 1 0 0\nvertex 0 1 0\nendloop\nendfacet\nendsolid a\n".to_vec(), "line 4"),
         ("zero.obj", format!("{tri}f 0 1 2\n").into_bytes(), "line 4"),
@@ -122,4 +123,100 @@ fn bad_stl_and_obj_name_the_file_and_the_place() {
         assert!(e.contains(name) && e.contains(place), "{name}: wants the file and {place:?}: {e}");
         assert!(!out.exists(), "{name}: output left behind");
     }
+}
+
+/// A GLB of the mesh as most exporters write one: absolute float32
+/// positions, u32 indices, one node without a transform.
+fn write_glb(path: &Path, m: &IndexedMesh) {
+    let mut bin = Vec::new();
+    let (mut lo, mut hi) = ([f32::MAX; 3], [f32::MIN; 3]);
+    for v in 0..m.vertices.len() as u32 {
+        let p = f32_pos(m, v);
+        for k in 0..3 {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+            bin.extend_from_slice(&p[k].to_le_bytes());
+        }
+    }
+    let pos_len = bin.len();
+    for t in &m.triangles {
+        for &v in t {
+            bin.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    let idx_len = bin.len() - pos_len;
+    let json = serde_json::json!({
+        "asset": {"version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1, "mode": 4}]}],
+        "buffers": [{"byteLength": bin.len()}],
+        "bufferViews": [
+            {"buffer": 0, "byteOffset": 0, "byteLength": pos_len, "target": 34962},
+            {"buffer": 0, "byteOffset": pos_len, "byteLength": idx_len, "target": 34963}
+        ],
+        "accessors": [
+            {"bufferView": 0, "componentType": 5126, "count": m.vertices.len(), "type": "VEC3", "min": lo, "max": hi},
+            {"bufferView": 1, "componentType": 5125, "count": 3 * m.triangles.len(), "type": "SCALAR"}
+        ]
+    });
+    let mut j = serde_json::to_vec(&json).unwrap();
+    while j.len() % 4 != 0 {
+        j.push(b' ');
+    }
+    let total = 12 + 8 + j.len() + 8 + bin.len();
+    let mut b = Vec::with_capacity(total);
+    b.extend_from_slice(b"glTF");
+    b.extend_from_slice(&2u32.to_le_bytes());
+    b.extend_from_slice(&(total as u32).to_le_bytes());
+    b.extend_from_slice(&(j.len() as u32).to_le_bytes());
+    b.extend_from_slice(b"JSON");
+    b.extend_from_slice(&j);
+    b.extend_from_slice(&(bin.len() as u32).to_le_bytes());
+    b.extend_from_slice(b"BIN\0");
+    b.extend_from_slice(&bin);
+    std::fs::write(path, b).unwrap();
+}
+
+#[test]
+fn a_glb_builds_the_level_0_of_the_same_ply() {
+    let d = tempfile::tempdir().unwrap();
+    let (ply, m) = gen_ply(d.path(), Shape::Scan, 20_000, 0);
+    let want = build_from(d.path(), &ply, 2000);
+    let p = d.path().join("mesh.glb");
+    write_glb(&p, &m);
+    let got = build_from(d.path(), &p, 2000);
+    assert_eq!(level0(&got), level0(&want), "level 0 differs from the PLY's");
+    assert_eq!(got.top_level(), want.top_level());
+    let o = octolod(&["info-input", s(&p)]);
+    assert!(o.status.success(), "{}", err(&o));
+    assert!(String::from_utf8_lossy(&o.stdout).contains(&format!("triangles (after fan triangulation): {}", m.triangles.len())));
+}
+
+#[test]
+fn octolods_own_glb_reads_back_within_rounding() {
+    // extract -o X.glb centres positions and puts the centre in the node's
+    // translation: reading it back applies the transform.
+    let d = tempfile::tempdir().unwrap();
+    let (ply, m) = gen_ply(d.path(), Shape::Sphere, 8_000, 0);
+    let st = build_from(d.path(), &ply, 2000);
+    let glb = d.path().join("l0.glb");
+    let o = octolod(&["extract", s(&st.dir), "--level", "0", "-o", s(&glb)]);
+    assert!(o.status.success(), "{}", err(&o));
+    let (_, sink, stats) = octolod::input::read_all(&glb, 1 << 30).unwrap();
+    assert_eq!(stats.triangles, m.triangles.len() as u64);
+    let diag = {
+        let mut b = octolod::mesh::Aabb::EMPTY;
+        m.vertices.iter().for_each(|v| b.add(v.pos));
+        b.diagonal()
+    };
+    let want: Vec<[f64; 3]> = m.vertices.iter().map(|v| v.pos.map(|c| c as f32 as f64)).collect();
+    // Every vertex read back lies on an input vertex, up to rounding.
+    let worst = sink
+        .vertices
+        .iter()
+        .map(|v| want.iter().map(|w| (0..3).map(|k| (v.pos[k] - w[k]).abs()).fold(0.0, f64::max)).fold(f64::INFINITY, f64::min))
+        .fold(0.0, f64::max);
+    assert!(worst <= 1e-6 * diag, "positions off by {worst} (diagonal {diag})");
 }
