@@ -913,6 +913,17 @@ impl Out<'_> {
         Ok(())
     }
 
+    /// The last triangles out; the faces must be those the first pass
+    /// counted (the file did not change in between).
+    fn finish(&mut self, path: &Path, info: &ObjInfo, read: u64) -> Result<()> {
+        self.flush_triangles()?;
+        if self.stats.faces != info.faces {
+            return Err(changed(path, "a different number of faces than in the first pass"));
+        }
+        self.stats.bytes = read;
+        Ok(())
+    }
+
     fn flush_triangles(&mut self) -> Result<()> {
         if !self.tris.is_empty() {
             self.sink.triangles(&self.tris)?;
@@ -1032,12 +1043,7 @@ fn read_positions(path: &Path, info: &ObjInfo, out: &mut Out, progress: &Progres
         read += lines.consumed();
         lines.tick()?;
     }
-    out.flush_triangles()?;
-    if out.stats.faces != info.faces {
-        return Err(changed(path, "a different number of faces than in the first pass"));
-    }
-    out.stats.bytes = read;
-    Ok(())
+    out.finish(path, info, read)
 }
 
 /// One `f` line on the positions-only path (`vt` and `vn` are ignored
@@ -1206,12 +1212,7 @@ fn read_corners(path: &Path, info: &ObjInfo, mem: u64, out: &mut Out, progress: 
     }
     read += lines.consumed();
     lines.tick()?;
-    out.flush_triangles()?;
-    if out.stats.faces != info.faces {
-        return Err(changed(path, "a different number of faces than in the first pass"));
-    }
-    out.stats.bytes = read;
-    Ok(())
+    out.finish(path, info, read)
 }
 
 // ---------------------------------------------------------------- sniffing

@@ -24,12 +24,11 @@
 //! offset and, in ascii files, the line.
 
 use crate::error::{Error, Location, Result};
+use crate::io::SeqInput as Input;
 use crate::mesh::Vertex;
 use crate::ply::read::{BodySink, BodyStats};
 use crate::progress::Progress;
-use std::fs::File;
-use std::io::Read;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 /// What [`read_info`] learned about an STL file.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -72,7 +71,7 @@ const FACET: &str = "facet";
 /// file not starting with `solid`, a truncated ascii file).
 pub fn read_info(path: &Path) -> Result<StlInfo> {
     // A small buffer first: a binary file costs one short read.
-    let mut input = Input::open(path, SNIFF)?;
+    let mut input = Input::open(path, 0, SNIFF)?;
     let len = input.len;
     input.ensure(SNIFF.min(len as usize))?;
     let head = &input.buf[..input.end.min(SNIFF)];
@@ -113,7 +112,7 @@ pub fn read_body(path: &Path, info: &StlInfo, sink: &mut dyn BodySink, progress:
 }
 
 fn read_body_buffered(path: &Path, info: &StlInfo, sink: &mut dyn BodySink, progress: &Progress, buf: usize) -> Result<BodyStats> {
-    let input = Input::open(path, buf)?;
+    let input = Input::open(path, 0, buf)?;
     if input.len != info.bytes {
         return Err(changed(path, format!("{} bytes, not the {} it had", input.len, info.bytes)));
     }
@@ -180,70 +179,6 @@ fn changed(path: &Path, what: String) -> Error {
 
 fn facet_loc(path: &Path, rec: Option<u64>, offset: u64) -> Location {
     Location { file: path.to_path_buf(), element: rec.map(|_| FACET.to_string()), record: rec, offset: Some(offset), line: None }
-}
-
-/// Sequential buffered input that tracks absolute file offsets.
-struct Input {
-    file: File,
-    len: u64,
-    buf: Vec<u8>,
-    pos: usize,
-    end: usize,
-    /// File offset of `buf[0]`.
-    base: u64,
-    eof: bool,
-    path: PathBuf,
-}
-
-impl Input {
-    fn open(path: &Path, buf: usize) -> Result<Input> {
-        let (file, len) = crate::io::open_regular(path, "open")?;
-        Ok(Input { file, len, buf: vec![0; buf.max(1)], pos: 0, end: 0, base: 0, eof: false, path: path.to_path_buf() })
-    }
-
-    #[inline]
-    fn offset(&self) -> u64 {
-        self.base + self.pos as u64
-    }
-
-    #[inline]
-    fn avail(&self) -> usize {
-        self.end - self.pos
-    }
-
-    /// Makes at least `n` bytes available; false when the file ends first.
-    #[inline]
-    fn ensure(&mut self, n: usize) -> Result<bool> {
-        if self.end - self.pos >= n {
-            Ok(true)
-        } else {
-            self.refill(n)
-        }
-    }
-
-    /// Moves the unread bytes to the front and reads until `n` are
-    /// available or the file ends; grows the buffer only when `n` is
-    /// larger than it (bounded by the callers: a record or a token).
-    #[cold]
-    fn refill(&mut self, n: usize) -> Result<bool> {
-        if self.pos > 0 {
-            self.buf.copy_within(self.pos..self.end, 0);
-            self.base += self.pos as u64;
-            self.end -= self.pos;
-            self.pos = 0;
-        }
-        if n > self.buf.len() {
-            self.buf.resize(n.next_power_of_two(), 0);
-        }
-        while self.end < n && !self.eof {
-            let got = self.file.read(&mut self.buf[self.end..]).map_err(|e| Error::io(&self.path, "read", e))?;
-            if got == 0 {
-                self.eof = true;
-            }
-            self.end += got;
-        }
-        Ok(self.end - self.pos >= n)
-    }
 }
 
 /// Batches the kept triangles' corners for the sink and counts.
@@ -562,7 +497,9 @@ mod tests {
     use crate::gen::{GenOptions, Generator, Shape};
     use crate::ply::read::CollectSink;
     use std::fmt::Write as _;
+    use std::fs::File;
     use std::io::Write as _;
+    use std::path::PathBuf;
 
     type Tri = [[f32; 3]; 3];
 

@@ -12,6 +12,8 @@
 //!   the soup's buckets and the levels' chunks, whose page-cache copies took
 //!   a third of the soup's time on the calling thread).
 
+mod seq;
+pub(crate) use seq::SeqInput;
 pub mod output;
 pub mod signal;
 pub mod temp;

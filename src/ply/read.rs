@@ -16,11 +16,10 @@
 
 use super::{color_names, face_index_prop, uv_names, ElementDef, Encoding, PlyHeader, PropDef, PropType, Scalar};
 use crate::error::{Error, Location, Result};
+use crate::io::SeqInput as Input;
 use crate::mesh::{AttrSet, Vertex};
 use crate::progress::Progress;
-use std::fs::File;
-use std::io::{Read, Seek, SeekFrom};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 /// Receives the body in batches.
 pub trait BodySink {
@@ -47,80 +46,6 @@ pub struct BodyStats {
 
 const BATCH: usize = 1 << 15;
 const BUF: usize = 4 << 20;
-
-/// Sequential buffered input that tracks absolute file offsets.
-struct Input {
-    file: File,
-    buf: Vec<u8>,
-    pos: usize,
-    end: usize,
-    /// File offset of `buf[0]`.
-    base: u64,
-    eof: bool,
-    path: PathBuf,
-}
-
-impl Input {
-    fn open(path: &Path, offset: u64) -> Result<Input> {
-        let (mut file, _) = crate::io::open_regular(path, "open")?;
-        file.seek(SeekFrom::Start(offset)).map_err(|e| Error::io(path, "seek", e))?;
-        Ok(Input { file, buf: vec![0; BUF], pos: 0, end: 0, base: offset, eof: false, path: path.to_path_buf() })
-    }
-
-    #[inline]
-    fn offset(&self) -> u64 {
-        self.base + self.pos as u64
-    }
-
-    #[inline]
-    fn avail(&self) -> usize {
-        self.end - self.pos
-    }
-
-    /// Makes at least `n` bytes available; false when the file ends first.
-    #[inline]
-    fn ensure(&mut self, n: usize) -> Result<bool> {
-        if self.end - self.pos >= n {
-            Ok(true)
-        } else {
-            self.refill(n)
-        }
-    }
-
-    #[cold]
-    fn refill(&mut self, n: usize) -> Result<bool> {
-        if self.pos > 0 {
-            self.buf.copy_within(self.pos..self.end, 0);
-            self.base += self.pos as u64;
-            self.end -= self.pos;
-            self.pos = 0;
-        }
-        if n > self.buf.len() {
-            self.buf.resize(n.next_power_of_two(), 0);
-        }
-        while self.end < n && !self.eof {
-            let got = self.file.read(&mut self.buf[self.end..]).map_err(|e| Error::io(&self.path, "read", e))?;
-            if got == 0 {
-                self.eof = true;
-            }
-            self.end += got;
-        }
-        Ok(self.end - self.pos >= n)
-    }
-
-    /// Skips ascii whitespace so that offsets name a record's first token.
-    fn skip_ws(&mut self) -> Result<()> {
-        while self.ensure(1)? && self.buf[self.pos].is_ascii_whitespace() {
-            self.pos += 1;
-        }
-        Ok(())
-    }
-
-    /// True when no byte is left.
-    fn at_eof(&mut self) -> Result<bool> {
-        Ok(!self.ensure(1)?)
-    }
-}
 
 /// How to read one scalar from a binary record.
 #[derive(Clone, Copy)]
@@ -209,7 +134,7 @@ impl VertexPlan {
 /// Reads the whole body of `path` described by `header`, feeding `sink`.
 pub fn read_body(path: &Path, header: &PlyHeader, sink: &mut dyn BodySink, progress: &Progress) -> Result<BodyStats> {
     let mut r = BodyReader {
-        input: Input::open(path, header.body_offset)?,
+        input: Input::open(path, header.body_offset, BUF)?,
         header,
         stats: BodyStats::default(),
         progress,
