@@ -889,7 +889,7 @@ fn ply_info(input: &std::path::Path, header_only: bool, quiet: bool) -> Result<(
     let progress = Progress::bytes(len, "decoding", quiet);
     let mut sink = BboxSink { bbox: Aabb::EMPTY };
     let t0 = std::time::Instant::now();
-    let st = octolod::input::read_body(input, &h, octolod::mem::DEFAULT_BUDGET, &mut sink, &progress)?;
+    let st = octolod::input::read_body(input, &h, octolod::mem::DEFAULT_BUDGET, &std::env::temp_dir(), &mut sink, &progress)?;
     let secs = t0.elapsed().as_secs_f64();
     progress.finish();
     let b = sink.bbox;

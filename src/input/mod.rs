@@ -175,12 +175,13 @@ pub fn read_header(path: &Path, progress: &Progress) -> Result<InputHeader> {
 
 /// Streams the body to `sink`: every vertex in index order, then every
 /// triangle. `mem` bounds what a reader may hold (an OBJ's attribute
-/// tables).
-pub fn read_body(path: &Path, header: &InputHeader, mem: u64, sink: &mut dyn BodySink, progress: &Progress) -> Result<BodyStats> {
+/// tables and corners); a reader that spills (an OBJ's corners out of
+/// core) does so in a scratch directory it makes inside `scratch`.
+pub fn read_body(path: &Path, header: &InputHeader, mem: u64, scratch: &Path, sink: &mut dyn BodySink, progress: &Progress) -> Result<BodyStats> {
     match &header.details {
         Details::Ply(h) => crate::ply::read::read_body(path, h, sink, progress),
         Details::Stl(i) => stl::read_body(path, i, sink, progress),
-        Details::Obj(i) => obj::read_body(path, i, mem, sink, progress),
+        Details::Obj(i) => obj::read_body(path, i, mem, scratch, sink, progress),
         Details::Gltf(i) => gltf::read_body(path, i, sink, progress),
     }
 }
@@ -189,6 +190,6 @@ pub fn read_body(path: &Path, header: &InputHeader, mem: u64, sink: &mut dyn Bod
 pub fn read_all(path: &Path, mem: u64) -> Result<(InputHeader, CollectSink, BodyStats)> {
     let header = read_header(path, &Progress::hidden())?;
     let mut sink = CollectSink::default();
-    let stats = read_body(path, &header, mem, &mut sink, &Progress::hidden())?;
+    let stats = read_body(path, &header, mem, &std::env::temp_dir(), &mut sink, &Progress::hidden())?;
     Ok((header, sink, stats))
 }

@@ -7,11 +7,14 @@
 //! * [`temp`]: locked temp and scratch paths next to the output
 //!   ([`ScratchDir`]), and the sweep of dead runs' leftovers.
 //! * [`signal`]: SIGINT/SIGTERM/SIGHUP stop work at safe points.
+//! * `buckets`: distribution by dense keys through bucket files (the
+//!   soup's slabs and slots, an OBJ's corners out of core).
 //! * Here: large sequential buffers, and scratch writers that write behind
 //!   the caller on another thread ([`WriteBehind`], [`FileWriteBehind`]:
 //!   the soup's buckets and the levels' chunks, whose page-cache copies took
 //!   a third of the soup's time on the calling thread).
 
+pub(crate) mod buckets;
 mod seq;
 pub(crate) use seq::SeqInput;
 pub mod output;

@@ -30,12 +30,12 @@ pub mod format;
 
 use crate::error::{Error, IoContext, Location, Result};
 use crate::input::{Format, InputHeader};
-use crate::io::{WriteBehind, SEQ_BUF};
+use crate::io::buckets::{read_records, BucketFiles, SlotBuckets};
+use crate::io::SEQ_BUF;
 use crate::mesh::{Aabb, Vertex, VertexLayout};
 use crate::ply::read::{BodySink, BodyStats};
 use crate::progress::Progress;
 use format::{SoupHeader, SoupWriter};
-use rayon::prelude::*;
 use std::fs::File;
 use std::io::{BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
@@ -295,7 +295,9 @@ fn build_in_memory(input: &Path, output: &Path, header: &InputHeader, opts: &Sou
     let mut soup = SoupWriter::create(output, header.attrs, opts.replace, opts.scratch)?;
     let mut sink =
         InMemorySink { table: Vec::with_capacity(header.vertex_count() as usize * layout.size), layout, soup: &mut soup, rec: vec![0; 3 * layout.size] };
-    let body = crate::input::read_body(input, header, opts.mem, &mut sink, progress)?;
+    // The vertex table takes up to ¾ of the budget (see `build_soup_tapped`); the reader holds the rest.
+    let scratch = crate::io::parent_dir(output);
+    let body = crate::input::read_body(input, header, opts.mem / 4, &scratch, &mut sink, progress)?;
     drop(sink);
     if body.triangles == 0 {
         return Err(no_triangles_error(input, header, &body));
@@ -476,7 +478,9 @@ fn distribute_by_slab(input: &Path, header: &InputHeader, opts: &SoupOptions, pr
             overflow: false,
             bbox: Aabb::EMPTY,
         };
-        let body = match crate::input::read_body(input, header, opts.mem, &mut sink, progress) {
+        // The reader holds what the corner buckets' and the vertex file's buffers leave.
+        let reader_mem = opts.mem.saturating_sub(sink.corners.buffer_bytes() + SEQ_BUF as u64);
+        let body = match crate::input::read_body(input, header, reader_mem, scratch, &mut sink, progress) {
             Err(_) if sink.overflow => {
                 // The files are created afresh (truncated) on the next try.
                 drop(sink);
@@ -515,7 +519,7 @@ fn join_slabs(plan: &ExternalPlan, scratch: &Path, slabs: SlabCorners, quiet: bo
     let n_corners = body.triangles * 3;
     let join_progress = Progress::items(n_corners, "joining", quiet);
     // Phase 3 places a slot range beside what the tap holds.
-    let mut buckets = SlotBuckets::new(scratch, n_corners, s, plan.held, plan.held / 2)?;
+    let mut buckets = SlotBuckets::new(scratch, "slots", n_corners, s, plan.held, plan.held / 2)?;
     let mut vfile = File::open(&vpath).ctx(&vpath, "open vertex file")?;
     let mut slab = vec![0u8; per_slab.min(n_vertices) as usize * s];
     let mut chunk = vec![0u8; SEQ_BUF / crec * crec];
@@ -528,8 +532,12 @@ fn join_slabs(plan: &ExternalPlan, scratch: &Path, slabs: SlabCorners, quiet: bo
     }
     // First corners waiting to be shown to the tap.
     let mut firsts: Vec<[f64; 3]> = Vec::with_capacity(if with_bbox { CORNER_BATCH } else { 0 });
+    // The body may hold fewer vertices than the header's count (an OBJ's
+    // corner count is an upper bound on its distinct corners); the slabs
+    // past them are empty.
+    debug_assert!(body.vertices <= n_vertices);
     for (k, (path, records)) in corner_buckets.into_iter().enumerate() {
-        let n = (n_vertices - k as u64 * per_slab).min(per_slab) as usize;
+        let n = body.vertices.saturating_sub(k as u64 * per_slab).min(per_slab) as usize;
         let slab = &mut slab[..n * s];
         vfile.read_exact(slab).ctx(&vpath, "read vertex file")?;
         read_records(&path, crec, records, &mut chunk, |r| {
@@ -626,198 +634,4 @@ fn write_slots(
         }
     };
     Ok(Written { header, slot_buckets, slot_bucket_bytes, mode })
-}
-
-/// Append-only bucket files of fixed-size records, one write buffer of
-/// `region` bytes per bucket, filled up to `fill[b]`; a full buffer is
-/// written behind ([`WriteBehind`]: the kernel's copy runs on another core
-/// while the next records are made) and replaced by an empty one.
-struct BucketFiles {
-    rec: usize,
-    paths: Vec<PathBuf>,
-    bufs: Vec<Vec<u8>>,
-    region: usize,
-    fill: Vec<usize>,
-    /// Records per bucket.
-    counts: Vec<u64>,
-    writer: WriteBehind,
-}
-
-/// Buffers in flight to a bucket set's writer.
-const WRITE_DEPTH: usize = 4;
-
-impl BucketFiles {
-    /// `n` files named `{name}-{b}.bin` in `dir`, with write buffers of
-    /// about `mem` bytes in all (at least 4 KiB, at most [`SEQ_BUF`] each).
-    fn create(dir: &Path, name: &str, n: usize, rec: usize, mem: usize) -> Result<BucketFiles> {
-        let region = ((mem / n.max(1)).clamp(4 << 10, SEQ_BUF) / rec).max(1) * rec;
-        let mut files = Vec::with_capacity(n);
-        for b in 0..n {
-            let path = dir.join(format!("{name}-{b:05}.bin"));
-            let f = File::create(&path).ctx(&path, "create bucket file")?;
-            files.push((path, f));
-        }
-        let paths = files.iter().map(|f| f.0.clone()).collect();
-        Ok(BucketFiles {
-            rec,
-            paths,
-            bufs: (0..n).map(|_| vec![0u8; region]).collect(),
-            region,
-            fill: vec![0; n],
-            counts: vec![0; n],
-            writer: WriteBehind::new(files, WRITE_DEPTH, "write bucket file"),
-        })
-    }
-
-    fn len(&self) -> usize {
-        self.paths.len()
-    }
-
-    /// The bytes of a new record appended to bucket `b`, to be filled.
-    #[inline]
-    fn record(&mut self, b: usize) -> Result<&mut [u8]> {
-        if self.fill[b] + self.rec > self.region {
-            self.flush(b)?;
-        }
-        self.counts[b] += 1;
-        let at = self.fill[b];
-        self.fill[b] += self.rec;
-        Ok(&mut self.bufs[b][at..at + self.rec])
-    }
-
-    fn flush(&mut self, b: usize) -> Result<()> {
-        if self.fill[b] > 0 {
-            let full = std::mem::take(&mut self.bufs[b]);
-            self.bufs[b] = self.writer.write(b, full, self.fill[b])?;
-            self.fill[b] = 0;
-        }
-        Ok(())
-    }
-
-    /// Writes out every buffer and frees them; gives each bucket's path and record count.
-    fn finish(self) -> Result<Vec<(PathBuf, u64)>> {
-        let BucketFiles { paths, bufs, fill, counts, mut writer, .. } = self;
-        for (b, buf) in bufs.into_iter().enumerate() {
-            writer.write_last(b, buf, fill[b])?;
-        }
-        writer.finish()?;
-        Ok(paths.into_iter().zip(counts).collect())
-    }
-}
-
-/// Reads `records` records of `rec` bytes from `path` through `chunk` (a
-/// multiple of `rec` bytes) and hands each to `each`.
-fn read_records(path: &Path, rec: usize, records: u64, chunk: &mut [u8], mut each: impl FnMut(&[u8]) -> Result<()>) -> Result<()> {
-    let mut f = File::open(path).ctx(path, "open bucket file")?;
-    let mut left = records * rec as u64;
-    while left > 0 {
-        let want = (left as usize).min(chunk.len());
-        f.read_exact(&mut chunk[..want]).ctx(path, "read bucket file")?;
-        for r in chunk[..want].chunks_exact(rec) {
-            each(r)?;
-        }
-        left -= want as u64;
-    }
-    Ok(())
-}
-
-/// Phases 2–3 of the external path: a one-pass distribution sort by slot.
-///
-/// Slots are dense (0..3·triangles), so instead of a comparison sort the
-/// joined corners are appended to bucket files, each covering a slot range
-/// whose vertex bytes fit the budget; each bucket is then read back
-/// sequentially, its corners placed at their slot in memory, and written out
-/// in order. When all corners fit in half the budget no file is written.
-struct SlotBuckets {
-    vsize: usize,
-    n_slots: u64,
-    /// Slots per bucket (a multiple of 3, so no triangle straddles two buckets).
-    per: u64,
-    /// Buckets placed at once (one per thread), each in its share of the placing memory.
-    group: usize,
-    /// Records (slot within the bucket: u32, vertex bytes), when spilling.
-    files: Option<BucketFiles>,
-    /// The single in-memory bucket, when everything fits.
-    mem: Option<Vec<u8>>,
-    placed: u64,
-}
-
-impl SlotBuckets {
-    fn new(dir: &Path, n_slots: u64, vsize: usize, place_mem: usize, write_mem: usize) -> Result<SlotBuckets> {
-        let total = n_slots * vsize as u64;
-        if total <= write_mem as u64 {
-            let mem = Some(vec![0u8; total as usize]);
-            return Ok(SlotBuckets { vsize, n_slots, per: n_slots.max(3), group: 1, files: None, mem, placed: 0 });
-        }
-        let group = rayon::current_num_threads().max(1);
-        let per = ((place_mem / group / vsize) as u64 / 3 * 3).clamp(3, u32::MAX as u64 / 3 * 3);
-        let n = n_slots.div_ceil(per) as usize;
-        let files = Some(BucketFiles::create(dir, "slots", n, 4 + vsize, write_mem)?);
-        Ok(SlotBuckets { vsize, n_slots, per, group, files, mem: None, placed: 0 })
-    }
-
-    /// Bucket files (0: placed in memory).
-    fn len(&self) -> u64 {
-        self.files.as_ref().map_or(0, |f| f.len() as u64)
-    }
-
-    #[inline]
-    fn push(&mut self, slot: u64, vertex: &[u8]) -> Result<()> {
-        let s = self.vsize;
-        if let Some(m) = &mut self.mem {
-            m[slot as usize * s..(slot as usize + 1) * s].copy_from_slice(vertex);
-            self.placed += 1;
-            return Ok(());
-        }
-        let files = self.files.as_mut().expect("slot buckets spill or place in memory");
-        let r = files.record((slot / self.per) as usize)?;
-        r[..4].copy_from_slice(&((slot % self.per) as u32).to_le_bytes());
-        r[4..].copy_from_slice(vertex);
-        Ok(())
-    }
-
-    /// Emits every triangle (3 corners) in slot order, several at a time;
-    /// returns bytes spilled to bucket files.
-    fn finish(self, mut out: impl FnMut(&[u8]) -> Result<()>) -> Result<u64> {
-        let s = self.vsize;
-        if let Some(m) = self.mem {
-            debug_assert_eq!(self.placed, self.n_slots);
-            out(&m)?;
-            return Ok(0);
-        }
-        let mut spilled = 0;
-        let rec = 4 + s;
-        // Flush every bucket first: the write buffers must not sit in
-        // memory beside the buckets being placed.
-        let buckets = self.files.expect("slot buckets spill or place in memory").finish()?;
-        // `group` buckets are placed at once (each read and placed by its
-        // own thread), then written out in order.
-        let numbered: Vec<(usize, (PathBuf, u64))> = buckets.into_iter().enumerate().collect();
-        for group in numbered.chunks(self.group) {
-            let placed: Vec<Result<Vec<u8>>> = group
-                .par_iter()
-                .map(|(b, (path, records))| {
-                    let first = *b as u64 * self.per;
-                    let n = (self.n_slots - first).min(self.per) as usize;
-                    assert_eq!(*records, n as u64, "bucket {b} misses corners");
-                    let mut chunk = vec![0u8; (SEQ_BUF / rec).max(1) * rec];
-                    // A single large allocation per bucket, freed once written.
-                    let mut placed = vec![0u8; n * s];
-                    read_records(path, rec, *records, &mut chunk, |c| {
-                        let i = u32::from_le_bytes(c[..4].try_into().unwrap()) as usize;
-                        placed[i * s..(i + 1) * s].copy_from_slice(&c[4..]);
-                        Ok(())
-                    })?;
-                    let _ = std::fs::remove_file(path);
-                    Ok(placed)
-                })
-                .collect();
-            for p in placed {
-                let p = p?;
-                spilled += (p.len() / s * rec) as u64;
-                out(&p)?;
-            }
-        }
-        Ok(spilled)
-    }
 }

@@ -4,9 +4,12 @@
 //! the file and the place, with nothing left behind.
 
 use crate::common::cli::{err, octolod, s};
-use crate::common::{build_from, gen_ply};
+use crate::common::{build_from, build_options, gen_ply};
 use octolod::gen::Shape;
+use octolod::manifest::BuildParams;
+use octolod::mesh::AttrSet;
 use octolod::mesh::IndexedMesh;
+use octolod::pipeline::build_store;
 use octolod::store::Store;
 use std::io::Write;
 use std::path::Path;
@@ -99,6 +102,51 @@ fn stl_and_obj_build_the_level_0_of_the_same_ply() {
         let out = String::from_utf8_lossy(&o.stdout);
         assert!(out.contains(&format!("triangles (after fan triangulation): {}", m.triangles.len())), "{name}: {out}");
     }
+}
+
+/// Positions, texture coordinates and normals (shortest round-trip
+/// decimals of the f32 values the PLY stores), faces `v/vt/vn`.
+fn write_obj_corners(path: &Path, m: &IndexedMesh) {
+    let mut w = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
+    for v in 0..m.vertices.len() as u32 {
+        let p = f32_pos(m, v).map(|c| c as f64);
+        writeln!(w, "v {:?} {:?} {:?}", p[0], p[1], p[2]).unwrap();
+    }
+    for v in &m.vertices {
+        writeln!(w, "vt {:?} {:?}", v.uv[0], v.uv[1]).unwrap();
+    }
+    for v in &m.vertices {
+        writeln!(w, "vn {:?} {:?} {:?}", v.normal[0], v.normal[1], v.normal[2]).unwrap();
+    }
+    for t in &m.triangles {
+        let c = t.map(|v| format!("{0}/{0}/{0}", v + 1));
+        writeln!(w, "f {} {} {}", c[0], c[1], c[2]).unwrap();
+    }
+}
+
+/// An OBJ whose faces reference `vt` and `vn` builds the PLY's level 0
+/// under a budget its tables and corners do not fit (4 MiB: the corners
+/// are split into vertices out of core), and with room to do it in memory.
+#[test]
+fn an_obj_with_uv_and_normals_builds_the_same_level_0_out_of_core() {
+    let d = tempfile::tempdir().unwrap();
+    let attrs = AttrSet::UV | AttrSet::NORMAL;
+    let (ply, m) = gen_ply(d.path(), Shape::Scan, 40_000, attrs);
+    let obj = d.path().join("corners.obj");
+    write_obj_corners(&obj, &m);
+    // More than the 4 MiB build_from gives: 48 bytes per corner alone.
+    assert!(m.triangles.len() * 3 * 48 > 4 << 20);
+    let want0 = level0(&build_from(d.path(), &ply, 2000));
+    assert!(want0.len() > 30_000);
+    assert_eq!(level0(&build_from(d.path(), &obj, 2000)), want0, "out of core");
+    let out = d.path().join("big.octolod");
+    let params = BuildParams { mem: 256 << 20, leaf_tris: 2000, max_depth: 12, root_tris: 256, ..Default::default() };
+    build_store(&obj, &out, &build_options(params)).unwrap();
+    assert_eq!(level0(&Store::open(&out).unwrap()), want0, "in memory");
+    // Nothing left beside the outputs.
+    let mut names: Vec<String> = std::fs::read_dir(d.path()).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    names.sort();
+    assert!(names.iter().all(|n| !n.contains("scratch") && !n.contains(".tmp")), "{names:?}");
 }
 
 #[test]

@@ -27,13 +27,14 @@
 //!   no `v` line follows the first `f` line (the usual layout) both happen
 //!   in one pass; otherwise a second pass starts at the first `f` line.
 //! * **corners** (faces reference `vt` or `vn`): every distinct
-//!   (v, vt, vn) corner becomes one vertex, numbered in order of first
-//!   appearance in the faces. This is done in memory: the position,
-//!   texture-coordinate and normal tables and a hash map of the corners
-//!   must fit `mem`, or [`read_body`] refuses with [`Error::Usage`] naming
-//!   `--mem` and the bytes needed. Splitting corners out of core (sorting
-//!   them by position index, as the soup stage dereferences) is still to
-//!   come.
+//!   (v, vt, vn) corner becomes one vertex. In memory when the position,
+//!   texture-coordinate and normal tables and a hash map of the most
+//!   corners there can be fit `mem` (numbered in order of first
+//!   appearance; a second pass from the first face emits the triangles);
+//!   otherwise out of core (`split.rs`): one pass spools the tables and the
+//!   kept triangles' corners to scratch, distributed by position slab, and
+//!   the corners are numbered slab by slab and joined with the tables by
+//!   slab, within `mem` whatever the file's size.
 //!
 //! Either way a triangle two of whose corners share a position index is
 //! dropped and counted as degenerate, as PLY's are.
@@ -44,6 +45,8 @@
 //! digits converted exactly by one multiplication or division (Clinger's
 //! fast path), longer ones by the standard library's correctly rounded
 //! parser.
+
+mod split;
 
 use crate::error::{Error, Location, Result};
 use crate::mesh::{AttrSet, Vertex};
@@ -104,7 +107,7 @@ struct Mark {
 
 impl ObjInfo {
     /// Whether the faces reference `vt` or `vn`, so that the body's
-    /// vertices are the distinct (v, vt, vn) corners, read in memory.
+    /// vertices are the distinct (v, vt, vn) corners.
     pub fn corner_vertices(&self) -> bool {
         self.attrs.uv() || self.attrs.normal()
     }
@@ -130,7 +133,7 @@ impl ObjInfo {
     }
 }
 
-/// Memory counted per distinct corner on the corner path: the hash map
+/// Memory counted per distinct corner on the corner paths: the hash map
 /// entry (12-byte key, 4-byte value, a control byte, at most 7/8 full and
 /// up to twice the entries after growth) and the 12-byte corner in the
 /// list that numbers them.
@@ -855,16 +858,40 @@ fn read_info_buf(path: &Path, progress: &Progress, buf: usize) -> Result<ObjInfo
 
 /// Reads the body of `path` described by `info` (from [`read_info`] on the
 /// same file), feeding `sink`: vertices in index order, then triangles.
-/// `mem` bounds the corner path's tables (see the module doc); the
-/// positions-only path holds only its buffers whatever `mem` is.
-pub fn read_body(path: &Path, info: &ObjInfo, mem: u64, sink: &mut dyn BodySink, progress: &Progress) -> Result<BodyStats> {
-    read_body_buf(path, info, mem, sink, progress, BUF)
+/// `mem` bounds the corner path (see the module doc), which spills to a
+/// scratch directory it makes inside `scratch` when its tables do not fit;
+/// the positions-only path holds only its buffers whatever `mem` is.
+pub fn read_body(path: &Path, info: &ObjInfo, mem: u64, scratch: &Path, sink: &mut dyn BodySink, progress: &Progress) -> Result<BodyStats> {
+    read_body_buf(path, info, mem, scratch, sink, progress, BUF, false)
 }
 
-fn read_body_buf(path: &Path, info: &ObjInfo, mem: u64, sink: &mut dyn BodySink, progress: &Progress, buf: usize) -> Result<BodyStats> {
+/// [`read_body`] with a buffer size and, for tests, the corner path forced
+/// out of core.
+#[allow(clippy::too_many_arguments)]
+fn read_body_buf(
+    path: &Path,
+    info: &ObjInfo,
+    mem: u64,
+    scratch: &Path,
+    sink: &mut dyn BodySink,
+    progress: &Progress,
+    buf: usize,
+    external: bool,
+) -> Result<BodyStats> {
     let mut out = Out { sink, stats: BodyStats::default(), tris: Vec::with_capacity(BATCH), verts: Vec::with_capacity(BATCH) };
     if info.corner_vertices() {
-        read_corners(path, info, mem, &mut out, progress, buf)?;
+        if info.positions >= u32::MAX as u64 || info.texcoords >= u32::MAX as u64 || info.normals >= u32::MAX as u64 {
+            return Err(Error::Usage(format!(
+                "{}: more than {} 'v', 'vt' or 'vn' lines with faces referencing 'vt' or 'vn' are not supported",
+                path.display(),
+                u32::MAX - 1
+            )));
+        }
+        if !external && corners_fit(info, mem) {
+            read_corners(path, info, &mut out, progress, buf)?;
+        } else {
+            read_corners_external(path, info, mem, scratch, &mut out, progress, buf)?;
+        }
     } else {
         read_positions(path, info, &mut out, progress, buf)?;
     }
@@ -899,13 +926,9 @@ impl Out<'_> {
         Ok(())
     }
 
-    /// Adds the triangle (`t` output indices, `p` their position indices).
+    /// Adds a triangle of output indices.
     #[inline]
-    fn triangle(&mut self, t: [u64; 3], p: [u64; 3]) -> Result<()> {
-        if p[0] == p[1] || p[1] == p[2] || p[0] == p[2] {
-            self.stats.degenerate += 1;
-            return Ok(());
-        }
+    fn push_triangle(&mut self, t: [u64; 3]) -> Result<()> {
         self.tris.push(t);
         if self.tris.len() == BATCH {
             self.flush_triangles()?;
@@ -935,6 +958,31 @@ impl Out<'_> {
     }
 }
 
+/// Where fan-triangulated faces go: the sink's batches ([`Out`]) or the
+/// out-of-core corner spool ([`split::Spool`]).
+trait Tris {
+    /// Adds the triangle (`t` output indices, `p` their position indices)
+    /// unless two corners share a position (counted as degenerate).
+    fn triangle(&mut self, t: [u64; 3], p: [u64; 3]) -> Result<()>;
+    /// The counts faces and polygons are added to.
+    fn stats(&mut self) -> &mut BodyStats;
+}
+
+impl Tris for Out<'_> {
+    #[inline]
+    fn triangle(&mut self, t: [u64; 3], p: [u64; 3]) -> Result<()> {
+        if p[0] == p[1] || p[1] == p[2] || p[0] == p[2] {
+            self.stats.degenerate += 1;
+            return Ok(());
+        }
+        self.push_triangle(t)
+    }
+
+    fn stats(&mut self) -> &mut BodyStats {
+        &mut self.stats
+    }
+}
+
 /// Fan triangulation state: the first and the previous corner (output
 /// index, position index) and the corners seen.
 #[derive(Default)]
@@ -946,7 +994,7 @@ struct Fan {
 
 impl Fan {
     #[inline]
-    fn push(&mut self, out: &mut Out, c: (u64, u64)) -> Result<()> {
+    fn push(&mut self, out: &mut impl Tris, c: (u64, u64)) -> Result<()> {
         match self.k {
             0 => self.first = c,
             1 => self.prev = c,
@@ -961,13 +1009,14 @@ impl Fan {
 
     /// Ends a face line: counts it, and fails below three corners (the
     /// file changed since the first pass, which refused such faces).
-    fn end(self, out: &mut Out, lines: &Lines, l: &Line) -> Result<()> {
+    fn end(self, out: &mut impl Tris, lines: &Lines, l: &Line) -> Result<()> {
         if self.k < 3 {
             return Err(lines.err(l, l.s, format!("face with {} corner(s); a face needs at least 3", self.k)));
         }
-        out.stats.faces += 1;
+        let stats = out.stats();
+        stats.faces += 1;
         if self.k > 3 {
-            out.stats.polygons += 1;
+            stats.polygons += 1;
         }
         Ok(())
     }
@@ -1060,148 +1109,181 @@ fn position_face(lines: &Lines, l: &Line, b: &[u8], at: usize, defined: u64, tot
     fan.end(out, lines, l)
 }
 
-/// The corner path, in memory: one pass reads the `v`, `vt` and `vn`
-/// tables and numbers the distinct (v, vt, vn) corners of the faces in
-/// order of first appearance; the corners are emitted as vertices; a
-/// second pass from the first face emits the triangles.
-fn read_corners(path: &Path, info: &ObjInfo, mem: u64, out: &mut Out, progress: &Progress, buf: usize) -> Result<()> {
-    let tables = info.table_bytes();
-    // Needs at least the tables plus CORNER_BYTES per distinct corner seen
-    // (`seen`), and at most that for the upper bound `info.vertices`.
-    let refuse = |seen: u64| {
-        let least = tables.saturating_add(seen.saturating_mul(CORNER_BYTES));
-        let most = tables.saturating_add(info.vertices.saturating_mul(CORNER_BYTES));
-        Error::Usage(format!(
-            "{}: its faces reference texture coordinates or normals, so each distinct (v, vt, vn) corner becomes a vertex, \
-             done in memory for now (splitting corners out of core is still to come): that needs at least {least} bytes \
-             ({} MiB) and up to {most} ({} MiB): {tables} for the v/vt/vn tables and {CORNER_BYTES} per distinct corner \
-             (at most {}), but --mem is {mem} bytes; give a larger --mem",
-            path.display(),
-            least.div_ceil(1 << 20),
-            most.div_ceil(1 << 20),
-            info.vertices
-        ))
+/// The first pass of the corner path reads into one of these: the `v`,
+/// `vt` and `vn` tables, and each face's corners as (v, vt, vn), 0-based,
+/// [`split::NONE`] for none.
+trait CornerPass {
+    fn position(&mut self, v: &Vertex) -> Result<()>;
+    fn texcoord(&mut self, uv: [f32; 2]) -> Result<()>;
+    fn normal(&mut self, n: [f32; 3]) -> Result<()>;
+    fn corner(&mut self, k: [u32; 3]) -> Result<()>;
+    fn face_end(&mut self, lines: &Lines, l: &Line) -> Result<()>;
+}
+
+/// A face corner's (v, vt, vn), checked against what is defined so far
+/// (`defined`: v, vt, vn lines before this one).
+fn corner_key(lines: &Lines, l: &Line, c: Corner, defined: [u64; 3], info: &ObjInfo) -> Result<[u32; 3]> {
+    let r = |x: i64, defined: u64, total: u64, kind: Kind| -> Result<u32> {
+        if x == NONE {
+            return Ok(split::NONE);
+        }
+        resolve(x, defined, Some(total), kind).map(|z| z as u32).map_err(|msg| lines.err(l, l.s + c.at, msg))
     };
-    if tables > mem || info.positions >= u32::MAX as u64 || info.texcoords >= u32::MAX as u64 || info.normals >= u32::MAX as u64 {
-        return Err(refuse(0));
-    }
+    Ok([r(c.v, defined[0], info.positions, Kind::Pos)?, r(c.vt, defined[1], info.texcoords, Kind::Tex)?, r(c.vn, defined[2], info.normals, Kind::Nrm)?])
+}
+
+/// The corner path's first pass over the whole file into `to`; gives the
+/// bytes read.
+fn corner_pass(path: &Path, info: &ObjInfo, to: &mut impl CornerPass, progress: &Progress, buf: usize) -> Result<u64> {
     let (color, uv, nrm) = (info.attrs.color(), info.attrs.uv(), info.attrs.normal());
-    let mut pos: Vec<[f64; 3]> = Vec::with_capacity(info.positions as usize);
-    let mut rgb: Vec<[u8; 4]> = Vec::with_capacity(if color { info.positions as usize } else { 0 });
-    let mut tex: Vec<[f32; 2]> = Vec::with_capacity(if uv { info.texcoords as usize } else { 0 });
-    let mut nor: Vec<[f32; 3]> = Vec::with_capacity(if nrm { info.normals as usize } else { 0 });
-    // Corners as (v, vt, vn) 0-based, u32::MAX for none.
-    let room = ((mem - tables) / CORNER_BYTES).min(info.vertices);
-    let mut order: Vec<[u32; 3]> = Vec::with_capacity(room.min(info.positions) as usize);
-    let mut ids: FxHashMap<[u32; 3], u32> = FxHashMap::default();
-    ids.reserve(room.min(info.positions) as usize);
     let mut nums = [0f64; 8];
-    let (mut nv, mut nt, mut nn) = (0u64, 0u64, 0u64);
+    let mut n = [0u64; 3];
     let mut lines = Lines::open(path, Mark { line: 1, ..Default::default() }, buf, progress)?;
-    let key = |lines: &Lines, l: &Line, c: Corner, nv: u64, nt: u64, nn: u64| -> Result<[u32; 3]> {
-        let r = |x: i64, defined: u64, total: u64, kind: Kind| -> Result<u32> {
-            if x == NONE {
-                return Ok(u32::MAX);
-            }
-            resolve(x, defined, Some(total), kind).map(|z| z as u32).map_err(|msg| lines.err(l, l.s + c.at, msg))
-        };
-        Ok([r(c.v, nv, info.positions, Kind::Pos)?, r(c.vt, nt, info.texcoords, Kind::Tex)?, r(c.vn, nn, info.normals, Kind::Nrm)?])
-    };
+    let totals = [info.positions, info.texcoords, info.normals];
     while let Some(l) = lines.next()? {
         let b = &lines.buf[l.s..l.e];
         let Some((kw, at)) = keyword(b, 0) else { continue };
-        match kw {
-            Kw::V => {
-                if nv == info.positions {
-                    return Err(changed(path, "more 'v' lines than in the first pass"));
-                }
-                line_numbers(&lines, &l, b, at, Kw::V, color, &mut nums)?;
-                let v = position_vertex(&nums, color);
-                pos.push(v.pos);
-                if color {
-                    rgb.push(v.color);
-                }
-                nv += 1;
-            }
-            Kw::Vt => {
-                if nt == info.texcoords {
-                    return Err(changed(path, "more 'vt' lines than in the first pass"));
-                }
-                if uv {
-                    let n = line_numbers(&lines, &l, b, at, Kw::Vt, false, &mut nums)?;
-                    tex.push([nums[0] as f32, if n > 1 { nums[1] as f32 } else { 0.0 }]);
-                }
-                nt += 1;
-            }
-            Kw::Vn => {
-                if nn == info.normals {
-                    return Err(changed(path, "more 'vn' lines than in the first pass"));
-                }
-                if nrm {
-                    line_numbers(&lines, &l, b, at, Kw::Vn, false, &mut nums)?;
-                    nor.push([nums[0] as f32, nums[1] as f32, nums[2] as f32]);
-                }
-                nn += 1;
-            }
+        let k = match kw {
+            Kw::V => 0,
+            Kw::Vt => 1,
+            Kw::Vn => 2,
             Kw::F => {
                 let mut i = at;
                 while let Some(c) = next_corner(b, &mut i) {
                     let c = c.map_err(|a| lines.err(&l, l.s + a, format!("'{}' is not a face corner ({CORNER_FORMS})", token(b, a))))?;
-                    let k = key(&lines, &l, c, nv, nt, nn)?;
-                    let next = order.len() as u32;
-                    if let std::collections::hash_map::Entry::Vacant(e) = ids.entry(k) {
-                        if order.len() as u64 >= room || next == u32::MAX {
-                            return Err(refuse(order.len() as u64 + 1));
-                        }
-                        e.insert(next);
-                        order.push(k);
-                    }
+                    to.corner(corner_key(&lines, &l, c, n, info)?)?;
                 }
+                to.face_end(&lines, &l)?;
+                continue;
+            }
+            _ => continue,
+        };
+        if n[k] == totals[k] {
+            return Err(changed(path, &format!("more '{}' lines than in the first pass", ["v", "vt", "vn"][k])));
+        }
+        match k {
+            0 => {
+                line_numbers(&lines, &l, b, at, Kw::V, color, &mut nums)?;
+                to.position(&position_vertex(&nums, color))?;
+            }
+            1 if uv => {
+                let c = line_numbers(&lines, &l, b, at, Kw::Vt, false, &mut nums)?;
+                to.texcoord([nums[0] as f32, if c > 1 { nums[1] as f32 } else { 0.0 }])?;
+            }
+            2 if nrm => {
+                line_numbers(&lines, &l, b, at, Kw::Vn, false, &mut nums)?;
+                to.normal([nums[0] as f32, nums[1] as f32, nums[2] as f32])?;
             }
             _ => {}
         }
+        n[k] += 1;
     }
-    let mut read = lines.consumed();
+    let read = lines.consumed();
     lines.tick()?;
-    drop(lines);
-    if (nv, nt, nn) != (info.positions, info.texcoords, info.normals) {
+    if n != totals {
         return Err(changed(path, "fewer 'v', 'vt' or 'vn' lines than in the first pass"));
     }
+    Ok(read)
+}
+
+/// Whether the corner path runs in memory: the tables and the map of the
+/// most corners there can be ([`ObjInfo::vertices`]) fit `mem`; else
+/// [`split`] runs it out of core.
+fn corners_fit(info: &ObjInfo, mem: u64) -> bool {
+    info.table_bytes().saturating_add(info.vertices.saturating_mul(CORNER_BYTES)) <= mem
+}
+
+/// The corner path, in memory: one pass reads the `v`, `vt` and `vn`
+/// tables and numbers the distinct (v, vt, vn) corners of the faces in
+/// order of first appearance; the corners are emitted as vertices; a
+/// second pass from the first face emits the triangles.
+fn read_corners(path: &Path, info: &ObjInfo, out: &mut Out, progress: &Progress, buf: usize) -> Result<()> {
+    struct Tables {
+        pos: Vec<[f64; 3]>,
+        rgb: Vec<[u8; 4]>,
+        tex: Vec<[f32; 2]>,
+        nor: Vec<[f32; 3]>,
+        color: bool,
+        /// Corners in order of first appearance, and their numbers.
+        order: Vec<[u32; 3]>,
+        ids: FxHashMap<[u32; 3], u32>,
+    }
+    impl CornerPass for Tables {
+        fn position(&mut self, v: &Vertex) -> Result<()> {
+            self.pos.push(v.pos);
+            if self.color {
+                self.rgb.push(v.color);
+            }
+            Ok(())
+        }
+        fn texcoord(&mut self, uv: [f32; 2]) -> Result<()> {
+            self.tex.push(uv);
+            Ok(())
+        }
+        fn normal(&mut self, n: [f32; 3]) -> Result<()> {
+            self.nor.push(n);
+            Ok(())
+        }
+        fn corner(&mut self, k: [u32; 3]) -> Result<()> {
+            let next = self.order.len() as u32;
+            if let std::collections::hash_map::Entry::Vacant(e) = self.ids.entry(k) {
+                e.insert(next);
+                self.order.push(k);
+            }
+            Ok(())
+        }
+        fn face_end(&mut self, _: &Lines, _: &Line) -> Result<()> {
+            Ok(())
+        }
+    }
+    let (color, uv, nrm) = (info.attrs.color(), info.attrs.uv(), info.attrs.normal());
+    let cap = |on: bool, n: u64| if on { n as usize } else { 0 };
+    let mut t = Tables {
+        pos: Vec::with_capacity(info.positions as usize),
+        rgb: Vec::with_capacity(cap(color, info.positions)),
+        tex: Vec::with_capacity(cap(uv, info.texcoords)),
+        nor: Vec::with_capacity(cap(nrm, info.normals)),
+        color,
+        order: Vec::with_capacity(info.vertices.min(info.positions) as usize),
+        ids: FxHashMap::default(),
+    };
+    t.ids.reserve(info.vertices.min(info.positions) as usize);
+    let mut read = corner_pass(path, info, &mut t, progress, buf)?;
     // Missing attributes of a corner stay zero (uv 0,0, normal 0,0,0): a
     // zero normal is the one value no real normal has, so later stages can
     // tell "none given" from data, where an invented one (the face's) would
     // pass for data and split the corner per face; for uv nothing better
     // exists without the texture.
-    for k in &order {
-        let mut v = Vertex { pos: pos[k[0] as usize], ..Default::default() };
+    for k in &t.order {
+        let mut v = Vertex { pos: t.pos[k[0] as usize], ..Default::default() };
         if color {
-            v.color = rgb[k[0] as usize];
+            v.color = t.rgb[k[0] as usize];
         }
-        if k[1] != u32::MAX {
-            v.uv = tex[k[1] as usize];
+        if k[1] != split::NONE {
+            v.uv = t.tex[k[1] as usize];
         }
-        if k[2] != u32::MAX {
-            v.normal = nor[k[2] as usize];
+        if k[2] != split::NONE {
+            v.normal = t.nor[k[2] as usize];
         }
         out.vertex(v)?;
     }
     out.flush_vertices()?;
-    drop((pos, rgb, tex, nor, order));
+    let Tables { ids, .. } = t;
     let m = info.first_face.unwrap_or(Mark { offset: info.bytes, line: 1, ..Default::default() });
     let mut lines = Lines::open(path, m, buf, progress)?;
-    let (mut nv, mut nt, mut nn) = (m.v, m.vt, m.vn);
+    let mut n = [m.v, m.vt, m.vn];
     while let Some(l) = lines.next()? {
         let b = &lines.buf[l.s..l.e];
         match keyword(b, 0) {
-            Some((Kw::V, _)) => nv += 1,
-            Some((Kw::Vt, _)) => nt += 1,
-            Some((Kw::Vn, _)) => nn += 1,
+            Some((Kw::V, _)) => n[0] += 1,
+            Some((Kw::Vt, _)) => n[1] += 1,
+            Some((Kw::Vn, _)) => n[2] += 1,
             Some((Kw::F, at)) => {
                 let mut fan = Fan::default();
                 let mut i = at;
                 while let Some(c) = next_corner(b, &mut i) {
                     let c = c.map_err(|a| lines.err(&l, l.s + a, format!("'{}' is not a face corner ({CORNER_FORMS})", token(b, a))))?;
-                    let k = key(&lines, &l, c, nv, nt, nn)?;
+                    let k = corner_key(&lines, &l, c, n, info)?;
                     let Some(&id) = ids.get(&k) else { return Err(changed(path, "a face corner not seen in the first pass")) };
                     fan.push(out, (id as u64, k[0] as u64))?;
                 }
@@ -1212,6 +1294,40 @@ fn read_corners(path: &Path, info: &ObjInfo, mem: u64, out: &mut Out, progress: 
     }
     read += lines.consumed();
     lines.tick()?;
+    out.finish(path, info, read)
+}
+
+/// The corner path out of core ([`split`]): one pass spools the tables and
+/// the kept triangles' corners (a corner's output index carries its vt and
+/// vn, its position index its v); the spool then emits vertices and
+/// triangles.
+fn read_corners_external(path: &Path, info: &ObjInfo, mem: u64, scratch: &Path, out: &mut Out, progress: &Progress, buf: usize) -> Result<()> {
+    struct External {
+        spool: split::Spool,
+        fan: Fan,
+    }
+    impl CornerPass for External {
+        fn position(&mut self, v: &Vertex) -> Result<()> {
+            self.spool.position(v)
+        }
+        fn texcoord(&mut self, uv: [f32; 2]) -> Result<()> {
+            self.spool.texcoord(uv)
+        }
+        fn normal(&mut self, n: [f32; 3]) -> Result<()> {
+            self.spool.normal(n)
+        }
+        fn corner(&mut self, k: [u32; 3]) -> Result<()> {
+            self.fan.push(&mut self.spool, ((k[1] as u64) << 32 | k[2] as u64, k[0] as u64))
+        }
+        fn face_end(&mut self, lines: &Lines, l: &Line) -> Result<()> {
+            std::mem::take(&mut self.fan).end(&mut self.spool, lines, l)
+        }
+    }
+    let counts = [info.positions, info.texcoords, info.normals];
+    let spool = split::Spool::new(path, scratch, counts, info.attrs.uv(), info.attrs.normal(), mem)?;
+    let mut e = External { spool, fan: Fan::default() };
+    let read = corner_pass(path, info, &mut e, progress, buf)?;
+    e.spool.finish(out)?;
     out.finish(path, info, read)
 }
 
@@ -1258,11 +1374,52 @@ mod tests {
 
     type Read = (ObjInfo, CollectSink, BodyStats);
 
+    /// Each triangle as its corners' vertices (bit patterns compared).
+    fn corners(s: &CollectSink) -> Vec<[[u64; 12]; 3]> {
+        let bits = |v: &Vertex| {
+            let mut b = [0u64; 12];
+            b[..3].copy_from_slice(&v.pos.map(f64::to_bits));
+            b[3] = u32::from_le_bytes(v.color) as u64;
+            b[4..6].copy_from_slice(&v.uv.map(|c| c.to_bits() as u64));
+            b[6..9].copy_from_slice(&v.normal.map(|c| c.to_bits() as u64));
+            b
+        };
+        s.triangles.iter().map(|t| t.map(|i| bits(&s.vertices[i as usize]))).collect()
+    }
+
     fn read_buf(path: &Path, mem: u64, buf: usize) -> Result<Read> {
+        let r = read_buf_path(path, mem, buf, false);
+        if read_info_buf(path, &Progress::hidden(), buf).is_ok_and(|i| i.corner_vertices()) {
+            // Out of core, with this budget and with a tiny one (many
+            // slabs, sub-ranges, tables joined from disk): the same
+            // triangles and corners, each distinct corner once; the same
+            // errors.
+            for m in [mem, 0] {
+                match (&r, read_buf_path(path, m, buf, true)) {
+                    (Ok(r), Ok(x)) => {
+                        assert_eq!(corners(&x.1), corners(&r.1), "out of core, mem {m}");
+                        // The in-memory path numbers every distinct (v, vt, vn), so its
+                        // kept triangles' distinct numbers are the distinct corners.
+                        let used: std::collections::HashSet<_> = r.1.triangles.iter().flatten().collect();
+                        assert_eq!(x.2.vertices, used.len() as u64, "out of core, mem {m}");
+                        assert_eq!((x.2.faces, x.2.polygons, x.2.degenerate, x.2.triangles), (r.2.faces, r.2.polygons, r.2.degenerate, r.2.triangles));
+                    }
+                    (Err(a), Err(b)) => assert_eq!(a.to_string(), b.to_string(), "out of core, mem {m}"),
+                    (a, b) => panic!("out of core, mem {m}: {:?} against {:?}", a.as_ref().err(), b.err()),
+                }
+            }
+        }
+        r
+    }
+
+    fn read_buf_path(path: &Path, mem: u64, buf: usize, external: bool) -> Result<Read> {
         let p = Progress::hidden();
         let info = read_info_buf(path, &p, buf)?;
         let mut sink = CollectSink::default();
-        let st = read_body_buf(path, &info, mem, &mut sink, &p, buf)?;
+        let scratch = tempfile::tempdir().unwrap();
+        let st = read_body_buf(path, &info, mem, scratch.path(), &mut sink, &p, buf, external);
+        assert_eq!(std::fs::read_dir(scratch.path()).unwrap().count(), 0, "scratch left behind");
+        let st = st?;
         assert_eq!(sink.vertices.len() as u64, st.vertices);
         assert_eq!(sink.triangles.len() as u64, st.triangles);
         assert!(sink.triangles.iter().flatten().all(|&i| i < st.vertices));
@@ -1370,6 +1527,67 @@ mod tests {
         assert_eq!(s.vertices[0].uv, [0.25, 0.0]);
     }
 
+    /// A grid whose uv atlas is cut along every 7th column and whose
+    /// normals are per face in one band: out of core with a tiny budget it
+    /// spans many position slabs, slabs done in several sub-ranges, and
+    /// both tables joined from disk (`read_buf` compares with the
+    /// in-memory path).
+    #[test]
+    fn out_of_core_corners_span_slabs_sub_ranges_and_joins() {
+        let n = 120usize;
+        let mut t = String::new();
+        for y in 0..n {
+            for x in 0..n {
+                let _ = writeln!(t, "v {x} {y} {}", (x * y) % 5);
+            }
+        }
+        // One vt per position, and a second one for positions on a cut.
+        let mut cut = vec![0usize; n * n];
+        let mut vts = 0;
+        for y in 0..n {
+            for x in 0..n {
+                let _ = writeln!(t, "vt {} {}", x as f32 / n as f32, y as f32 / n as f32);
+                vts += 1;
+                if x % 7 == 0 {
+                    let _ = writeln!(t, "vt {} {}", x as f32 / n as f32 + 0.5, y as f32 / n as f32);
+                    vts += 1;
+                    cut[y * n + x] = vts;
+                }
+            }
+        }
+        let first_vt: Vec<usize> = {
+            let mut k = 0;
+            (0..n * n)
+                .map(|i| {
+                    k += 1;
+                    let f = k;
+                    if i % n % 7 == 0 {
+                        k += 1;
+                    }
+                    f
+                })
+                .collect()
+        };
+        let _ = writeln!(t, "vn 0 0 1");
+        for y in 0..n - 1 {
+            for x in 0..n - 1 {
+                let q = [y * n + x, y * n + x + 1, (y + 1) * n + x + 1, (y + 1) * n + x];
+                // Faces right of a cut take its second vt.
+                let vt = |i: usize| if cut[i] > 0 && i % n == x { cut[i] } else { first_vt[i] };
+                let band = (y / 10) % 3 == 1;
+                let c: Vec<String> = q.iter().map(|&i| if band { format!("{}/{}/1", i + 1, vt(i)) } else { format!("{}/{}", i + 1, vt(i)) }).collect();
+                let _ = writeln!(t, "f {}", c.join(" "));
+            }
+        }
+        let (_d, p) = file(&t);
+        let info = read_info(&p, &Progress::hidden()).unwrap();
+        assert_eq!((info.positions, info.texcoords, info.faces), ((n * n) as u64, vts as u64, ((n - 1) * (n - 1)) as u64));
+        let (_, s, st) = read_buf(&p, 1 << 30, BUF).unwrap();
+        assert_eq!(st.triangles, 2 * ((n - 1) * (n - 1)) as u64);
+        // Every position is a vertex, and more where cuts or bands split it.
+        assert!(st.vertices > (n * n) as u64 && s.vertices.iter().any(|v| v.normal == [0.0, 0.0, 1.0]));
+    }
+
     #[test]
     fn cube_with_face_normals_splits_into_24_vertices() {
         let mut t = String::new();
@@ -1400,16 +1618,15 @@ mod tests {
             }
         }
         // Tables 8·24 + 6·12 bytes, and CORNER_BYTES per corner: exactly
-        // enough memory reads, a byte less is refused (once the last corner
-        // comes), and far less before reading.
+        // enough memory reads in memory, a byte less out of core (the same
+        // triangles, `read_mem` checks).
         let (_d, p) = file(&t);
         let need = 8 * 24 + 6 * 12 + 24 * CORNER_BYTES;
-        assert_eq!(read_mem(&p, need).unwrap().2, st);
-        for mem in [need - 1, 100] {
-            let e = read_mem(&p, mem).unwrap_err();
-            let Error::Usage(msg) = &e else { panic!("{e}") };
-            assert!(msg.contains("--mem") && msg.contains(&format!("--mem is {mem} bytes")), "{msg}");
-            assert!(msg.contains(&format!("up to {}", 8 * 24 + 6 * 12 + 24 * CORNER_BYTES)), "{msg}");
+        assert!(corners_fit(&info, need) && !corners_fit(&info, need - 1));
+        for mem in [need, need - 1, 100] {
+            let (_, s2, st2) = read_mem(&p, mem).unwrap();
+            assert_eq!(corners(&s2), corners(&s), "mem {mem}");
+            assert_eq!((st2.vertices, st2.triangles, st2.faces), (st.vertices, st.triangles, st.faces), "mem {mem}");
         }
     }
 
@@ -1741,7 +1958,7 @@ mod tests {
             let info = read_info(&obj, &p).unwrap();
             let (body_s, obj_n) = best(&mut || {
                 let mut c = Count(0, 0);
-                read_body(&obj, &info, 1 << 30, &mut c, &p).unwrap();
+                read_body(&obj, &info, 1 << 30, &std::env::temp_dir(), &mut c, &p).unwrap();
                 c.1
             });
             assert_eq!(ply_n, obj_n);
