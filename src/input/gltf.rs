@@ -242,50 +242,116 @@ pub fn read_body(path: &Path, info: &GltfInfo, sink: &mut dyn BodySink, progress
         return Err(err(path, "the file changed since it was first read"));
     }
     let mut stats = BodyStats { bytes: g.bytes, ..Default::default() };
-    // First pass: vertices.
+    // First pass: vertices, a batch at a time.
     let mut first = 0u64;
-    let mut batch = Vec::with_capacity(BATCH);
     for p in &g.prims {
-        let vs = g.vertices(p)?;
-        progress.inc(vs.len() as u64);
-        for chunk in vs.chunks(BATCH) {
-            batch.clear();
-            batch.extend_from_slice(chunk);
-            sink.vertices(first, &batch)?;
-            first += chunk.len() as u64;
-        }
+        g.vertices(p, first, sink, progress)?;
+        first += p.verts;
     }
     stats.vertices = first;
-    // Second pass: triangles.
+    // Second pass: triangles; a triangle list's indices a batch at a time,
+    // a strip's or fan's whole (their triangles reach back).
     let mut offset = 0u64;
     let mut tris: Vec<[u64; 3]> = Vec::with_capacity(BATCH);
+    let mut idx: Vec<u64> = Vec::new();
     for p in &g.prims {
-        let idx = match p.indices {
-            Some(a) => g.indices(a, &format!("{}.indices", p.what), p.verts)?,
-            None => (0..p.verts).collect(),
-        };
+        let what = format!("{}.indices", p.what);
+        let mut reader = p.indices.map(|a| g.reader(a, &what, &[1], &[5121, 5123, 5125])).transpose()?;
+        let corners = reader.as_ref().map_or(p.verts, |r| r.count);
         let flip = det3(&p.m) < 0.0;
-        let n = idx.len();
-        let count = tri_count(p.mode, n as u64) as usize;
-        for i in 0..count {
-            let t = match p.mode {
-                4 => [idx[3 * i], idx[3 * i + 1], idx[3 * i + 2]],
-                5 if i % 2 == 0 => [idx[i], idx[i + 1], idx[i + 2]],
-                5 => [idx[i + 1], idx[i], idx[i + 2]],
-                _ => [idx[i + 1], idx[i + 2], idx[0]],
+        let count = tri_count(p.mode, corners);
+        // Corners read per step: a multiple of 3 for lists, all for strips and fans.
+        let step = if p.mode == 4 { 3 * BATCH as u64 } else { corners.max(1) };
+        let mut base = 0u64;
+        while base < corners {
+            let k = step.min(corners - base);
+            // (`flip`: a mirroring transform turns the winding back.)
+            let mut put = |t: [u64; 3]| -> Result<()> {
+                stats.faces += 1;
+                if t[0] == t[1] || t[1] == t[2] || t[0] == t[2] {
+                    stats.degenerate += 1;
+                    return Ok(());
+                }
+                let t = if flip { [t[0], t[2], t[1]] } else { t };
+                tris.push([t[0] + offset, t[1] + offset, t[2] + offset]);
+                if tris.len() == BATCH {
+                    sink.triangles(&tris)?;
+                    stats.triangles += tris.len() as u64;
+                    tris.clear();
+                    crate::io::signal::check()?;
+                }
+                Ok(())
             };
-            stats.faces += 1;
-            if t[0] == t[1] || t[1] == t[2] || t[0] == t[2] {
-                stats.degenerate += 1;
-                continue;
+            let bad = |i: u64, x: u64| err(&g.path, format!("{what}: index {i} is {x}, out of range (POSITION has {} vertices)", p.verts));
+            match (p.mode, reader.as_mut()) {
+                (4, Some(r)) => {
+                    // A triangle list: straight from the read bytes.
+                    let (t, stride) = (r.t, r.stride);
+                    let (raw, n) = r.fetch(k as usize)?;
+                    // One loop per index width, so the width is not chosen per index.
+                    fn list<const S: usize>(
+                        raw: &[u8],
+                        stride: usize,
+                        n: usize,
+                        verts: u64,
+                        put: &mut impl FnMut([u64; 3]) -> Result<()>,
+                    ) -> Result<Option<usize>> {
+                        let at = |i: usize| -> u64 {
+                            let mut b = [0u8; 8];
+                            b[..S].copy_from_slice(&raw[i * stride..i * stride + S]);
+                            u64::from_le_bytes(b)
+                        };
+                        for j in 0..n / 3 {
+                            let tri = [at(3 * j), at(3 * j + 1), at(3 * j + 2)];
+                            if tri[0].max(tri[1]).max(tri[2]) >= verts {
+                                return Ok(Some(3 * j + tri.iter().position(|&x| x >= verts).unwrap()));
+                            }
+                            put(tri)?;
+                        }
+                        Ok((n / 3 * 3..n).find(|&c| at(c) >= verts))
+                    }
+                    let out = match t {
+                        5121 => list::<1>(raw, stride, n, p.verts, &mut put)?,
+                        5123 => list::<2>(raw, stride, n, p.verts, &mut put)?,
+                        _ => list::<4>(raw, stride, n, p.verts, &mut put)?,
+                    };
+                    if let Some(c) = out {
+                        let e = &raw[c * stride..];
+                        let x = match t {
+                            5121 => e[0] as u64,
+                            5123 => u16::from_le_bytes([e[0], e[1]]) as u64,
+                            _ => u32::from_le_bytes([e[0], e[1], e[2], e[3]]) as u64,
+                        };
+                        return Err(bad(base + c as u64, x));
+                    }
+                }
+                (_, r) => {
+                    idx.clear();
+                    match r {
+                        Some(r) => {
+                            if r.next_indices(k as usize, &mut idx)? >= p.verts {
+                                let i = idx.iter().position(|&x| x >= p.verts).expect("an index past the vertices");
+                                return Err(bad(base + i as u64, idx[i]));
+                            }
+                        }
+                        None => idx.extend(base..base + k),
+                    }
+                    if p.mode == 4 {
+                        for t in idx.chunks_exact(3) {
+                            put([t[0], t[1], t[2]])?;
+                        }
+                    } else {
+                        for i in 0..count as usize {
+                            put(match p.mode {
+                                5 if i % 2 == 0 => [idx[i], idx[i + 1], idx[i + 2]],
+                                5 => [idx[i + 1], idx[i], idx[i + 2]],
+                                _ => [idx[i + 1], idx[i + 2], idx[0]],
+                            })?;
+                        }
+                    }
+                }
             }
-            let t = if flip { [t[0], t[2], t[1]] } else { t };
-            tris.push(t.map(|k| k + offset));
-            if tris.len() == BATCH {
-                sink.triangles(&tris)?;
-                stats.triangles += tris.len() as u64;
-                tris.clear();
-            }
+            base += k;
         }
         offset += p.verts;
     }
@@ -608,7 +674,10 @@ impl Gltf {
 
     /// Reads accessor `a` as f64 values (normalized ones mapped to [0,1] or
     /// [-1,1]), `ncomp` per element; `types` are the component types allowed.
-    fn read(&self, a: usize, what: &str, ncomp: &[usize], types: &[u32]) -> Result<(Vec<f64>, usize)> {
+    /// A reader of accessor `a` (checked: type among `ncomp` components,
+    /// component type among `types`, its bytes inside its bufferView and
+    /// buffer); an `EXT_meshopt_compression` view is decoded whole here.
+    fn reader(&self, a: usize, what: &str, ncomp: &[usize], types: &[u32]) -> Result<AccReader<'_>> {
         let acc = self.accessor(a, what)?;
         let path = &self.path;
         let Some(nc) = components(&acc.kind).filter(|n| ncomp.contains(n)) else {
@@ -633,8 +702,11 @@ impl Gltf {
         let cs = component_size(acc.component_type).unwrap();
         let esize = cs * nc as u64;
         let count = acc.count;
-        let (raw, stride) = match bv.extensions.get("EXT_meshopt_compression") {
-            Some(ext) => self.meshopt(a, bvi, bv, ext, what, esize, count)?,
+        let (src, stride) = match bv.extensions.get("EXT_meshopt_compression") {
+            Some(ext) => {
+                let (raw, stride) = self.meshopt(a, bvi, bv, ext, what, esize, count)?;
+                (Src::Decoded(raw), stride)
+            }
             None => {
                 let Some(Some(buf)) = self.bufs.get(bv.buffer) else {
                     return Err(err(path, format!("{what}: bufferViews[{bvi}]: buffer {} of {} (or one without data)", bv.buffer, self.bufs.len())));
@@ -654,58 +726,10 @@ impl Gltf {
                         ),
                     ));
                 }
-                let mut raw = vec![0u8; span as usize];
-                read_exact_at(&buf.file, &buf.path, &mut raw, buf.base + start)?;
-                (raw, stride)
+                (Src::File { buf, start: buf.base + start }, stride)
             }
         };
-        let mut out = Vec::with_capacity(count as usize * nc);
-        let t = acc.component_type;
-        let norm = acc.normalized;
-        for i in 0..count as usize {
-            let e = &raw[i * stride as usize..];
-            for c in 0..nc {
-                let o = c * cs as usize;
-                let v = match t {
-                    5120 => {
-                        let x = e[o] as i8 as f64;
-                        if norm {
-                            (x / 127.0).max(-1.0)
-                        } else {
-                            x
-                        }
-                    }
-                    5121 => {
-                        let x = e[o] as f64;
-                        if norm {
-                            x / 255.0
-                        } else {
-                            x
-                        }
-                    }
-                    5122 => {
-                        let x = i16::from_le_bytes([e[o], e[o + 1]]) as f64;
-                        if norm {
-                            (x / 32767.0).max(-1.0)
-                        } else {
-                            x
-                        }
-                    }
-                    5123 => {
-                        let x = u16::from_le_bytes([e[o], e[o + 1]]) as f64;
-                        if norm {
-                            x / 65535.0
-                        } else {
-                            x
-                        }
-                    }
-                    5125 => u32::from_le_bytes(e[o..o + 4].try_into().unwrap()) as f64,
-                    _ => f32::from_le_bytes(e[o..o + 4].try_into().unwrap()) as f64,
-                };
-                out.push(v);
-            }
-        }
-        Ok((out, nc))
+        Ok(AccReader { src, raw: Vec::new(), stride: stride as usize, esize: esize as usize, nc, t: acc.component_type, norm: acc.normalized, count, next: 0 })
     }
 
     /// Decodes an `EXT_meshopt_compression` bufferView and gives the bytes
@@ -786,53 +810,75 @@ impl Gltf {
         Ok((dst, stride))
     }
 
-    /// A primitive's vertices in world space.
-    fn vertices(&self, p: &Prim) -> Result<Vec<Vertex>> {
+    /// A primitive's vertices in world space, to `sink` in batches of
+    /// [`BATCH`] (each attribute read a batch at a time); `first`: the
+    /// number of the primitive's first vertex.
+    fn vertices(&self, p: &Prim, first: u64, sink: &mut dyn BodySink, progress: &Progress) -> Result<()> {
         let q: &[u32] = if self.quantized { &[5126, 5120, 5121, 5122, 5123] } else { &[5126] };
         let what = format!("{}.attributes.POSITION", p.what);
-        let (pos, _) = self.read(p.pos, &what, &[3], q)?;
         let n = p.verts as usize;
-        let mut vs = vec![Vertex::default(); n];
+        let mut pos = self.reader(p.pos, &what, &[3], q)?;
+        let nq: &[u32] = if self.quantized { &[5126, 5120, 5122] } else { &[5126] };
+        let mut nr = match (self.attrs.normal(), p.normal) {
+            (true, Some(a)) => Some(self.reader(a, &format!("{}.attributes.NORMAL", p.what), &[3], nq)?),
+            _ => None,
+        };
+        let mut col = match (self.attrs.color(), p.color) {
+            (true, Some(a)) => Some(self.reader(a, &format!("{}.attributes.COLOR_0", p.what), &[3, 4], &[5126, 5121, 5123])?),
+            _ => None,
+        };
+        let mut tex = match (self.attrs.uv(), p.uv) {
+            (true, Some(a)) => Some(self.reader(a, &format!("{}.attributes.TEXCOORD_0", p.what), &[2], &[5126, 5121, 5123, 5120, 5122])?),
+            _ => None,
+        };
+        for (r, attr) in [(&nr, "NORMAL"), (&col, "COLOR_0"), (&tex, "TEXCOORD_0")] {
+            if let Some(r) = r {
+                self.check_count(r.count as usize, n, &p.what, attr)?;
+            }
+        }
         let m = &p.m;
-        for (i, v) in vs.iter_mut().enumerate() {
-            let [x, y, z] = [pos[3 * i], pos[3 * i + 1], pos[3 * i + 2]];
-            if !(x.is_finite() && y.is_finite() && z.is_finite()) {
-                return Err(err(&self.path, format!("{what}: vertex {i} has a non-finite position ({x}, {y}, {z})")));
-            }
-            v.pos = [0, 1, 2].map(|r| m[r] * x + m[4 + r] * y + m[8 + r] * z + m[12 + r]);
-        }
-        if self.attrs.normal() {
-            let nq: &[u32] = if self.quantized { &[5126, 5120, 5122] } else { &[5126] };
-            let (nr, _) = self.read(p.normal.unwrap(), &format!("{}.attributes.NORMAL", p.what), &[3], nq)?;
-            self.check_count(nr.len() / 3, n, &p.what, "NORMAL")?;
-            let nm = normal_matrix(m);
-            for (i, v) in vs.iter_mut().enumerate() {
-                let a = [nr[3 * i], nr[3 * i + 1], nr[3 * i + 2]];
-                let w = nm.map(|row| row[0] * a[0] + row[1] * a[1] + row[2] * a[2]);
-                let l = (w[0] * w[0] + w[1] * w[1] + w[2] * w[2]).sqrt();
-                v.normal = if l > 0.0 && l.is_finite() { w.map(|c| (c / l) as f32) } else { [0.0; 3] };
-            }
-        }
-        if self.attrs.color() {
-            let (c, nc) = self.read(p.color.unwrap(), &format!("{}.attributes.COLOR_0", p.what), &[3, 4], &[5126, 5121, 5123])?;
-            self.check_count(c.len() / nc, n, &p.what, "COLOR_0")?;
-            for (i, v) in vs.iter_mut().enumerate() {
-                for k in 0..3 {
-                    v.color[k] = (linear_to_srgb(c[nc * i + k]) * 255.0).round() as u8;
+        let nm = normal_matrix(m);
+        let mut vs = vec![Vertex::default(); BATCH.min(n)];
+        let mut done = 0usize;
+        while done < n {
+            let k = BATCH.min(n - done);
+            let vs = &mut vs[..k];
+            let mut bad = None;
+            pos.each(k, |i, [x, y, z, _]| {
+                if !(x.is_finite() && y.is_finite() && z.is_finite()) {
+                    bad.get_or_insert((i, [x, y, z]));
                 }
-                if nc == 4 {
-                    v.color[3] = (c[nc * i + 3].clamp(0.0, 1.0) * 255.0).round() as u8;
-                }
+                vs[i].pos = [0, 1, 2].map(|r| m[r] * x + m[4 + r] * y + m[8 + r] * z + m[12 + r]);
+            })?;
+            if let Some((i, [x, y, z])) = bad {
+                return Err(err(&self.path, format!("{what}: vertex {} has a non-finite position ({x}, {y}, {z})", done + i)));
             }
-        }
-        if self.attrs.uv() {
-            let (t, _) = self.read(p.uv.unwrap(), &format!("{}.attributes.TEXCOORD_0", p.what), &[2], &[5126, 5121, 5123, 5120, 5122])?;
-            self.check_count(t.len() / 2, n, &p.what, "TEXCOORD_0")?;
-            for (i, v) in vs.iter_mut().enumerate() {
-                v.uv = [t[2 * i] as f32, t[2 * i + 1] as f32];
+            if let Some(r) = nr.as_mut() {
+                r.each(k, |i, [a0, a1, a2, _]| {
+                    let w = nm.map(|row| row[0] * a0 + row[1] * a1 + row[2] * a2);
+                    let l = (w[0] * w[0] + w[1] * w[1] + w[2] * w[2]).sqrt();
+                    vs[i].normal = if l > 0.0 && l.is_finite() { w.map(|c| (c / l) as f32) } else { [0.0; 3] };
+                })?;
             }
+            if let Some(r) = col.as_mut() {
+                let nc = r.nc;
+                r.each(k, |i, c| {
+                    let v = &mut vs[i];
+                    for (out, &x) in v.color.iter_mut().zip(&c[..3]) {
+                        *out = (linear_to_srgb(x) * 255.0).round() as u8;
+                    }
+                    v.color[3] = if nc == 4 { (c[3].clamp(0.0, 1.0) * 255.0).round() as u8 } else { 255 };
+                })?;
+            }
+            if let Some(r) = tex.as_mut() {
+                r.each(k, |i, [u, v, _, _]| vs[i].uv = [u as f32, v as f32])?;
+            }
+            sink.vertices(first + done as u64, vs)?;
+            progress.inc(k as u64);
+            crate::io::signal::check()?;
+            done += k;
         }
-        Ok(vs)
+        Ok(())
     }
 
     fn check_count(&self, got: usize, want: usize, what: &str, attr: &str) -> Result<()> {
@@ -840,22 +886,6 @@ impl Gltf {
             return Err(err(&self.path, format!("{what}.attributes.{attr}: {got} elements, POSITION has {want}")));
         }
         Ok(())
-    }
-
-    /// A primitive's indices, each checked against its vertex count.
-    fn indices(&self, a: usize, what: &str, verts: u64) -> Result<Vec<u64>> {
-        let (v, _) = self.read(a, what, &[1], &[5121, 5123, 5125])?;
-        v.into_iter()
-            .enumerate()
-            .map(|(i, x)| {
-                let x = x as u64;
-                if x >= verts {
-                    Err(err(&self.path, format!("{what}: index {i} is {x}, out of range (POSITION has {verts} vertices)")))
-                } else {
-                    Ok(x)
-                }
-            })
-            .collect()
     }
 }
 
@@ -875,6 +905,103 @@ fn chunk_head(file: &File, path: &Path, at: u64) -> Result<(u64, u32)> {
     let mut h = [0u8; 8];
     read_exact_at(file, path, &mut h, at)?;
     Ok((u32::from_le_bytes(h[..4].try_into().unwrap()) as u64, u32::from_le_bytes(h[4..].try_into().unwrap())))
+}
+
+/// Where an accessor's bytes come from.
+enum Src<'a> {
+    /// A buffer's file, from the accessor's first element.
+    File { buf: &'a Buf, start: u64 },
+    /// A decoded `EXT_meshopt_compression` view, from the first element.
+    Decoded(Vec<u8>),
+}
+
+/// Reads a checked accessor ([`Gltf::reader`]) a run of elements at a
+/// time, each run by one positioned read, its components converted to
+/// f64 (normalized integers mapped to \[0,1\] or \[-1,1\]).
+struct AccReader<'a> {
+    src: Src<'a>,
+    raw: Vec<u8>,
+    stride: usize,
+    esize: usize,
+    nc: usize,
+    t: u32,
+    norm: bool,
+    count: u64,
+    /// The next element.
+    next: u64,
+}
+
+impl AccReader<'_> {
+    /// The bytes of the next `n` elements (fewer at the end), and how many.
+    fn fetch(&mut self, n: usize) -> Result<(&[u8], usize)> {
+        let n = n.min((self.count - self.next) as usize);
+        if n == 0 {
+            return Ok((&[], 0));
+        }
+        let first = self.next as usize * self.stride;
+        let span = (n - 1) * self.stride + self.esize;
+        self.next += n as u64;
+        Ok(match &self.src {
+            Src::Decoded(d) => (&d[first..first + span], n),
+            Src::File { buf, start } => {
+                self.raw.resize(span, 0);
+                read_exact_at(&buf.file, &buf.path, &mut self.raw, start + first as u64)?;
+                (&self.raw, n)
+            }
+        })
+    }
+
+    /// The next `n` indices (an unsigned scalar accessor) appended to
+    /// `out`; gives the largest.
+    fn next_indices(&mut self, n: usize, out: &mut Vec<u64>) -> Result<u64> {
+        let (t, stride) = (self.t, self.stride);
+        let (raw, n) = self.fetch(n)?;
+        let mut max = 0u64;
+        let mut keep = |x: u64| {
+            max = max.max(x);
+            x
+        };
+        match t {
+            5121 => out.extend((0..n).map(|i| keep(raw[i * stride] as u64))),
+            5123 => out.extend((0..n).map(|i| keep(u16::from_le_bytes([raw[i * stride], raw[i * stride + 1]]) as u64))),
+            _ => out.extend((0..n).map(|i| keep(u32::from_le_bytes(raw[i * stride..i * stride + 4].try_into().unwrap()) as u64))),
+        }
+        Ok(max)
+    }
+
+    /// The next `n` elements (fewer at the end), each handed to `f` with
+    /// its number in this run and its components (unused ones zero); gives
+    /// how many.
+    fn each(&mut self, n: usize, mut f: impl FnMut(usize, [f64; 4])) -> Result<usize> {
+        let (stride, nc, norm, t) = (self.stride, self.nc, self.norm, self.t);
+        let (raw, n) = self.fetch(n)?;
+        // One loop per component type, so the conversion is not chosen per value.
+        fn run<const S: usize>(raw: &[u8], stride: usize, n: usize, nc: usize, f: &mut impl FnMut(usize, [f64; 4]), conv: impl Fn([u8; S]) -> f64) {
+            for i in 0..n {
+                let e = &raw[i * stride..];
+                let mut v = [0.0; 4];
+                for (c, x) in v.iter_mut().enumerate().take(nc) {
+                    *x = conv(e[c * S..c * S + S].try_into().unwrap());
+                }
+                f(i, v);
+            }
+        }
+        let f = &mut f;
+        match (t, norm) {
+            (5120, true) => run::<1>(raw, stride, n, nc, f, |b| (b[0] as i8 as f64 / 127.0).max(-1.0)),
+            (5120, false) => run::<1>(raw, stride, n, nc, f, |b| b[0] as i8 as f64),
+            (5121, true) => run::<1>(raw, stride, n, nc, f, |b| b[0] as f64 / 255.0),
+            (5121, false) => run::<1>(raw, stride, n, nc, f, |b| b[0] as f64),
+            (5122, true) => run::<2>(raw, stride, n, nc, f, |b| (i16::from_le_bytes(b) as f64 / 32767.0).max(-1.0)),
+            (5122, false) => run::<2>(raw, stride, n, nc, f, |b| i16::from_le_bytes(b) as f64),
+            (5123, true) => run::<2>(raw, stride, n, nc, f, |b| u16::from_le_bytes(b) as f64 / 65535.0),
+            (5123, false) => run::<2>(raw, stride, n, nc, f, |b| u16::from_le_bytes(b) as f64),
+            (5125, _) => run::<4>(raw, stride, n, nc, f, |b| u32::from_le_bytes(b) as f64),
+            _ if nc == 3 => run::<4>(raw, stride, n, 3, f, |b| f32::from_le_bytes(b) as f64),
+            _ => run::<4>(raw, stride, n, nc, f, |b| f32::from_le_bytes(b) as f64),
+        }
+        Ok(n)
+    }
 }
 
 fn read_exact_at(file: &File, path: &Path, buf: &mut [u8], at: u64) -> Result<()> {
