@@ -6,7 +6,7 @@
 
 use anyhow::{anyhow, bail};
 use clap::{Parser, ValueEnum};
-use octolod::gen::{GenOptions, Generator, Shape};
+use octolod::gen::{GenOptions, Generator, OtherFormat, Shape};
 use octolod::mesh::AttrSet;
 use octolod::ply::write::{PlyWriteOptions, UvNames};
 use octolod::ply::{Encoding, Scalar};
@@ -15,13 +15,22 @@ use std::time::Instant;
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
 enum Format {
+    /// PLY, binary little-endian.
     BinaryLe,
+    /// PLY, binary big-endian.
     BinaryBe,
+    /// PLY, ascii.
     Ascii,
+    /// Wavefront OBJ (`v`, `vt`, `vn`, faces by the same index).
+    Obj,
+    /// Binary STL (positions only).
+    StlBinary,
+    /// Ascii STL (positions only).
+    StlAscii,
 }
 
 #[derive(Parser)]
-#[command(name = "octolod-gen", version, about = "Generate deterministic procedural test meshes as PLY")]
+#[command(name = "octolod-gen", version, about = "Generate deterministic procedural test meshes as PLY (or OBJ, STL)")]
 struct Args {
     /// Which mesh.
     #[arg(long, value_enum, default_value = "sphere")]
@@ -69,7 +78,7 @@ struct Args {
     /// Replace an existing PLY that octolod wrote (never any other file).
     #[arg(long)]
     force: bool,
-    /// Output PLY.
+    /// Output file (PLY, or OBJ/STL with --format).
     #[arg(short, long)]
     output: PathBuf,
 }
@@ -168,7 +177,7 @@ fn run(args: Args) -> anyhow::Result<()> {
         encoding: match args.format {
             Format::BinaryLe => Encoding::BinaryLe,
             Format::BinaryBe => Encoding::BinaryBe,
-            Format::Ascii => Encoding::Ascii,
+            Format::Ascii | Format::Obj | Format::StlBinary | Format::StlAscii => Encoding::Ascii,
         },
         attrs,
         float_colors: args.float_colors,
@@ -181,7 +190,22 @@ fn run(args: Args) -> anyhow::Result<()> {
     };
     let start = Instant::now();
     // octolod errors already name the file and include their cause.
-    let bytes = octolod::gen::write(&opts, &wopts, &args.output, args.quiet, args.force).map_err(|e| anyhow!("{e}"))?;
+    let other = match args.format {
+        Format::Obj => Some(OtherFormat::Obj),
+        Format::StlBinary => Some(OtherFormat::StlBinary),
+        Format::StlAscii => Some(OtherFormat::StlAscii),
+        _ => None,
+    };
+    let bytes = match other {
+        Some(f) => {
+            if args.force {
+                bail!("--force replaces only PLYs octolod wrote; remove {} yourself", args.output.display());
+            }
+            octolod::gen::write_other(&opts, f, &args.output, args.quiet)
+        }
+        None => octolod::gen::write(&opts, &wopts, &args.output, args.quiet, args.force),
+    }
+    .map_err(|e| anyhow!("{e}"))?;
     let secs = start.elapsed().as_secs_f64();
     println!(
         "{}: {} vertices, {} triangles, {} bytes in {:.2} s ({:.1} MB/s) -> {}",

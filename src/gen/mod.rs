@@ -21,7 +21,7 @@ mod shapes;
 mod tests;
 mod write;
 
-pub use write::{write, write_to};
+pub use write::{write, write_other, write_to, OtherFormat};
 
 use crate::geom::dot;
 use crate::mesh::{AttrSet, Vertex};

@@ -143,3 +143,152 @@ pub fn write(opts: &GenOptions, wopts: &PlyWriteOptions, path: &Path, quiet: boo
     file.commit()?;
     Ok(n)
 }
+
+/// The formats besides PLY the generator writes: inputs for the other
+/// readers (`src/input/`) at any size, for their tests and speed reports.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum OtherFormat {
+    /// `v` (with `r g b` when the mesh has colours), `vt`, `vn` lines,
+    /// then faces `v`, `v/vt`, `v//vn` or `v/vt/vn` by the same index.
+    Obj,
+    StlBinary,
+    StlAscii,
+}
+
+#[derive(Clone, Copy)]
+enum Section {
+    V,
+    Vt,
+    Vn,
+    F,
+}
+
+/// Streams the mesh for `opts` as an OBJ or STL to `path` (atomically;
+/// never replacing an existing file): chunks encoded in parallel, written
+/// in order, memory bounded whatever the size. Numbers are the shortest
+/// text that reads back to the same float32 (float64 for `POS_F64`
+/// positions). Returns bytes written.
+pub fn write_other(opts: &GenOptions, format: OtherFormat, path: &Path, quiet: bool) -> Result<u64> {
+    let g = Generator::new(opts);
+    let a = opts.attrs;
+    let (nv, nf) = (g.vertex_count(), g.face_count());
+    let mut sections = Vec::new();
+    if format == OtherFormat::Obj {
+        sections.push((Section::V, nv));
+        if a.uv() {
+            sections.push((Section::Vt, nv));
+        }
+        if a.normal() {
+            sections.push((Section::Vn, nv));
+        }
+    }
+    sections.push((Section::F, nf));
+    let per = 1u64 << 16;
+    let jobs: Vec<(Section, u64, u64)> = sections.iter().flat_map(|&(s, n)| (0..n).step_by(per as usize).map(move |x| (s, x, (x + per).min(n)))).collect();
+    let progress = Progress::items(jobs.len() as u64, "generate", quiet);
+    let mut file = AtomicFile::create(path, crate::io::OutputKind::Ply, false)?;
+    let mut written = 0u64;
+    {
+        let mut w = std::io::BufWriter::with_capacity(crate::io::SEQ_BUF, file.writer());
+        let head: Vec<u8> = match format {
+            OtherFormat::Obj => format!("# octolod-gen shape {} tris {} seed {}\n", opts.shape.name(), opts.tris, opts.seed).into_bytes(),
+            OtherFormat::StlBinary => {
+                let mut h = vec![b' '; 80];
+                h[..11].copy_from_slice(b"octolod-gen");
+                h.extend_from_slice(&u32::try_from(nf).map_err(|_| crate::Error::Usage("a binary STL holds at most 2^32-1 triangles".into()))?.to_le_bytes());
+                h
+            }
+            OtherFormat::StlAscii => b"solid octolod-gen\n".to_vec(),
+        };
+        w.write_all(&head).ctx(path, "write")?;
+        written += head.len() as u64;
+        let window = rayon::current_num_threads().clamp(2, 16);
+        for group in jobs.chunks(window) {
+            crate::io::signal::check()?;
+            let bufs: Vec<Vec<u8>> = group.par_iter().map(|&(s, x, y)| encode_other(&g, format, s, x, y)).collect();
+            for b in bufs {
+                w.write_all(&b).ctx(path, "write")?;
+                written += b.len() as u64;
+                progress.inc(1);
+            }
+        }
+        if format == OtherFormat::StlAscii {
+            w.write_all(b"endsolid octolod-gen\n").ctx(path, "write")?;
+            written += 21;
+        }
+        w.flush().ctx(path, "write")?;
+    }
+    file.commit()?;
+    progress.finish();
+    Ok(written)
+}
+
+fn encode_other(g: &Generator, format: OtherFormat, s: Section, x: u64, y: u64) -> Vec<u8> {
+    use std::fmt::Write as _;
+    let a = g.attrs();
+    let mut t = String::with_capacity((y - x) as usize * 48);
+    let c = |v: f64| if a.pos_f64() { format!("{v}") } else { format!("{}", v as f32) };
+    match (format, s) {
+        (OtherFormat::Obj, Section::V) => {
+            for i in x..y {
+                let v = g.vertex(i);
+                let _ = write!(t, "v {} {} {}", c(v.pos[0]), c(v.pos[1]), c(v.pos[2]));
+                if a.color() {
+                    let _ = write!(t, " {} {} {}", v.color[0] as f32 / 255.0, v.color[1] as f32 / 255.0, v.color[2] as f32 / 255.0);
+                }
+                t.push('\n');
+            }
+        }
+        (_, Section::Vt) => {
+            for i in x..y {
+                let v = g.vertex(i);
+                let _ = writeln!(t, "vt {} {}", v.uv[0], v.uv[1]);
+            }
+        }
+        (_, Section::Vn) => {
+            for i in x..y {
+                let v = g.vertex(i);
+                let _ = writeln!(t, "vn {} {} {}", v.normal[0], v.normal[1], v.normal[2]);
+            }
+        }
+        (OtherFormat::Obj, Section::F) => {
+            for j in x..y {
+                let f = g.face(j).map(|i| i as u64 + 1);
+                t.push('f');
+                for i in f {
+                    let _ = match (a.uv(), a.normal()) {
+                        (false, false) => write!(t, " {i}"),
+                        (true, false) => write!(t, " {i}/{i}"),
+                        (false, true) => write!(t, " {i}//{i}"),
+                        (true, true) => write!(t, " {i}/{i}/{i}"),
+                    };
+                }
+                t.push('\n');
+            }
+        }
+        (OtherFormat::StlBinary, _) => {
+            let mut b = Vec::with_capacity((y - x) as usize * 50);
+            for j in x..y {
+                b.extend_from_slice(&[0u8; 12]);
+                for i in g.face(j) {
+                    for p in g.vertex(i as u64).pos {
+                        b.extend_from_slice(&(p as f32).to_le_bytes());
+                    }
+                }
+                b.extend_from_slice(&[0, 0]);
+            }
+            return b;
+        }
+        (OtherFormat::StlAscii, _) => {
+            for j in x..y {
+                t.push_str("facet normal 0 0 0\n outer loop\n");
+                for i in g.face(j) {
+                    let p = g.vertex(i as u64).pos;
+                    let _ = writeln!(t, "  vertex {} {} {}", p[0] as f32, p[1] as f32, p[2] as f32);
+                }
+                t.push_str(" endloop\nendfacet\n");
+            }
+        }
+    }
+    t.into_bytes()
+}
