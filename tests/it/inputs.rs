@@ -14,8 +14,8 @@ use octolod::store::Store;
 use std::io::Write;
 use std::path::Path;
 
-/// Level 0's triangles as position bits, sorted.
-fn level0(st: &Store) -> Vec<[[u64; 3]; 3]> {
+/// Level 0's triangles as position bits, sorted (also [`super::real_inputs`]'s).
+pub(crate) fn level0(st: &Store) -> Vec<[[u64; 3]; 3]> {
     let mut tris = Vec::new();
     for i in st.level_nodes(0) {
         let m = st.read_node(i).unwrap().mesh;

@@ -7,7 +7,9 @@
 //! --ignored`). A test needing a GPU (Mesa lavapipe in CI) fails without
 //! one unless OCTOLOD_SKIP_GPU_TESTS=1; a browser test fails without
 //! `tools/ci-deps.sh`'s Chromium and npm packages unless
-//! OCTOLOD_SKIP_WEB_TESTS=1. Without the `view` feature the modules and
+//! OCTOLOD_SKIP_WEB_TESTS=1, as does a test on real files from npm
+//! packages without node and npm (`real_inputs`, through
+//! `tools/real-inputs.sh`). Without the `view` feature the modules and
 //! tests that render are left out.
 //!
 //! All modules share this process: each test works in its own temporary
@@ -29,6 +31,7 @@ mod metro;
 mod octree;
 mod options_v2;
 mod ply_soup;
+mod real_inputs;
 mod reliability;
 mod reliability_v2;
 mod serve;
