@@ -487,6 +487,7 @@ fn print_build(r: &octolod::pipeline::BuildReport) -> Result<()> {
 }
 
 fn main() -> ExitCode {
+    octolod::mem::limit_arenas();
     // Rust starts with SIGPIPE ignored: a closed stdout (`octolod info S |
     // head -1`) is then an error on write ([`out!`]), which unwinds the
     // command like any error (its temp paths removed, nothing committed
@@ -865,6 +866,7 @@ fn ply_info(input: &std::path::Path, header_only: bool, quiet: bool) -> Result<(
         }
         Details::Stl(i) => {
             out!("format: STL {}", if i.binary { "binary" } else { "ascii" });
+            out!("vertices below: the triangles' corners, welded by position bits where a mesh is built");
             out!("name: {}", i.name);
         }
         Details::Obj(i) => {
@@ -893,6 +895,9 @@ fn ply_info(input: &std::path::Path, header_only: bool, quiet: bool) -> Result<(
     let secs = t0.elapsed().as_secs_f64();
     progress.finish();
     let b = sink.bbox;
+    if st.vertices != h.vertex_count() {
+        out!("vertices decoded: {} (each distinct (v, vt, vn) corner of a kept triangle)", st.vertices);
+    }
     out!("triangles (after fan triangulation): {}", st.triangles);
     out!("degenerate triangles: {}", st.degenerate);
     out!("polygons (>3 corners): {}", st.polygons);

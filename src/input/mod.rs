@@ -186,10 +186,25 @@ pub fn read_body(path: &Path, header: &InputHeader, mem: u64, scratch: &Path, si
     }
 }
 
-/// A whole input in memory (tests, metro, the benchmark's peers).
+/// A whole input in memory (tests, metro, the benchmark's peers). An
+/// STL's corners are welded here (bit-equal positions, numbered in order
+/// of first appearance), so every format gives an indexed mesh;
+/// `BodyStats::vertices` stays the corners the file held.
 pub fn read_all(path: &Path, mem: u64) -> Result<(InputHeader, CollectSink, BodyStats)> {
     let header = read_header(path, &Progress::hidden())?;
     let mut sink = CollectSink::default();
     let stats = read_body(path, &header, mem, &std::env::temp_dir(), &mut sink, &Progress::hidden())?;
+    if header.format == Format::Stl {
+        sink = weld(sink);
+    }
     Ok((header, sink, stats))
+}
+
+/// `sink`'s bit-equal positions made one vertex.
+fn weld(sink: CollectSink) -> CollectSink {
+    let mut w = crate::geom::Welder::with_capacity(sink.vertices.len() / 2);
+    let mut vertices = Vec::with_capacity(sink.vertices.len() / 2);
+    let map: Vec<u64> = sink.vertices.iter().map(|v| w.id(v.pos, |_| vertices.push(*v)) as u64).collect();
+    let triangles = sink.triangles.iter().map(|t| t.map(|i| map[i as usize])).collect();
+    CollectSink { vertices, triangles }
 }
