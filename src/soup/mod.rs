@@ -397,6 +397,7 @@ fn build_external(
     let body = slabs.body;
 
     let t1 = Instant::now();
+    crate::mem::trim();
     let joined = join_slabs(&plan, scratch.path(), slabs, opts.quiet, &mut tap)?;
 
     let t2 = Instant::now();

@@ -2,8 +2,8 @@
 //! targets checked with metro, attributes carried, hard cases bounded, and
 //! node-by-node results closed.
 
-use crate::common::cli::{bin, err};
-use crate::common::{build_from, edge_counts, gen_ply, this_test_again, weld_positions};
+use crate::common::cli::{bin, measuring_child, run_measured};
+use crate::common::{build_from, edge_counts, gen_ply, weld_positions};
 use octolod::gen::Shape;
 use octolod::manifest::Simplifier;
 use octolod::mesh::IndexedMesh;
@@ -297,54 +297,11 @@ fn cli_targets_are_met_and_bad_requests_exit_1_or_2() {
     assert!(j["triangles"].as_u64().unwrap() < input, "{j}");
 }
 
-/// The test [`the_command_writes_an_output_larger_than_mem_within_mem`]
-/// runs `simplify` from a fresh run of this test binary (doing nothing
-/// else) with the arguments in this variable, `\u{1f}`-separated; the
-/// child's output files go to the directory in [`MEASURE_OUT`].
-const MEASURE: &str = "OCTOLOD_TEST_MEASURE";
-const MEASURE_OUT: &str = "OCTOLOD_TEST_MEASURE_OUT";
-
-/// The measuring child's part: runs octolod with the arguments in
-/// `$OCTOLOD_TEST_MEASURE`, its output into files, and prints `measured:
-/// CODE PEAK_BYTES` (its peak resident set size, from `wait4`).
-fn measure(args: &str, dir: &Path) {
-    use std::process::Stdio;
-    let file = |n: &str| Stdio::from(std::fs::File::create(dir.join(n)).unwrap());
-    // Reaped below by wait4 (which gives its rusage), not by `wait()`.
-    #[allow(clippy::zombie_processes)]
-    let child = Command::new(bin()).args(args.split('\u{1f}')).stdout(file("stdout")).stderr(file("stderr")).spawn().unwrap();
-    let mut status = 0;
-    // SAFETY: plain structs the kernel fills; the child is ours and not yet reaped.
-    let mut ru: libc::rusage = unsafe { std::mem::zeroed() };
-    let pid = unsafe { libc::wait4(child.id() as libc::pid_t, &mut status, 0, &mut ru) };
-    assert_eq!(pid, child.id() as libc::pid_t);
-    let code = if libc::WIFEXITED(status) { libc::WEXITSTATUS(status) } else { -1 };
-    println!("measured: {code} {}", ru.ru_maxrss as u64 * 1024);
-}
-
-/// Runs octolod with `args` and gives its exit code, stdout, stderr and
-/// peak resident set size in bytes. `wait4`'s `ru_maxrss` also counts the
-/// high-water mark of the memory a child execs from — a child of this test
-/// process starts in this process's memory (vfork), which the tests running
-/// alongside take to hundreds of MiB — so the command is started from a
-/// fresh run of this test (`test`, of this module) doing nothing else:
-/// [`measure`].
-fn run_measured(test: &str, args: &[&str]) -> (Option<i32>, Vec<u8>, String, u64) {
-    let d = tempfile::tempdir().unwrap();
-    let o = this_test_again(module_path!(), test).env(MEASURE, args.join("\u{1f}")).env(MEASURE_OUT, d.path()).output().unwrap();
-    let text = String::from_utf8_lossy(&o.stdout);
-    // The harness prints the test's name on the same line first.
-    let line = text.split("measured: ").nth(1).and_then(|r| r.lines().next()).unwrap_or_else(|| panic!("{text}{}", err(&o)));
-    let (code, peak) = line.split_once(' ').unwrap();
-    let read = |n: &str| std::fs::read(d.path().join(n)).unwrap();
-    (code.parse().ok(), read("stdout"), String::from_utf8_lossy(&read("stderr")).into_owned(), peak.parse().unwrap())
-}
-
 #[test]
 fn the_command_writes_an_output_larger_than_mem_within_mem() {
     // In the measuring child (see `run_measured`): only the measurement.
-    if let (Ok(args), Ok(dir)) = (std::env::var(MEASURE), std::env::var(MEASURE_OUT)) {
-        return measure(&args, Path::new(&dir));
+    if measuring_child() {
+        return;
     }
     let dir = tempfile::tempdir().unwrap();
     let (ply, _) = gen_ply(dir.path(), Shape::Sphere, 200_000, 0);
@@ -352,6 +309,7 @@ fn the_command_writes_an_output_larger_than_mem_within_mem() {
     let (n, mem) = (100_000u64, 16u64 << 20);
     assert!(n * Simplifier::Collapse.bytes_per_triangle() > mem);
     let (code, stdout, stderr, peak) = run_measured(
+        module_path!(),
         "the_command_writes_an_output_larger_than_mem_within_mem",
         &[
             "--quiet",

@@ -249,6 +249,7 @@ impl Spool {
             }
         }
 
+        crate::mem::trim();
         // Phase 4: vertices in order, then triangles in slot order.
         let mut vread = BufReader::with_capacity(SEQ_BUF, File::open(&vpath).ctx(&vpath, "open scratch file")?);
         let mut rec = [0u8; VREC];

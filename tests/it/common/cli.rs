@@ -110,3 +110,57 @@ pub fn run_limited(args: &[&str], secs: u64) -> (Option<i32>, String) {
     let st = wait_or_fail(&mut child, secs, &format!("{args:?}"));
     (st.code(), reader.join().unwrap())
 }
+
+/// A test measured by [`run_measured`] runs octolod from a fresh run of this test binary (doing nothing
+/// else) with the arguments in this variable, `\u{1f}`-separated; the
+/// child's output files go to the directory in [`MEASURE_OUT`].
+const MEASURE: &str = "OCTOLOD_TEST_MEASURE";
+const MEASURE_OUT: &str = "OCTOLOD_TEST_MEASURE_OUT";
+
+/// The measuring child's part: runs octolod with the arguments in
+/// `$OCTOLOD_TEST_MEASURE`, its output into files, and prints `measured:
+/// CODE PEAK_BYTES` (its peak resident set size, from `wait4`).
+fn measure(args: &str, dir: &Path) {
+    use std::process::Stdio;
+    let file = |n: &str| Stdio::from(std::fs::File::create(dir.join(n)).unwrap());
+    // Reaped below by wait4 (which gives its rusage), not by `wait()`.
+    #[allow(clippy::zombie_processes)]
+    let child = Command::new(bin()).args(args.split('\u{1f}')).stdout(file("stdout")).stderr(file("stderr")).spawn().unwrap();
+    let mut status = 0;
+    // SAFETY: plain structs the kernel fills; the child is ours and not yet reaped.
+    let mut ru: libc::rusage = unsafe { std::mem::zeroed() };
+    let pid = unsafe { libc::wait4(child.id() as libc::pid_t, &mut status, 0, &mut ru) };
+    assert_eq!(pid, child.id() as libc::pid_t);
+    let code = if libc::WIFEXITED(status) { libc::WEXITSTATUS(status) } else { -1 };
+    println!("measured: {code} {}", ru.ru_maxrss as u64 * 1024);
+}
+
+/// Runs octolod with `args` and gives its exit code, stdout, stderr and
+/// peak resident set size in bytes. `wait4`'s `ru_maxrss` also counts the
+/// high-water mark of the memory a child execs from — a child of this test
+/// process starts in this process's memory (vfork), which the tests running
+/// alongside take to hundreds of MiB — so the command is started from a
+/// fresh run of this test (`test`, of this module) doing nothing else:
+/// [`measure`]. The test must start with `if measuring_child() { return; }`.
+pub fn run_measured(module: &str, test: &str, args: &[&str]) -> (Option<i32>, Vec<u8>, String, u64) {
+    let d = tempfile::tempdir().unwrap();
+    let o = super::this_test_again(module, test).env(MEASURE, args.join("\u{1f}")).env(MEASURE_OUT, d.path()).output().unwrap();
+    let text = String::from_utf8_lossy(&o.stdout);
+    // The harness prints the test's name on the same line first.
+    let line = text.split("measured: ").nth(1).and_then(|r| r.lines().next()).unwrap_or_else(|| panic!("{text}{}", err(&o)));
+    let (code, peak) = line.split_once(' ').unwrap();
+    let read = |n: &str| std::fs::read(d.path().join(n)).unwrap();
+    (code.parse().ok(), read("stdout"), String::from_utf8_lossy(&read("stderr")).into_owned(), peak.parse().unwrap())
+}
+
+/// In the child [`run_measured`] starts: runs the measurement and gives
+/// true (the test then returns at once).
+pub fn measuring_child() -> bool {
+    match (std::env::var(MEASURE), std::env::var(MEASURE_OUT)) {
+        (Ok(args), Ok(dir)) => {
+            measure(&args, Path::new(&dir));
+            true
+        }
+        _ => false,
+    }
+}
