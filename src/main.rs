@@ -873,7 +873,20 @@ fn ply_info(input: &std::path::Path, header_only: bool, quiet: bool) -> Result<(
             out!("format: OBJ");
             out!("v: {}, vt: {}, vn: {}, f: {} ({} corners)", i.positions, i.texcoords, i.normals, i.faces, i.corners);
             for m in &i.mtllibs {
-                out!("mtllib: {m}");
+                let mtl = input.parent().unwrap_or(std::path::Path::new(".")).join(m);
+                match octolod::input::obj::read_mtl(&mtl) {
+                    Ok(mats) => {
+                        out!("mtllib: {m} ({} materials)", mats.len());
+                        for t in &mats {
+                            let tex = t.map_kd.as_ref().map(|f| {
+                                let found = mtl.parent().is_some_and(|d| d.join(f).is_file());
+                                format!("map_Kd {f} ({})", if found { "found" } else { "missing" })
+                            });
+                            out!("  material {}: {}", t.name, tex.unwrap_or_else(|| "no texture".into()));
+                        }
+                    }
+                    Err(e) => out!("mtllib: {m} (not read: {e})"),
+                }
             }
         }
         Details::Gltf(i) => {

@@ -1331,6 +1331,74 @@ fn read_corners_external(path: &Path, info: &ObjInfo, mem: u64, scratch: &Path, 
     out.finish(path, info, read)
 }
 
+// -------------------------------------------------------------- materials
+
+/// A material of an MTL file: its name and its diffuse texture
+/// (`map_Kd`), as written.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Material {
+    pub name: String,
+    pub map_kd: Option<String>,
+}
+
+/// Largest MTL file read (they are small text files; this bounds a mistake).
+const MAX_MTL: u64 = 16 << 20;
+
+/// The materials of the MTL file `path` (`newmtl` and `map_Kd` lines; the
+/// rest ignored). `map_Kd` options (`-s u v w`, `-o`, `-bm x`, `-clamp on`
+/// and the others of the MTL specification) are skipped; the rest of the
+/// line is the file name, spaces included. The textures themselves are
+/// for the textured-mesh work (issue 32): today `info-input` lists them.
+pub fn read_mtl(path: &Path) -> Result<Vec<Material>> {
+    let (f, len) = crate::io::open_regular(path, "open")?;
+    if len > MAX_MTL {
+        return Err(Error::input(Location { file: path.to_path_buf(), ..Default::default() }, format!("an MTL file of {len} bytes (at most {MAX_MTL} read)")));
+    }
+    let mut text = String::new();
+    let mut bytes = Vec::with_capacity(len as usize);
+    std::io::Read::read_to_end(&mut f.take(MAX_MTL), &mut bytes).map_err(|e| Error::io(path, "read", e))?;
+    text.push_str(&String::from_utf8_lossy(&bytes));
+    let mut out: Vec<Material> = Vec::new();
+    for line in text.lines() {
+        let line = line.trim();
+        let Some((kw, rest)) = line.split_once(char::is_whitespace) else { continue };
+        match kw {
+            "newmtl" => out.push(Material { name: rest.trim().to_string(), map_kd: None }),
+            "map_Kd" | "map_kd" => {
+                let mut toks = rest.split_whitespace().peekable();
+                let mut skipped = 0usize;
+                while let Some(&t) = toks.peek() {
+                    let args = match t {
+                        "-blendu" | "-blendv" | "-cc" | "-clamp" | "-texres" | "-imfchan" | "-bm" | "-boost" | "-type" => 1,
+                        "-mm" => 2,
+                        "-o" | "-s" | "-t" => 3,
+                        _ => break,
+                    };
+                    toks.next();
+                    skipped += 1;
+                    // Up to `args` numbers (`-o`, `-s`, `-t` take 1 to 3).
+                    for _ in 0..args {
+                        match toks.peek() {
+                            Some(a) if args == 3 && a.parse::<f64>().is_err() => break,
+                            Some(_) => {
+                                toks.next();
+                                skipped += 1;
+                            }
+                            None => break,
+                        }
+                    }
+                }
+                let name: Vec<&str> = rest.split_whitespace().skip(skipped).collect();
+                if let (Some(m), false) = (out.last_mut(), name.is_empty()) {
+                    m.map_kd = Some(name.join(" "));
+                }
+            }
+            _ => {}
+        }
+    }
+    Ok(out)
+}
+
 // ---------------------------------------------------------------- sniffing
 
 /// Whether `head` (the first bytes of a file) looks like an OBJ: text
@@ -1645,6 +1713,22 @@ mod tests {
         let (info, s, _) = read_str("v 0 0 0 1 0 0\nv 1 0 0\nv 0 1 0 1\nf 1 2 3\n").unwrap();
         assert_eq!(info.attrs, AttrSet::POSITION_ONLY);
         assert_eq!(s.vertices[0].color, [0, 0, 0, 255]);
+    }
+
+    #[test]
+    fn mtl_materials_and_their_diffuse_textures() {
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("m.mtl");
+        std::fs::write(
+            &p,
+            "# Blender MTL\nnewmtl skin\nKd 0.8 0.8 0.8\nmap_Kd -s 1 1 1 -o 0 0 -bm 0.5 textures/skin atlas.png\n\
+             newmtl plain\nKd 1 0 0\nnewmtl wood\r\nmap_Kd wood.jpg\r\n",
+        )
+        .unwrap();
+        let m = read_mtl(&p).unwrap();
+        let got: Vec<(&str, Option<&str>)> = m.iter().map(|m| (m.name.as_str(), m.map_kd.as_deref())).collect();
+        assert_eq!(got, vec![("skin", Some("textures/skin atlas.png")), ("plain", None), ("wood", Some("wood.jpg"))]);
+        assert!(read_mtl(&d.path().join("missing.mtl")).is_err());
     }
 
     #[test]
