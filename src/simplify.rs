@@ -17,6 +17,11 @@
 //! the remainder is settled over the spilled parts (to within 0.25 % of N,
 //! at most `SETTLE_ROUNDS` more rounds), and the parts are welded at the
 //! shared positions, whose locked vertices are bit-identical: seams close.
+//! **Never worse than a level:** on the in-memory route, when a store
+//! level holds within [`LEVEL_NEAR`] of N triangles, it and the reduction
+//! are both measured against the input ([`CHOICE_SAMPLES`] metro samples
+//! per direction, same seed) and the lower RMS is returned
+//! ([`SimplifyReport::choice`]).
 //!
 //! **Error E.** `cluster` returns the store's cut at E; `collapse` starts
 //! from the cut at E/4 with an absolute limit of 3E/4. The result is
@@ -109,7 +114,8 @@ pub struct SimplifyReport {
     pub target_error: Option<f64>,
     pub vertices: u64,
     pub triangles: u64,
-    /// The target was met (size within 1 %, or measured error ≤ E).
+    /// The target was met (size within 1 %, or a level within
+    /// [`LEVEL_NEAR`] that measured better; measured error ≤ E).
     pub reached: bool,
     /// Why not, or what was done instead.
     pub note: Option<String>,
@@ -119,7 +125,35 @@ pub struct SimplifyReport {
     pub tries: u32,
     /// Metro samples per direction of the last measurement (error targets).
     pub verify_samples: Option<u64>,
+    /// Size targets on the in-memory route with a store level within
+    /// [`LEVEL_NEAR`] of N: both measured against the input, the better
+    /// returned.
+    pub choice: Option<LevelChoice>,
 }
+
+/// The level against the reduction (see [`SimplifyReport::choice`]).
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
+pub struct LevelChoice {
+    pub level: u8,
+    pub level_triangles: u64,
+    /// Two-sided metro RMS against level 0 (the input), the same samples
+    /// for both ([`CHOICE_SAMPLES`] per direction).
+    pub level_rms: f64,
+    pub reduced_rms: f64,
+    /// The level was returned.
+    pub level_returned: bool,
+}
+
+/// A store level with a triangle count this close to N (a share of N) is
+/// measured against the reduction to N, and returned when it is more
+/// accurate: a level is built from the whole hierarchy below it, and a
+/// reduction from a finer level to about its size was measured up to 2.4×
+/// its RMS (collapse, 237 K triangles of a 12 M sphere).
+pub const LEVEL_NEAR: f64 = 0.03;
+
+/// Metro samples per direction for that choice: enough to rank two meshes
+/// whose RMS differ by a few per cent, cheap next to the reduction.
+pub const CHOICE_SAMPLES: u64 = 200_000;
 
 /// A reduction's result: in memory, or already spooled into the output
 /// (the per-node route for a size; see the module doc).
@@ -179,7 +213,8 @@ pub fn simplify_store(store: &Store, out: &Path, o: &SimplifyOptions) -> Result<
     rep.input_triangles = input;
     (rep.vertices, rep.triangles) = result.counts();
     if let Some(n) = rep.target_triangles {
-        rep.reached = within_1pct(rep.triangles, n) || (n >= input && rep.triangles == input);
+        let level_chosen = rep.choice.as_ref().is_some_and(|c| c.level_returned);
+        rep.reached = within_1pct(rep.triangles, n) || (n >= input && rep.triangles == input) || level_chosen;
         if !rep.reached && rep.note.is_none() {
             rep.note = Some(format!("{} of {n} triangles: the {:?} simplifier could not go further without breaking the surface", rep.triangles, o.simplifier));
         }
@@ -225,7 +260,8 @@ fn reduce_to_count(store: &Store, n: u64, out: &Path, o: &SimplifyOptions) -> Re
     rep.start_triangles = tris;
     let cut = store.level_cut(level);
     if rep.route == "in-memory" {
-        return Ok((Reduced::Mesh(reduce_cut(store, &cut, Goal::Tris(n as usize), o)?), rep));
+        let reduced = reduce_cut(store, &cut, Goal::Tris(n as usize), o)?;
+        return level_or_reduced(store, n, reduced, rep, o);
     }
     let r = per_node_to_count(store, &cut, n, o, Some(out))?;
     let got = r.counts().1;
@@ -237,6 +273,46 @@ fn reduce_to_count(store: &Store, n: u64, out: &Path, o: &SimplifyOptions) -> Re
         ));
     }
     Ok((r, rep))
+}
+
+/// The in-memory route's end: the reduction to `n`, or a store level
+/// within [`LEVEL_NEAR`] of `n` when it measures better (see
+/// [`SimplifyReport::choice`]; `docs/simplify.md`).
+fn level_or_reduced(store: &Store, n: u64, reduced: IndexedMesh, mut rep: SimplifyReport, o: &SimplifyOptions) -> Result<(Reduced, SimplifyReport)> {
+    let near = (0..=store.top_level())
+        .map(|l| (l, store.level_cut(l).triangles(store)))
+        .filter(|&(_, t)| t.abs_diff(n) as f64 <= LEVEL_NEAR * n as f64 && t.saturating_mul(o.simplifier.bytes_per_triangle()) <= o.mem)
+        .min_by_key(|&(_, t)| t.abs_diff(n));
+    let Some((level, level_tris)) = near else { return Ok((Reduced::Mesh(reduced), rep)) };
+    let cut = store.level_cut(level);
+    let level_mesh = load_cut(store, &cut, o)?;
+    let scratch = crate::io::scratch_dir(&store.dir)?;
+    let level_rms = rms_against_input(store, scratch.path(), &level_mesh, o)?;
+    let reduced_rms = rms_against_input(store, scratch.path(), &reduced, o)?;
+    let level_returned = level_rms < reduced_rms;
+    rep.choice = Some(LevelChoice { level, level_triangles: level_tris, level_rms, reduced_rms, level_returned });
+    if !level_returned {
+        return Ok((Reduced::Mesh(reduced), rep));
+    }
+    rep.route = "store-cut".into();
+    rep.start = format!("level {level}");
+    rep.start_triangles = level_tris;
+    rep.note = Some(format!(
+        "level {level} ({level_tris} triangles, within {}% of {n}) measures RMS {level_rms:.3e} against the input, the reduction to {n} {reduced_rms:.3e}: the level is returned",
+        LEVEL_NEAR * 100.0
+    ));
+    Ok((Reduced::Mesh(level_mesh), rep))
+}
+
+/// `mesh`'s two-sided metro RMS against level 0 ([`CHOICE_SAMPLES`] per
+/// direction, seed 1), through a PLY in `scratch`.
+fn rms_against_input(store: &Store, scratch: &Path, mesh: &IndexedMesh, o: &SimplifyOptions) -> Result<f64> {
+    let p = scratch.join("choice.ply");
+    write_mesh_ply(&p, store.header.attrs, "octolod simplify candidate", mesh, true)?;
+    let mopts = metro::Options { samples: Some(CHOICE_SAMPLES), seed: 1, quiet: true };
+    let r = metro::compare_sources(&Source::Store(store.dir.clone(), 0), &Source::Ply(p.clone()), &mopts, &MemOptions { budget: o.mem, explicit: false })?;
+    let _ = std::fs::remove_file(&p);
+    Ok(r.combined.rms)
 }
 
 /// Error targets at least this share of the coarsest level's recorded
@@ -719,6 +795,40 @@ fn compact(mesh: &IndexedMesh, tris: &[[u32; 3]]) -> IndexedMesh {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The choice itself: a reduction measuring worse than the level of its
+    /// size (here the level shifted by 1 % of the box) gives way to the
+    /// level; one measuring the same (the level itself) is kept.
+    #[test]
+    fn a_worse_reduction_gives_way_to_the_level() {
+        use crate::gen::{GenOptions, Shape};
+        use crate::manifest::BuildParams;
+        use crate::pipeline::{build_store, BuildOptions};
+        let d = tempfile::tempdir().unwrap();
+        let ply = d.path().join("s.ply");
+        let g = GenOptions { shape: Shape::Sphere, tris: 20_000, ..Default::default() };
+        crate::gen::write(&g, &Default::default(), &ply, true, false).unwrap();
+        let out = d.path().join("s.octolod");
+        let params = BuildParams { mem: 64 << 20, leaf_tris: 2000, ..Default::default() };
+        build_store(&ply, &out, &BuildOptions { params, ..Default::default() }).unwrap();
+        let st = Store::open(&out).unwrap();
+        let o = SimplifyOptions { target: Target::Tris(1), simplifier: Simplifier::Collapse, mem: 1 << 30, verify_samples: None, force: false };
+        let level = 2;
+        let n = st.level_cut(level).triangles(&st);
+        let at_level = load_cut(&st, &st.level_cut(level), &o).unwrap();
+        let mut shifted = at_level.clone();
+        let shift = 0.01 * st.header.bbox.diagonal();
+        for v in &mut shifted.vertices {
+            v.pos[0] += shift;
+        }
+        let (r, rep) = level_or_reduced(&st, n, shifted, SimplifyReport::default(), &o).unwrap();
+        let c = rep.choice.unwrap();
+        assert!(c.level_returned && c.level_rms < c.reduced_rms, "{c:?}");
+        assert_eq!((rep.route.as_str(), r.counts().1), ("store-cut", n));
+        let (_, rep) = level_or_reduced(&st, n, at_level, SimplifyReport::default(), &o).unwrap();
+        let c = rep.choice.unwrap();
+        assert!(!c.level_returned && c.level_rms == c.reduced_rms, "{c:?}");
+    }
 
     #[test]
     fn apportion_adds_up_in_proportion() {

@@ -335,3 +335,43 @@ fn the_command_writes_an_output_larger_than_mem_within_mem() {
     assert!(peak <= mem + (64 << 20), "peak RSS {} MiB under --mem 16M", peak >> 20);
     eprintln!("simplify 200 K -> 100 K triangles under --mem 16M: peak RSS {:.1} MiB", peak as f64 / (1 << 20) as f64);
 }
+
+/// `simplify` is never worse than a store level of about the size asked:
+/// asked exactly a level's size, both the level and the reduction are
+/// measured (same samples) and the lower RMS is what is written; asked a
+/// size no level is near, nothing is compared.
+#[test]
+fn a_level_of_about_the_size_asked_is_returned_when_it_measures_better() {
+    let dir = tempfile::tempdir().unwrap();
+    let (ply, _) = gen_ply(dir.path(), Shape::Scan, 60_000, 0);
+    let s = build_from(dir.path(), &ply, 2000);
+    let level = 2u8;
+    let n = s.level_cut(level).triangles(&s);
+    for simp in [Simplifier::Collapse, Simplifier::Cluster] {
+        let name = format!("at-level-{}", simp.name());
+        let (r, _, m) = run(&s, dir.path(), &name, &opts(Target::Tris(n), simp, 1 << 30));
+        let c = r.choice.clone().unwrap_or_else(|| panic!("{name}: no comparison: {r:?}"));
+        assert_eq!((c.level, c.level_triangles), (level, n), "{name}");
+        assert!(c.level_rms > 0.0 && c.reduced_rms > 0.0, "{name}: {c:?}");
+        assert_eq!(c.level_returned, c.level_rms < c.reduced_rms, "{name}: {c:?}");
+        assert!(r.reached, "{name}: {r:?}");
+        if c.level_returned {
+            assert_eq!((r.route.as_str(), m.triangles.len() as u64), ("store-cut", n), "{name}");
+            assert!(r.note.as_deref().is_some_and(|t| t.contains(&format!("level {level}"))), "{name}: {r:?}");
+        } else {
+            assert!(within_1pct(m.triangles.len(), n), "{name}");
+        }
+        eprintln!("{name}: level {level} RMS {:.3e}, reduction {:.3e}", c.level_rms, c.reduced_rms);
+    }
+    // Starting from level 1 (all --mem holds): compared the same way.
+    let mem = s.level_cut(1).triangles(&s) * Simplifier::Collapse.bytes_per_triangle();
+    let (r, _, m) = run(&s, dir.path(), "from-level-1", &opts(Target::Tris(n), Simplifier::Collapse, mem));
+    let c = r.choice.clone().unwrap();
+    assert_eq!(c.level_returned, c.level_rms < c.reduced_rms, "{c:?}");
+    assert_eq!(m.triangles.len() as u64, r.triangles);
+    eprintln!("from level 1: level {level} RMS {:.3e}, reduction {:.3e} ({:?})", c.level_rms, c.reduced_rms, r.start);
+    // Halfway between two levels: no level within 3 %, no comparison.
+    let between = (s.level_cut(1).triangles(&s) + n) / 2;
+    let (r, _, _) = run(&s, dir.path(), "between", &opts(Target::Tris(between), Simplifier::Collapse, 1 << 30));
+    assert!(r.choice.is_none(), "{r:?}");
+}
