@@ -1282,6 +1282,60 @@ mod tests {
         }
     }
 
+    /// A primitive larger than a batch (vertices and triangles both span
+    /// several of [`BATCH`]) reads back exactly, through a bufferView
+    /// stride; a bad index deep in a later batch is named by its number in
+    /// the whole accessor.
+    #[test]
+    fn batches_span_large_primitives_and_name_late_indices() {
+        let n = 300usize; // 90,000 vertices, 178,802 triangles
+        let mut bin = Vec::new();
+        for y in 0..n {
+            for x in 0..n {
+                // 16-byte stride: 3 floats and 4 bytes of padding.
+                bin.extend(f32s(&[x as f32, y as f32, ((x * y) % 7) as f32]));
+                bin.extend([0u8; 4]);
+            }
+        }
+        let ib = bin.len();
+        let mut tris = Vec::new();
+        for y in 0..n - 1 {
+            for x in 0..n - 1 {
+                let v = (y * n + x) as u32;
+                tris.push([v, v + 1, v + n as u32 + 1]);
+                tris.push([v, v + n as u32 + 1, v + n as u32]);
+            }
+        }
+        bin.extend(tris.iter().flatten().flat_map(|i| i.to_le_bytes()));
+        let nv = n * n;
+        let doc = json!({
+            "asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+            "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
+            "buffers": [{"byteLength": bin.len()}],
+            "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": ib, "byteStride": 16}, {"buffer": 0, "byteOffset": ib, "byteLength": bin.len() - ib}],
+            "accessors": [{"bufferView": 0, "componentType": 5126, "count": nv, "type": "VEC3", "min": [0, 0, 0], "max": [n - 1, n - 1, 6]},
+                          {"bufferView": 1, "componentType": 5125, "count": 3 * tris.len(), "type": "SCALAR"}]
+        });
+        assert!(nv > 2 * BATCH && tris.len() > 4 * BATCH);
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("grid.glb");
+        std::fs::write(&p, glb(&doc, &bin)).unwrap();
+        let info = read_info(&p).unwrap();
+        let mut sink = CollectSink::default();
+        let st = read_body(&p, &info, &mut sink, &Progress::hidden()).unwrap();
+        assert_eq!((st.vertices, st.triangles), (nv as u64, tris.len() as u64));
+        for (k, v) in sink.vertices.iter().enumerate() {
+            assert_eq!(v.pos, [(k % n) as f64, (k / n) as f64, (((k % n) * (k / n)) % 7) as f64], "vertex {k}");
+        }
+        assert!(sink.triangles.iter().zip(&tris).all(|(a, b)| a.map(|i| i as u32) == *b));
+        // Index number 400,001 (in the fifth batch of corners) out of range.
+        let late = 400_001usize;
+        let mut b2 = bin.clone();
+        b2[ib + 4 * late..ib + 4 * late + 4].copy_from_slice(&(nv as u32).to_le_bytes());
+        let e = err_of(d.path(), "late.glb", &glb(&doc, &b2));
+        assert!(e.contains(&format!("indices: index {late} is {nv}, out of range")), "{e}");
+    }
+
     fn err_of(dir: &Path, name: &str, bytes: &[u8]) -> String {
         let p = dir.join(name);
         std::fs::write(&p, bytes).unwrap();
