@@ -1190,7 +1190,8 @@ fn corner_pass(path: &Path, info: &ObjInfo, to: &mut impl CornerPass, progress: 
 /// most corners there can be ([`ObjInfo::vertices`]) fit `mem`; else
 /// [`split`] runs it out of core.
 fn corners_fit(info: &ObjInfo, mem: u64) -> bool {
-    info.table_bytes().saturating_add(info.vertices.saturating_mul(CORNER_BYTES)) <= mem
+    // (The in-memory path numbers corners in u32.)
+    info.vertices < u32::MAX as u64 && info.table_bytes().saturating_add(info.vertices.saturating_mul(CORNER_BYTES)) <= mem
 }
 
 /// The corner path, in memory: one pass reads the `v`, `vt` and `vn`
