@@ -1138,6 +1138,27 @@ mod tests {
         assert_eq!(super::super::Format::of(&q).unwrap(), super::super::Format::Gltf);
     }
 
+    /// The sample's data 5 GiB into a sparse external buffer (past GLB's
+    /// 4 GiB limit and u32 offsets): read by positioned reads, the same mesh.
+    #[test]
+    fn an_external_bin_past_4_gib() {
+        use std::os::unix::fs::FileExt;
+        let dir = tempfile::tempdir().unwrap();
+        let (mut doc, bin) = sample();
+        let far = 5u64 << 30;
+        let f = std::fs::File::create(dir.path().join("far.bin")).unwrap();
+        f.set_len(far + bin.len() as u64).unwrap();
+        f.write_all_at(&bin, far).unwrap();
+        doc["buffers"][0] = json!({"uri": "far.bin", "byteLength": far + bin.len() as u64});
+        for v in doc["bufferViews"].as_array_mut().unwrap() {
+            let o = v["byteOffset"].as_u64().unwrap();
+            v["byteOffset"] = json!(o + far);
+        }
+        let p = dir.path().join("far.gltf");
+        std::fs::write(&p, serde_json::to_vec_pretty(&doc).unwrap()).unwrap();
+        check_sample(&p);
+    }
+
     #[test]
     fn strips_fans_rotation_and_mirroring() {
         let dir = tempfile::tempdir().unwrap();
