@@ -64,7 +64,10 @@ fn exact_counts_in_memory(cases: &[(u64, &[u64])]) {
             for simp in BOTH {
                 let name = format!("exact-{tris}-{n}-{simp:?}");
                 let (r, _, m) = run(&s, dir.path(), &name, &opts(Target::Tris(n), simp, 1 << 30));
-                assert_eq!(r.route, "in-memory", "{name}");
+                // A store level within 1 % of n that measures better is
+                // returned instead of the reduction (see the test below).
+                let level = r.choice.as_ref().is_some_and(|c| c.level_returned);
+                assert_eq!(r.route, if level { "store-cut" } else { "in-memory" }, "{name}");
                 assert!(within_1pct(m.triangles.len(), n), "{name}: {} triangles", m.triangles.len());
                 assert!(r.reached, "{name}");
                 // The sphere is closed; collapse keeps it closed.
@@ -370,7 +373,7 @@ fn a_level_of_about_the_size_asked_is_returned_when_it_measures_better() {
     assert_eq!(c.level_returned, c.level_rms < c.reduced_rms, "{c:?}");
     assert_eq!(m.triangles.len() as u64, r.triangles);
     eprintln!("from level 1: level {level} RMS {:.3e}, reduction {:.3e} ({:?})", c.level_rms, c.reduced_rms, r.start);
-    // Halfway between two levels: no level within 3 %, no comparison.
+    // Halfway between two levels: no level within 1 %, no comparison.
     let between = (s.level_cut(1).triangles(&s) + n) / 2;
     let (r, _, _) = run(&s, dir.path(), "between", &opts(Target::Tris(between), Simplifier::Collapse, 1 << 30));
     assert!(r.choice.is_none(), "{r:?}");
