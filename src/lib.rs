@@ -28,6 +28,7 @@ pub mod ply;
 pub mod progress;
 pub mod quadric;
 pub mod serve;
+pub mod shard;
 
 pub mod lod;
 pub mod manifest;

@@ -77,6 +77,55 @@ enum Cmd {
         /// fast) or collapse (quadric edge collapse with attributes, accurate).
         #[arg(long, default_value = "cluster")]
         simplifier: octolod::manifest::Simplifier,
+        /// Build one shard of a sharded build (with --shard): the plan
+        /// gives the parameters, -o names the shard's directory.
+        #[arg(long, requires = "shard")]
+        plan: Option<PathBuf>,
+        /// The shard to build (0-based, from the plan's list).
+        #[arg(long, requires = "plan")]
+        shard: Option<u32>,
+        /// With --plan: print the shard's report as JSON.
+        #[arg(long, requires = "plan")]
+        json: bool,
+    },
+    /// Plan a sharded build: one pass over the input splits it into shards
+    /// of about equal triangle counts (then `build --plan P --shard I` for
+    /// each shard, anywhere, and `merge`).
+    Plan {
+        input: PathBuf,
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Number of shards.
+        #[arg(long, default_value_t = 4)]
+        shards: u32,
+        /// Levels each shard builds before the merge (default: as many as
+        /// leave the smallest shard four leaves of triangles).
+        #[arg(long)]
+        shard_levels: Option<u8>,
+        #[command(flatten)]
+        params: BuildArgs,
+        /// Node simplifier of the whole build (see `build`).
+        #[arg(long, default_value = "cluster")]
+        simplifier: octolod::manifest::Simplifier,
+        /// Print the plan's summary as JSON.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Merge a plan's built shards into one store (builds the levels above
+    /// the shards up to the root).
+    Merge {
+        plan: PathBuf,
+        /// The shards' directories, every shard of the plan once.
+        #[arg(required = true)]
+        shards: Vec<PathBuf>,
+        #[arg(short, long)]
+        output: PathBuf,
+        /// Working-memory budget (e.g. 512M, 2G).
+        #[arg(long, default_value = mem::DEFAULT_BUDGET_ARG)]
+        mem: String,
+        /// Print the report as JSON.
+        #[arg(long)]
+        json: bool,
     },
     /// Per level: nodes, triangles, bytes, error range, build time.
     Info { store: PathBuf },
@@ -547,7 +596,16 @@ fn run(cli: Cli) -> Result<ExitCode> {
     let Cli { quiet, force, cmd } = cli;
     match cmd {
         Cmd::Soup { input, output, mem, external, json } => cmd_soup(&input, &output, &mem, external, json, quiet, force),
-        Cmd::Build { input, output, params, simplifier } => cmd_build(&input, &output, &params, simplifier, quiet, force),
+        Cmd::Build { input, output, params, plan: Some(plan), shard: Some(shard), json, .. } => {
+            cmd_build_shard(&input, &output, &plan, shard, &params.mem, json, quiet, force)
+        }
+        Cmd::Build { input, output, params, simplifier, .. } => cmd_build(&input, &output, &params, simplifier, quiet, force),
+        Cmd::Plan { input, output, shards, shard_levels, params, simplifier, json } => {
+            let mut o = params.options(quiet, force)?;
+            o.params.simplifier = simplifier;
+            cmd_plan(&input, &output, shards, shard_levels, o, json)
+        }
+        Cmd::Merge { plan, shards, output, mem, json } => cmd_merge(&plan, &shards, &output, &mem, json, quiet, force),
         Cmd::Info { store } => info(&store).map(|()| ExitCode::SUCCESS),
         Cmd::Tiles(args) => cmd_tiles(args, quiet, force),
         Cmd::Extract(args) => cmd_extract(args, force),
@@ -581,6 +639,80 @@ fn cmd_build(input: &Path, output: &Path, params: &BuildArgs, simplifier: octolo
     o.params.simplifier = simplifier;
     let r = octolod::pipeline::build_store(input, output, &o)?;
     print_build(&r)?;
+    Ok(ExitCode::SUCCESS)
+}
+
+fn cmd_plan(input: &Path, output: &Path, shards: u32, shard_levels: Option<u8>, o: octolod::pipeline::BuildOptions, json: bool) -> Result<ExitCode> {
+    let opts = octolod::shard::PlanOptions { params: o.params, shards, shard_levels, quiet: o.quiet || json };
+    let p = octolod::shard::plan(input, output, &opts, o.force)?;
+    if json {
+        out!("{}", serde_json::to_string_pretty(&p).expect("the plan serializes"));
+    } else {
+        let est: Vec<u64> = p.shards.iter().map(|s| s.est_triangles).collect();
+        out!(
+            "plan {}: {} triangles in {} shards (largest {}, smallest {} triangles), {} levels per shard; {:.2} s -> {}",
+            p.plan_id,
+            p.triangles,
+            p.shards.len(),
+            est.iter().max().unwrap_or(&0),
+            est.iter().min().unwrap_or(&0),
+            p.shard_levels,
+            p.seconds,
+            output.display()
+        );
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+#[allow(clippy::too_many_arguments, reason = "the command line's options, each distinct")]
+fn cmd_build_shard(input: &Path, output: &Path, plan_path: &Path, shard: u32, mem_arg: &str, json: bool, quiet: bool, force: bool) -> Result<ExitCode> {
+    let plan = octolod::shard::Plan::read(plan_path)?;
+    let r = octolod::shard::build_shard(input, &plan, plan_path, shard, output, mem::parse_budget(mem_arg, "--mem")?, quiet || json, force)?;
+    let peak = peak_rss();
+    if json {
+        let mut v = serde_json::to_value(&r).expect("the report serializes");
+        v["peak_rss"] = serde_json::json!(peak);
+        out!("{v}");
+    } else if r.skipped {
+        out!("shard {}: already built in {} (plan {}); nothing to do", r.shard, output.display(), plan.plan_id);
+    } else {
+        out!(
+            "shard {}: {} of {} triangles, {} boundary positions locked, {} levels, {} nodes; {:.2} s; peak RSS {} -> {}",
+            r.shard,
+            r.triangles,
+            r.input_triangles,
+            r.boundary_positions,
+            r.levels,
+            r.nodes,
+            r.seconds,
+            peak.map(octolod::progress::mib).unwrap_or_else(|| "n/a".into()),
+            output.display()
+        );
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn cmd_merge(plan_path: &Path, shards: &[PathBuf], output: &Path, mem_arg: &str, json: bool, quiet: bool, force: bool) -> Result<ExitCode> {
+    let plan = octolod::shard::Plan::read(plan_path)?;
+    let r = octolod::shard::merge(&plan, shards, output, mem::parse_budget(mem_arg, "--mem")?, quiet || json, force)?;
+    let peak = peak_rss();
+    if json {
+        let mut v = serde_json::to_value(&r).expect("the report serializes");
+        v["peak_rss"] = serde_json::json!(peak);
+        out!("{v}");
+    } else {
+        out!(
+            "merge: {} shards, {} nodes, {} levels; simplified {} triangles of the shards' tops; copied {}; {:.2} s; peak RSS {} -> {}",
+            r.shards,
+            r.nodes,
+            r.levels,
+            r.merged_triangles,
+            octolod::progress::mib(r.copied_bytes),
+            r.seconds,
+            peak.map(octolod::progress::mib).unwrap_or_else(|| "n/a".into()),
+            output.display()
+        );
+    }
     Ok(ExitCode::SUCCESS)
 }
 

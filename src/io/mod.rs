@@ -23,7 +23,7 @@ pub mod temp;
 
 pub use output::{
     check_output, gltf_bin_path, is_octolod_gltf, protect, AtomicDir, AtomicFile, AtomicGltfPair, OutputKind, Protected, FRAMES_MARKER, GLTF_MARK_KEY,
-    GLTF_MARK_VALUE, PLY_MARK, SOUP_MAGIC, STORE_MAGIC, TILES_MARKER,
+    GLTF_MARK_VALUE, PLY_MARK, SHARD_MAGIC, SOUP_MAGIC, STORE_MAGIC, TILES_MARKER,
 };
 pub use temp::{parent_dir, remove_stale_temps, scratch_dir, scratch_in, ScratchDir};
 

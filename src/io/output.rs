@@ -54,7 +54,15 @@ pub enum OutputKind {
     /// [`GLTF_MARK_KEY`] to [`GLTF_MARK_VALUE`]. For a path ending in
     /// `.gltf` (any case), [`check_output`] checks its `.bin` too.
     Gltf,
+    /// A shard of a sharded build (`shard.state` starting with
+    /// [`SHARD_MAGIC`]).
+    Shard,
+    /// A sharded build's plan: JSON whose `format` is `octolod-plan`.
+    Plan,
 }
+
+/// The first bytes of a shard's `shard.state` ([`crate::shard`]).
+pub const SHARD_MAGIC: [u8; 8] = *b"OCTSHARD";
 
 /// The first bytes of a store's `nodes.bin` ([`crate::store::MAGIC`]):
 /// defined here, where outputs are recognised, so this module needs no
@@ -89,11 +97,13 @@ impl OutputKind {
             OutputKind::Frames => "an octolod render directory",
             OutputKind::Tiles => "an octolod tileset directory",
             OutputKind::Gltf => "a glTF written by octolod",
+            OutputKind::Shard => "an octolod shard directory",
+            OutputKind::Plan => "an octolod plan",
         }
     }
 
     fn is_dir(self) -> bool {
-        matches!(self, OutputKind::Store | OutputKind::Frames | OutputKind::Tiles)
+        matches!(self, OutputKind::Store | OutputKind::Frames | OutputKind::Tiles | OutputKind::Shard)
     }
 
     /// A listing directory's marker file, its first line and the one
@@ -111,6 +121,8 @@ impl OutputKind {
         match self {
             OutputKind::Store => p.is_dir() && head(&p.join("nodes.bin"), 8).is_some_and(|b| b == STORE_MAGIC),
             OutputKind::Soup => p.is_file() && head(p, 8).is_some_and(|b| b == SOUP_MAGIC),
+            OutputKind::Shard => p.is_dir() && head(&p.join("shard.state"), 8).is_some_and(|b| b == SHARD_MAGIC),
+            OutputKind::Plan => p.is_file() && head(p, 4096).is_some_and(|b| String::from_utf8_lossy(&b).contains("\"format\": \"octolod-plan\"")),
             OutputKind::Frames | OutputKind::Tiles => {
                 let (name, text, _) = self.marker().expect("a listing kind");
                 p.is_dir() && head(&p.join(name), 4096).is_some_and(|b| b.starts_with(text.as_bytes()))
@@ -132,6 +144,13 @@ impl OutputKind {
                 v.extend((0..levels.min(256)).map(|l| PathBuf::from(format!("level-{l}.pack"))));
                 OwnEntries::Listed(v)
             }
+            OutputKind::Shard => {
+                // The state's byte 24: the level the shard stopped before.
+                let levels = head(&dir.join("shard.state"), 25).filter(|b| b.len() == 25).map_or(0, |b| b[24]);
+                let mut v: Vec<PathBuf> = ["shard.state", "shard.json", "chunks.bin"].iter().map(PathBuf::from).collect();
+                v.extend((0..levels).map(|l| PathBuf::from(format!("level-{l}.pack"))));
+                OwnEntries::Listed(v)
+            }
             OutputKind::Frames | OutputKind::Tiles => {
                 let (name, _, _) = self.marker().expect("a listing kind");
                 let text = head(&dir.join(name), 64 << 20).map(|b| String::from_utf8_lossy(&b).into_owned()).unwrap_or_default();
@@ -141,7 +160,7 @@ impl OutputKind {
                 }
                 OwnEntries::Listed(lines.map(PathBuf::from).chain([PathBuf::from(name)]).collect())
             }
-            OutputKind::Ply | OutputKind::Soup | OutputKind::Gltf => OwnEntries::Listed(Vec::new()),
+            OutputKind::Ply | OutputKind::Soup | OutputKind::Gltf | OutputKind::Plan => OwnEntries::Listed(Vec::new()),
         }
     }
 }

@@ -29,6 +29,7 @@ use crate::mesh::{Aabb, AttrSet, IndexedMesh, VertexLayout};
 use crate::progress::Progress;
 use crate::store::{encode_payload, NodeRec, PackWriter, StoreHeader, NO_NODE};
 use rayon::prelude::*;
+use rustc_hash::FxHashSet;
 use std::path::Path;
 use std::sync::atomic::{AtomicU8, Ordering};
 use std::time::Instant;
@@ -54,6 +55,40 @@ struct Config<'a, S> {
     hist_cap: usize,
     /// Nodes in flight in the ordered passes.
     batch: usize,
+    /// A shard's positions shared with other shards: locked at every level
+    /// like positions shared between nodes ([`LevelBuilder::for_shard`]).
+    extra_locks: Option<FxHashSet<[u64; 3]>>,
+    /// No level below this one is the top (a shard stops before it).
+    min_top: u8,
+}
+
+impl<S> Config<'_, S> {
+    /// Whether position `p` is locked for another shard.
+    #[inline]
+    fn extra_locked(&self, p: &[f64; 3]) -> bool {
+        self.extra_locks.as_ref().is_some_and(|l| l.contains(&pos_bits(*p)))
+    }
+}
+
+/// A level builder stopped before level `level` ([`LevelBuilder::pause`]):
+/// what a shard hands the merge, which resumes the union of several.
+pub struct Paused {
+    /// The next level to build.
+    pub level: u8,
+    /// The next level's leaves (path, depth) with their triangles' stats.
+    pub tiling: Vec<(u64, u8)>,
+    pub leaves: Vec<LeafStats>,
+    /// The next level's chunks, finished.
+    pub chunks: ChunkFile,
+    /// Nodes built so far with their children lists and measured errors.
+    pub nodes: Vec<NodeRec>,
+    pub children: Vec<Vec<u32>>,
+    pub simp_err: Vec<f64>,
+    pub reports: Vec<LevelReport>,
+    pub leaf_scale: u64,
+    pub octree: OctreeReport,
+    /// The scratch directory the chunks are in, kept until they are moved.
+    pub scratch: Option<ScratchDir>,
 }
 
 /// The level being built: its leaves and the chunks routed to them.
@@ -135,9 +170,57 @@ impl<'a, S: NodeSimplifier> LevelBuilder<'a, S> {
             hist_cap: (opts.params.mem / 256).max(1 << 16) as usize,
             batch: threads * 4,
             simplifier,
+            extra_locks: None,
+            min_top: 0,
         };
         let cur = Current { tiling: l0.tiling, leaves: l0.leaves, chunks: l0.chunks };
         LevelBuilder { cfg, cur: Some(cur), dag: Dag::default(), reports: Vec::new(), leaf_scale: 1, octree: l0.report }
+    }
+
+    /// A shard's builder: `locks` (positions it shares with other shards)
+    /// stay locked at every level, and no level below `stop` is the top.
+    pub fn for_shard(mut self, locks: FxHashSet<[u64; 3]>, stop: u8) -> Self {
+        self.cfg.extra_locks = Some(locks);
+        self.cfg.min_top = stop;
+        self
+    }
+
+    /// Stops between levels: the state [`LevelBuilder::resume`] takes.
+    pub fn pause(mut self, level: u8) -> Paused {
+        let cur = self.cur.take().expect("a current level");
+        Paused {
+            level,
+            tiling: cur.tiling.leaves.iter().map(|l| (l.path, l.depth)).collect(),
+            leaves: cur.leaves,
+            chunks: cur.chunks,
+            nodes: self.dag.nodes,
+            children: self.dag.children,
+            simp_err: self.dag.simp_err,
+            reports: self.reports,
+            leaf_scale: self.leaf_scale,
+            octree: self.octree,
+            scratch: Some(self.cfg.scratch),
+        }
+    }
+
+    /// Goes on from a paused state (level 0's header gives the attributes
+    /// and the box); the paused leaves need not tile the cube (the merge's
+    /// union of shards' leaves may overlap): only the next levels' do.
+    pub fn resume(
+        p: Paused,
+        header: crate::soup::format::SoupHeader,
+        dir: &'a Path,
+        scratch: ScratchDir,
+        opts: &'a LodOptions,
+        simplifier: S,
+    ) -> LevelBuilder<'a, S> {
+        let tiling = Tiling { leaves: p.tiling.iter().map(|&(path, depth)| Tiling::leaf(path, depth)).collect() };
+        let l0 = Level0 { header, tiling, leaves: p.leaves, chunks: p.chunks, report: p.octree };
+        let mut b = LevelBuilder::new(l0, dir, scratch, opts, simplifier);
+        b.dag = Dag { nodes: p.nodes, children: p.children, simp_err: p.simp_err };
+        b.reports = p.reports;
+        b.leaf_scale = p.leaf_scale;
+        b
     }
 
     /// Builds level `level`; false once it was the top.
@@ -192,7 +275,7 @@ impl<'a, S: NodeSimplifier> LevelBuilder<'a, S> {
         let p = &self.cfg.opts.params;
         let ids: Vec<usize> = (0..cur.tiling.leaves.len()).filter(|&i| cur.leaves[i].tris > 0 || !cur.chunks.refs_of(i).is_empty()).collect();
         let triangles: u64 = ids.iter().map(|&i| cur.leaves[i].tris).sum();
-        let is_final = (ids.len() == 1 && triangles <= p.root_tris) || p.levels == Some(level);
+        let is_final = level >= self.cfg.min_top && ((ids.len() == 1 && triangles <= p.root_tris) || p.levels == Some(level));
         if level == MAX_LEVELS && !is_final {
             // Once a silent stop: a top level of many nodes, no single root.
             return Err(Error::Usage(format!(
@@ -280,7 +363,7 @@ impl<'a, S: NodeSimplifier> LevelBuilder<'a, S> {
             .map(|(&k, set)| {
                 let g = cur.chunks.gather(lv.ids[k])?;
                 let w = Welded::new(&g.mesh, cfg.unique_positions);
-                let locked = w.locks(set);
+                let locked = w.locks_at(|pi| set.contains_key(&pos_bits(w.pos[pi])) || cfg.extra_locked(&w.pos[pi]));
                 let carried = (lv.level > 0).then_some(&g.a[..]);
                 Ok(cfg.simplifier.curve(&NodeInput { mesh: &g.mesh, carried, locked: &locked }))
             })
@@ -523,12 +606,16 @@ fn self_node<S: NodeSimplifier>(
     let mut p2 = Pass2::default();
     // Each position's shared record, looked up once.
     let hits: Vec<Option<&([f32; 3], u32)>> = w.pos.iter().map(|p| set.get(&pos_bits(*p))).collect();
+    // A shard's positions shared with other shards count as shared.
+    let shared_at = |pi: usize| hits[pi].is_some() || cfg.extra_locked(&w.pos[pi]);
     // Locks: shared positions and attribute seams.
-    let locked = w.locks_at(|pi| hits[pi].is_some());
-    for (pi, hit) in hits.iter().enumerate() {
-        let sh = hit.is_some();
-        p2.shared += sh as u64;
-        p2.seam_only += (w.seam[pi] && !sh) as u64;
+    let locked = w.locks_at(shared_at);
+    for pi in 0..hits.len() {
+        let (hit, sh) = (hits[pi].is_some(), shared_at(pi));
+        // Another shard's positions count with the seams (the level's
+        // distinct shared positions come from the sort).
+        p2.shared += hit as u64;
+        p2.seam_only += ((w.seam[pi] || sh) && !hit) as u64;
         p2.prev_freed += (w.was_locked(&g, pi) && !sh) as u64;
     }
     // The stored mesh, with normals from the whole neighbourhood. Set in

@@ -278,7 +278,7 @@ pub struct Tiling {
 }
 
 impl Tiling {
-    fn leaf(path: u64, depth: u8) -> TileLeaf {
+    pub(crate) fn leaf(path: u64, depth: u8) -> TileLeaf {
         let sh = 3 * (KEY_DEPTH - depth) as u32;
         TileLeaf { path, depth, start: path << sh, end: (path + 1) << sh }
     }

@@ -140,11 +140,18 @@ impl Band {
         near.retain(|&j| j as usize != i);
         // Cells tile the cube, so another node's grown cell reaches into
         // this cell by at most its growth: points deeper inside are in
-        // none (a quick answer for most of a node's positions).
+        // none (a quick answer for most of a node's positions). Not when
+        // another cell overlaps this one (a merge's union of shards'
+        // levels): then every position is tested.
         let (cell, _) = self.cells[i];
-        let grow = near.iter().map(|&j| self.cells[j as usize].1).fold(0.0, f64::max);
-        let m = grow + 1e-9 * (cell.max[0] - cell.min[0]).abs();
-        let inner = Aabb { min: cell.min.map(|x| x + m), max: cell.max.map(|x| x - m) };
+        let overlaps_inside = |o: &Aabb| (0..3).all(|k| o.min[k] < cell.max[k] && cell.min[k] < o.max[k]);
+        let inner = if near.iter().any(|&j| overlaps_inside(&self.cells[j as usize].0)) {
+            Aabb::EMPTY
+        } else {
+            let grow = near.iter().map(|&j| self.cells[j as usize].1).fold(0.0, f64::max);
+            let m = grow + 1e-9 * (cell.max[0] - cell.min[0]).abs();
+            Aabb { min: cell.min.map(|x| x + m), max: cell.max.map(|x| x - m) }
+        };
         BandTest { band: self, near, inner }
     }
 }

@@ -2,8 +2,7 @@
 //! shares and derives normals from.
 
 use super::chunks::Gathered;
-use super::shared::SharedSet;
-use crate::geom::{cross, pos_bits, sub, Welder};
+use crate::geom::{cross, sub, Welder};
 use crate::mesh::{Aabb, IndexedMesh};
 
 /// A node's vertices welded by position: per position its point, the
@@ -69,8 +68,9 @@ impl Welded {
     }
 
     /// Per vertex: locked (its position is shared, or an attribute seam).
-    pub fn locks(&self, shared: &SharedSet) -> Vec<bool> {
-        self.locks_at(|p| shared.contains_key(&pos_bits(self.pos[p])))
+    #[cfg(test)]
+    pub fn locks(&self, shared: &super::shared::SharedSet) -> Vec<bool> {
+        self.locks_at(|p| shared.contains_key(&crate::geom::pos_bits(self.pos[p])))
     }
 
     /// [`Welded::locks`], given whether position `p` is shared.
@@ -92,6 +92,8 @@ impl Welded {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geom::pos_bits;
+    use crate::lod::shared::SharedSet;
     use crate::mesh::Vertex;
 
     #[test]

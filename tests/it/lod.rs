@@ -13,7 +13,7 @@ use octolod::store::Store;
 
 /// DAG invariants: parent error ≥ child, parent bounds ⊇ child bounds,
 /// errors and vertices finite, vertices inside their node's bounds.
-fn check_dag(s: &Store, name: &str) {
+pub(crate) fn check_dag(s: &Store, name: &str) {
     for i in 0..s.nodes.len() {
         let n = &s.nodes[i];
         assert!(n.error.is_finite(), "{name}: node {i}: error {}", n.error);
@@ -42,7 +42,7 @@ fn check_dag(s: &Store, name: &str) {
 }
 
 /// Random valid cuts, error cuts and whole levels: no crack.
-fn check_cuts(s: &Store, input: &IndexedMesh, name: &str, closed: bool) {
+pub(crate) fn check_cuts(s: &Store, input: &IndexedMesh, name: &str, closed: bool) {
     let mut rng = Rng::new(17);
     let mut cuts: Vec<(String, octolod::store::Cut)> = Vec::new();
     for seed in 1..=10 {

@@ -35,6 +35,7 @@ mod real_inputs;
 mod reliability;
 mod reliability_v2;
 mod serve;
+mod sharded;
 mod signals;
 mod simplify;
 mod tiles;

@@ -1,0 +1,219 @@
+//! Sharded build (issue 34): `plan`, `build --plan --shard`, `merge` give
+//! a store that opens like any other, whose DAG invariants and random cuts
+//! hold, whose levels are within 10 % of the monolithic build's metro RMS;
+//! shards are idempotent, a stale plan and foreign shards are refused, the
+//! same plan gives the same store, a shard stays within its `--mem`.
+
+use crate::common::cli::{err, gen, gen_with, measuring_child, octolod, octolod_ok, out, run_measured, s};
+use crate::common::{gen_ply, json};
+use crate::lod::{check_cuts, check_dag};
+use octolod::gen::Shape;
+use octolod::store::Store;
+use std::path::{Path, PathBuf};
+
+/// Plans `shards` shards of `input` (extra plan flags), builds each in
+/// order and merges them into `store`; gives the shard directories.
+fn sharded(d: &Path, input: &Path, shards: u32, extra: &[&str], store: &Path) -> Vec<PathBuf> {
+    let plan = d.join("plan.json");
+    let n = shards.to_string();
+    let mut args = vec!["-q", "plan", s(input), "-o", s(&plan), "--shards", &n];
+    args.extend_from_slice(extra);
+    octolod_ok(&args);
+    let dirs: Vec<PathBuf> = (0..shards).map(|i| d.join(format!("shard-{i}"))).collect();
+    for (i, dir) in dirs.iter().enumerate() {
+        octolod_ok(&["-q", "build", s(input), "--plan", s(&plan), "--shard", &i.to_string(), "-o", s(dir), "--mem", "64M"]);
+    }
+    let mut args = vec!["-q", "merge", s(&plan)];
+    args.extend(dirs.iter().map(|p| s(p)));
+    args.extend_from_slice(&["-o", s(store), "--mem", "64M"]);
+    octolod_ok(&args);
+    dirs
+}
+
+/// Combined metro RMS of `store@level` against `input`, and its triangles.
+fn rms(input: &Path, store: &Path, level: u8) -> (f64, u64) {
+    let o = octolod_ok(&["-q", "metro", s(input), &format!("{}@{level}", s(store)), "--json", "--samples", "400000"]);
+    let j = json(&o.stdout);
+    (j["combined"]["rms"].as_f64().unwrap(), j["b"]["faces"].as_u64().unwrap())
+}
+
+/// Every level of the sharded store within 10 % of the monolithic one's RMS
+/// (at about its size), the same number of levels give or take one, a root
+/// as small; DAG invariants and crack-free cuts.
+fn against_monolithic(shape: Shape, tris: u64, leaf: u64, closed: bool, simplifier: &str) {
+    let d = tempfile::tempdir().unwrap();
+    let (input, input_mesh) = gen_ply(d.path(), shape, tris, 0);
+    let leaf = leaf.to_string();
+    let flags = ["--leaf-tris", &leaf, "--simplifier", simplifier];
+    let mono = d.path().join("mono.octolod");
+    let mut args = vec!["-q", "build", s(&input), "-o", s(&mono), "--mem", "64M"];
+    args.extend_from_slice(&flags);
+    octolod_ok(&args);
+    let store = d.path().join("sharded.octolod");
+    sharded(d.path(), &input, 4, &flags, &store);
+    let (m, sh) = (Store::open(&mono).unwrap(), Store::open(&store).unwrap());
+    let name = format!("{} sharded ({simplifier})", shape.name());
+    let plan = json(&std::fs::read(d.path().join("plan.json")).unwrap());
+    assert!(plan["shard_levels"].as_u64().unwrap() >= 1, "{name}: the shards build levels");
+    check_dag(&sh, &name);
+    check_cuts(&sh, &input_mesh, &name, closed);
+    assert_eq!(sh.level_triangles(0), m.level_triangles(0), "{name}: level 0 holds the input");
+    assert!(sh.top_level().abs_diff(m.top_level()) <= 1, "{name}: {} levels against {}", sh.top_level(), m.top_level());
+    assert_eq!(sh.level_nodes(sh.top_level()).len(), 1, "{name}: one root");
+    assert!(sh.level_triangles(sh.top_level()) <= 4096, "{name}: root of {} triangles", sh.level_triangles(sh.top_level()));
+    for l in 1..=sh.top_level().min(m.top_level()) {
+        let ((rs, ts), (rm, tm)) = (rms(&input, &store, l), rms(&input, &mono, l));
+        eprintln!("{name}: level {l}: sharded {ts} triangles RMS {rs:.3e}, monolithic {tm} triangles RMS {rm:.3e} ({:.3}x)", rs / rm);
+        assert!((ts as f64 / tm as f64 - 1.0).abs() < 0.1, "{name}: level {l}: {ts} triangles against {tm}");
+        assert!(rs <= 1.1 * rm, "{name}: level {l}: RMS {rs:e} against the monolithic {rm:e}");
+    }
+}
+
+#[test]
+fn a_sharded_terrain_is_as_good_as_a_monolithic_one() {
+    against_monolithic(Shape::Terrain, 60_000, 500, false, "cluster");
+}
+
+#[test]
+fn a_sharded_closed_sphere_has_closed_cuts() {
+    against_monolithic(Shape::Sphere, 40_000, 1000, true, "cluster");
+}
+
+#[test]
+fn sharded_collapse_levels_are_as_good_as_monolithic_ones() {
+    against_monolithic(Shape::Scan, 40_000, 1000, false, "collapse");
+}
+
+/// Every file of a directory by name, with a checksum of its content (the
+/// timings of `store.json` and `shard.json` left out).
+fn files(d: &Path) -> Vec<(String, u32)> {
+    let mut v: Vec<(String, u32)> = std::fs::read_dir(d)
+        .unwrap()
+        .flatten()
+        .map(|e| {
+            let name = e.file_name().to_string_lossy().into_owned();
+            let mut b = std::fs::read(e.path()).unwrap();
+            if name.ends_with(".json") {
+                let mut j = json(&b);
+                strip_seconds(&mut j);
+                b = j.to_string().into_bytes();
+            }
+            (name, crc32c::crc32c(&b))
+        })
+        .collect();
+    v.sort();
+    v
+}
+
+fn strip_seconds(j: &mut serde_json::Value) {
+    match j {
+        serde_json::Value::Object(m) => {
+            m.retain(|k, _| k != "seconds");
+            m.values_mut().for_each(strip_seconds);
+        }
+        serde_json::Value::Array(a) => a.iter_mut().for_each(strip_seconds),
+        _ => {}
+    }
+}
+
+#[test]
+fn shards_are_idempotent_and_the_same_plan_gives_the_same_store() {
+    let d = tempfile::tempdir().unwrap();
+    let input = d.path().join("in.ply");
+    gen_with("scan", 30_000, &input, &["--normals"]);
+    let store = d.path().join("a.octolod");
+    let dirs = sharded(d.path(), &input, 3, &["--leaf-tris", "1000"], &store);
+    let plan = d.path().join("plan.json");
+    // A finished shard is recognised and left as it is.
+    let before = files(&dirs[1]);
+    let o = octolod_ok(&["build", s(&input), "--plan", s(&plan), "--shard", "1", "-o", s(&dirs[1])]);
+    assert!(out(&o).contains("already built"), "{}", out(&o));
+    assert_eq!(files(&dirs[1]), before);
+    // The same shards merged again (any order) give the same files; the
+    // store's id is the plan's.
+    let again = d.path().join("b.octolod");
+    octolod_ok(&["-q", "merge", s(&plan), s(&dirs[2]), s(&dirs[0]), s(&dirs[1]), "-o", s(&again), "--mem", "64M"]);
+    assert_eq!(files(&store), files(&again));
+    let p = json(&std::fs::read(&plan).unwrap());
+    assert_eq!(format!("{:016x}", Store::open(&store).unwrap().header.store_id), p["plan_id"].as_str().unwrap());
+    // A shard rebuilt from scratch is byte-identical.
+    let rebuilt = d.path().join("rebuilt");
+    octolod_ok(&["-q", "build", s(&input), "--plan", s(&plan), "--shard", "1", "-o", s(&rebuilt)]);
+    assert_eq!(files(&rebuilt), before);
+    // The plan's shards are listed largest first, and add up to the input.
+    let est: Vec<u64> = p["shards"].as_array().unwrap().iter().map(|x| x["est_triangles"].as_u64().unwrap()).collect();
+    assert!(est.windows(2).all(|w| w[0] >= w[1]), "{est:?}");
+    let total = p["triangles"].as_u64().unwrap();
+    assert!(est.iter().sum::<u64>().abs_diff(total) <= 3, "{est:?} against {total}");
+    assert!(est.iter().all(|&e| e.abs_diff(total / 3) < total / 30), "balanced: {est:?}");
+}
+
+#[test]
+fn a_stale_plan_and_foreign_or_missing_shards_are_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let input = d.path().join("in.ply");
+    gen("terrain", 20_000, &input);
+    let store = d.path().join("a.octolod");
+    let dirs = sharded(d.path(), &input, 2, &["--leaf-tris", "1000"], &store);
+    let plan = d.path().join("plan.json");
+    // Another plan of the same input (3 shards): its shards are not this plan's.
+    let other = d.path().join("other.json");
+    octolod_ok(&["-q", "plan", s(&input), "-o", s(&other), "--shards", "3", "--leaf-tris", "1000"]);
+    let foreign = d.path().join("foreign");
+    octolod_ok(&["-q", "build", s(&input), "--plan", s(&other), "--shard", "0", "-o", s(&foreign)]);
+    let out_path = d.path().join("m.octolod");
+    for (shards, want) in [(vec![&dirs[0]], "missing"), (vec![&dirs[0], &dirs[0], &dirs[1]], "given twice"), (vec![&dirs[0], &foreign], "not of this plan")] {
+        let mut args = vec!["-q", "merge", s(&plan)];
+        args.extend(shards.iter().map(|p| s(p)));
+        args.extend_from_slice(&["-o", s(&out_path)]);
+        let o = octolod(&args);
+        assert_ne!(o.status.code(), Some(0));
+        assert!(err(&o).contains(want), "{want}: {}", err(&o));
+        assert!(!out_path.exists(), "nothing left behind");
+    }
+    // An edited plan is refused.
+    let text = std::fs::read_to_string(&plan).unwrap().replace("\"leaf_tris\": 1000", "\"leaf_tris\": 999");
+    let edited = d.path().join("edited.json");
+    std::fs::write(&edited, text).unwrap();
+    let o = octolod(&["-q", "build", s(&input), "--plan", s(&edited), "--shard", "0", "-o", s(&d.path().join("x"))]);
+    assert_eq!(o.status.code(), Some(1), "{}", err(&o));
+    assert!(err(&o).contains("does not match its content"), "{}", err(&o));
+    // The input changed since the plan: refused, nothing written.
+    gen_with("terrain", 21_000, &input, &["--force"]);
+    let fresh = d.path().join("fresh");
+    let o = octolod(&["-q", "build", s(&input), "--plan", s(&plan), "--shard", "0", "-o", s(&fresh)]);
+    assert_ne!(o.status.code(), Some(0));
+    assert!(err(&o).contains("stale"), "{}", err(&o));
+    assert!(!fresh.exists());
+    // --force never replaces a directory that is not a shard.
+    let user = d.path().join("user");
+    std::fs::create_dir(&user).unwrap();
+    std::fs::write(user.join("notes.txt"), "mine").unwrap();
+    octolod_ok(&["-q", "plan", s(&input), "-o", s(&plan), "--shards", "2", "--force"]);
+    let o = octolod(&["-q", "--force", "build", s(&input), "--plan", s(&plan), "--shard", "0", "-o", s(&user)]);
+    assert_ne!(o.status.code(), Some(0));
+    assert_eq!(std::fs::read_to_string(user.join("notes.txt")).unwrap(), "mine");
+    // Nor a plan over a file that is not a plan.
+    let o = octolod(&["-q", "--force", "plan", s(&input), "-o", s(&user.join("notes.txt"))]);
+    assert_ne!(o.status.code(), Some(0));
+    assert_eq!(std::fs::read_to_string(user.join("notes.txt")).unwrap(), "mine");
+}
+
+#[test]
+fn a_shard_builds_within_its_mem() {
+    if measuring_child() {
+        return;
+    }
+    let d = tempfile::tempdir().unwrap();
+    let input = d.path().join("in.ply");
+    gen("terrain", 600_000, &input);
+    let plan = d.path().join("plan.json");
+    octolod_ok(&["-q", "plan", s(&input), "-o", s(&plan), "--shards", "2", "--mem", "16M"]);
+    let dir = d.path().join("shard-0");
+    let mem = 16u64 << 20;
+    let args = ["--quiet", "build", s(&input), "--plan", s(&plan), "--shard", "0", "-o", s(&dir), "--mem", "16M"];
+    let (code, _, stderr, peak) = run_measured(module_path!(), "a_shard_builds_within_its_mem", &args);
+    assert_eq!(code, Some(0), "{stderr}");
+    assert!(peak <= mem + (64 << 20), "peak RSS {} MiB under --mem 16M", peak >> 20);
+    eprintln!("shard 0 of a 600 K-triangle terrain under --mem 16M: peak RSS {:.1} MiB", peak as f64 / (1 << 20) as f64);
+}
