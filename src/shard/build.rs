@@ -65,11 +65,22 @@ pub fn build_shard(input: &Path, plan: &Plan, plan_path: &Path, shard: u32, out:
     let _input = crate::io::protect(input);
     let dir = AtomicDir::create(out, OutputKind::Shard, force)?;
     let whole = dir.path().join("input.soup");
-    let soup_opts = SoupOptions { mem, quiet, scratch: true, ..Default::default() };
-    let soup = crate::soup::build_soup(input, &whole, &soup_opts)?;
     let mine = dir.path().join("shard.soup");
-    let locks = keep_region(&whole, &mine, plan, shard)?;
-    std::fs::remove_file(&whole).ctx(&whole, "remove")?;
+    let soup_opts = SoupOptions { mem, quiet, scratch: true, ..Default::default() };
+    // On the soup's external path the shard's triangles are kept as they
+    // are placed (the whole soup is never written); on the in-memory path
+    // (small inputs) the whole soup is written and filtered.
+    let mut tap = RegionTap { plan, shard, out: mine.clone(), w: None, layout: None, locks: FxHashSet::default() };
+    let soup = crate::soup::build_soup_tapped(input, &whole, &soup_opts, Some(&mut tap))?;
+    let locks = if soup.written {
+        let locks = keep_region(&whole, &mine, plan, shard)?;
+        std::fs::remove_file(&whole).ctx(&whole, "remove")?;
+        locks
+    } else {
+        let w = tap.w.take().expect("the tap took the triangles");
+        w.commit(soup.header.input_vertices, soup.header.input_faces, soup.header.degenerate)?;
+        tap.locks
+    };
     let bbox = soup.header.bbox;
     if SoupReader::open(&mine)?.header.triangles == 0 {
         std::fs::remove_file(&mine).ctx(&mine, "remove")?;
@@ -162,6 +173,50 @@ fn build_to<S: NodeSimplifier>(b: LevelBuilder<S>, locks: FxHashSet<[u64; 3]>, s
     Ok(b.pause(stop))
 }
 
+/// Keeps the shard's triangles as the soup stage places them.
+struct RegionTap<'a> {
+    plan: &'a Plan,
+    shard: u32,
+    out: std::path::PathBuf,
+    w: Option<SoupWriter>,
+    layout: Option<crate::mesh::VertexLayout>,
+    locks: FxHashSet<[u64; 3]>,
+}
+
+impl crate::soup::SoupTap for RegionTap<'_> {
+    fn reserve(&self) -> u64 {
+        // The soup writer's buffer; the locks are few (the shard's border).
+        2 * crate::io::SEQ_BUF as u64
+    }
+    fn begin(&mut self, _bbox: &crate::mesh::Aabb, layout: crate::mesh::VertexLayout) -> Result<crate::soup::TapMode> {
+        self.w = Some(SoupWriter::create(&self.out, layout.attrs, false, true)?);
+        self.layout = Some(layout);
+        Ok(crate::soup::TapMode::Takes)
+    }
+    fn triangles(&mut self, records: &[u8]) -> Result<()> {
+        let (w, layout) = (self.w.as_mut().expect("begun"), self.layout.expect("begun"));
+        for rec in records.chunks_exact(3 * layout.size) {
+            keep_triangle(self.plan, self.shard, &layout, rec, w, &mut self.locks)?;
+        }
+        Ok(())
+    }
+}
+
+/// Keeps one soup record when its first corner is in `shard`'s region, and
+/// locks its corners when it straddles regions, one of them `shard`'s.
+#[inline]
+fn keep_triangle(plan: &Plan, shard: u32, layout: &crate::mesh::VertexLayout, rec: &[u8], w: &mut SoupWriter, locks: &mut FxHashSet<[u64; 3]>) -> Result<()> {
+    let c = [0, 1, 2].map(|k| layout.position(&rec[k * layout.size..]));
+    let region = c.map(|p| plan.shard_of(p));
+    if region[0] == shard {
+        w.push_encoded(rec)?;
+    }
+    if region.contains(&shard) && (region[1] != region[0] || region[2] != region[0]) {
+        locks.extend(c.map(pos_bits));
+    }
+    Ok(())
+}
+
 /// Copies the triangles of `whole` whose first corner lies in `shard`'s
 /// region into soup `mine`; gives the positions to lock (see the module doc).
 fn keep_region(whole: &Path, mine: &Path, plan: &Plan, shard: u32) -> Result<FxHashSet<[u64; 3]>> {
@@ -173,14 +228,7 @@ fn keep_region(whole: &Path, mine: &Path, plan: &Plan, shard: u32) -> Result<FxH
     let mut buf = Vec::new();
     while r.read_batch(&mut buf, 1 << 15)? > 0 {
         for rec in buf.chunks_exact(3 * layout.size) {
-            let c = [0, 1, 2].map(|k| layout.position(&rec[k * layout.size..]));
-            let region = c.map(|p| plan.shard_of(p));
-            if region[0] == shard {
-                w.push_encoded(rec)?;
-            }
-            if region.contains(&shard) && (region[1] != region[0] || region[2] != region[0]) {
-                locks.extend(c.map(pos_bits));
-            }
+            keep_triangle(plan, shard, &layout, rec, &mut w, &mut locks)?;
         }
     }
     w.commit(h.input_vertices, h.input_faces, h.degenerate)?;

@@ -140,6 +140,13 @@ fn shards_are_idempotent_and_the_same_plan_gives_the_same_store() {
     let rebuilt = d.path().join("rebuilt");
     octolod_ok(&["-q", "build", s(&input), "--plan", s(&plan), "--shard", "1", "-o", s(&rebuilt)]);
     assert_eq!(files(&rebuilt), before);
+    // Under a budget that sends the soup stage on its external path, the
+    // shard's triangles are kept as they are placed (no whole soup is
+    // written): the same chunks and packs.
+    let external = d.path().join("external");
+    octolod_ok(&["-q", "build", s(&input), "--plan", s(&plan), "--shard", "1", "-o", s(&external), "--mem", "256K"]);
+    let payload = |v: Vec<(String, u32)>| v.into_iter().filter(|(n, _)| !n.starts_with("shard.")).collect::<Vec<_>>();
+    assert_eq!(payload(files(&external)), payload(before.clone()));
     // The plan's shards are listed largest first, and add up to the input.
     let est: Vec<u64> = p["shards"].as_array().unwrap().iter().map(|x| x["est_triangles"].as_u64().unwrap()).collect();
     assert!(est.windows(2).all(|w| w[0] >= w[1]), "{est:?}");
