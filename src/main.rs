@@ -667,7 +667,8 @@ fn cmd_plan(input: &Path, output: &Path, shards: u32, shard_levels: Option<u8>, 
 #[allow(clippy::too_many_arguments, reason = "the command line's options, each distinct")]
 fn cmd_build_shard(input: &Path, output: &Path, plan_path: &Path, shard: u32, mem_arg: &str, json: bool, quiet: bool, force: bool) -> Result<ExitCode> {
     let plan = octolod::shard::Plan::read(plan_path)?;
-    let r = octolod::shard::build_shard(input, &plan, plan_path, shard, output, mem::parse_budget(mem_arg, "--mem")?, quiet || json, force)?;
+    let opts = octolod::shard::ShardOptions { mem: mem::parse_budget(mem_arg, "--mem")?, quiet: quiet || json, force };
+    let r = octolod::shard::build_shard(input, &plan, plan_path, shard, output, opts)?;
     let peak = peak_rss();
     if json {
         let mut v = serde_json::to_value(&r).expect("the report serializes");

@@ -610,8 +610,8 @@ fn self_node<S: NodeSimplifier>(
     let shared_at = |pi: usize| hits[pi].is_some() || cfg.extra_locked(&w.pos[pi]);
     // Locks: shared positions and attribute seams.
     let locked = w.locks_at(shared_at);
-    for pi in 0..hits.len() {
-        let (hit, sh) = (hits[pi].is_some(), shared_at(pi));
+    for (pi, hit) in hits.iter().enumerate() {
+        let (hit, sh) = (hit.is_some(), shared_at(pi));
         // Another shard's positions count with the seams (the level's
         // distinct shared positions come from the sort).
         p2.shared += hit as u64;

@@ -42,8 +42,19 @@ pub struct ShardReport {
     pub seconds: f64,
 }
 
+/// How one shard is built: the command's own options (the plan gives the rest).
+#[derive(Clone, Copy, Debug)]
+pub struct ShardOptions {
+    /// `--mem`, bytes.
+    pub mem: u64,
+    pub quiet: bool,
+    /// Replace an existing shard of another plan (`--force`).
+    pub force: bool,
+}
+
 /// Builds shard `shard` of `plan` (read from `plan_path`) from `input` into `out`.
-pub fn build_shard(input: &Path, plan: &Plan, plan_path: &Path, shard: u32, out: &Path, mem: u64, quiet: bool, force: bool) -> Result<ShardReport> {
+pub fn build_shard(input: &Path, plan: &Plan, plan_path: &Path, shard: u32, out: &Path, opts: ShardOptions) -> Result<ShardReport> {
+    let ShardOptions { mem, quiet, force } = opts;
     let t0 = Instant::now();
     if shard as usize >= plan.shards.len() {
         return Err(Error::Usage(format!("--shard {shard}: the plan has shards 0..{}", plan.shards.len())));

@@ -163,6 +163,7 @@ fn renumber(states: &[ShardState], stop: u8) -> Vec<Vec<u32>> {
 
 /// The store's level packs: each shard's, in shard order, page-aligned.
 /// Gives the bytes copied and where each shard's pack of each level starts.
+#[allow(clippy::needless_range_loop, reason = "one pack per level, each shard's part of it")]
 fn concat_packs(dirs: &[PathBuf], out: &Path, stop: u8) -> Result<(u64, Vec<Vec<u64>>)> {
     use std::io::Seek;
     let mut copied = 0u64;

@@ -5,9 +5,9 @@
 //! shards' coarsest levels.
 //!
 //! Takes: the input mesh (any format the soup stage reads) and a plan.
-//! Gives: `plan` → `PLAN.json` ([`plan`]); `build --plan --shard I` → one
-//! shard directory ([`build`], [`state`]); `merge` → one store that every
-//! command opens like a monolithic build's ([`merge`]).
+//! Gives: `plan` → `PLAN.json` ([`mod@plan`]); `build --plan --shard I` → one
+//! shard directory ([`mod@build`], [`state`]); `merge` → one store that every
+//! command opens like a monolithic build's ([`mod@merge`]).
 //!
 //! Invariants: a position that two shards hold is locked in both at every
 //! shard level, so the union of their levels is closed where the input
@@ -19,6 +19,6 @@ pub mod merge;
 pub mod plan;
 pub mod state;
 
-pub use build::{build_shard, ShardReport};
+pub use build::{build_shard, ShardOptions, ShardReport};
 pub use merge::{merge, MergeReport};
 pub use plan::{plan, Plan, PlanOptions};
