@@ -96,8 +96,11 @@ enum Cmd {
         #[arg(short, long)]
         output: PathBuf,
         /// Number of shards.
-        #[arg(long, default_value_t = 4)]
+        #[arg(long, default_value_t = 4, conflicts_with = "shard_tris")]
         shards: u32,
+        /// Instead of --shards: as many shards as hold about this many triangles each.
+        #[arg(long)]
+        shard_tris: Option<u64>,
         /// Levels each shard builds before the merge (default: as many as
         /// leave the smallest shard four leaves of triangles).
         #[arg(long)]
@@ -600,10 +603,11 @@ fn run(cli: Cli) -> Result<ExitCode> {
             cmd_build_shard(&input, &output, &plan, shard, &params.mem, json, quiet, force)
         }
         Cmd::Build { input, output, params, simplifier, .. } => cmd_build(&input, &output, &params, simplifier, quiet, force),
-        Cmd::Plan { input, output, shards, shard_levels, params, simplifier, json } => {
+        Cmd::Plan { input, output, shards, shard_tris, shard_levels, params, simplifier, json } => {
             let mut o = params.options(quiet, force)?;
             o.params.simplifier = simplifier;
-            cmd_plan(&input, &output, shards, shard_levels, o, json)
+            let opts = octolod::shard::PlanOptions { params: o.params, shards, shard_tris, shard_levels, quiet: quiet || json };
+            cmd_plan(&input, &output, &opts, force, json)
         }
         Cmd::Merge { plan, shards, output, mem, json } => cmd_merge(&plan, &shards, &output, &mem, json, quiet, force),
         Cmd::Info { store } => info(&store).map(|()| ExitCode::SUCCESS),
@@ -642,9 +646,8 @@ fn cmd_build(input: &Path, output: &Path, params: &BuildArgs, simplifier: octolo
     Ok(ExitCode::SUCCESS)
 }
 
-fn cmd_plan(input: &Path, output: &Path, shards: u32, shard_levels: Option<u8>, o: octolod::pipeline::BuildOptions, json: bool) -> Result<ExitCode> {
-    let opts = octolod::shard::PlanOptions { params: o.params, shards, shard_levels, quiet: o.quiet || json };
-    let p = octolod::shard::plan(input, output, &opts, o.force)?;
+fn cmd_plan(input: &Path, output: &Path, opts: &octolod::shard::PlanOptions, force: bool, json: bool) -> Result<ExitCode> {
+    let p = octolod::shard::plan(input, output, opts, force)?;
     if json {
         out!("{}", serde_json::to_string_pretty(&p).expect("the plan serializes"));
     } else {

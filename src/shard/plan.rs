@@ -118,6 +118,9 @@ pub struct Plan {
 pub struct PlanOptions {
     pub params: BuildParams,
     pub shards: u32,
+    /// Instead of `shards`: as many shards as hold about this many
+    /// triangles each (`--shard-tris`).
+    pub shard_tris: Option<u64>,
     /// Levels the shards build; default: as many as leave the smallest
     /// shard at least four leaves' worth of triangles.
     pub shard_levels: Option<u8>,
@@ -261,16 +264,26 @@ fn split_into(pts: &mut [[f64; 3]], first: u32, count: u32, split: &mut Vec<Spli
     for p in pts.iter() {
         b.add(*p);
     }
-    let axis = if b.is_empty() { 0 } else { (0..3).max_by(|&i, &j| (b.max[i] - b.min[i]).total_cmp(&(b.max[j] - b.min[j]))).unwrap_or(0) };
     let below_n = count / 2;
     let k = (pts.len() as u64 * below_n as u64 / count as u64) as usize;
-    let at = if pts.is_empty() {
-        0.0
-    } else {
-        let k = k.min(pts.len() - 1);
-        pts.select_nth_unstable_by(k, |a, c| a[axis].total_cmp(&c[axis]));
-        pts[k][axis]
-    };
+    // The longest axis whose median plane splits near the target: many
+    // points on one plane (a grid's rows, a flat part) can leave an axis
+    // unable to, and then the next longest is tried.
+    let mut axes = [0usize, 1, 2];
+    if !b.is_empty() {
+        axes.sort_by(|&i, &j| (b.max[j] - b.min[j]).total_cmp(&(b.max[i] - b.min[i])));
+    }
+    let mut best: Option<(usize, f64, usize)> = None;
+    for axis in axes {
+        let (at, off) = plane(pts, axis, k);
+        if best.is_none_or(|b| off < b.2) {
+            best = Some((axis, at, off));
+        }
+        if off <= pts.len() / 100 {
+            break;
+        }
+    }
+    let (axis, at, _) = best.expect("three axes tried");
     // The side is the rule `p[axis] < at`, not the selection's order.
     let mut i = 0;
     for j in 0..pts.len() {
@@ -286,11 +299,32 @@ fn split_into(pts: &mut [[f64; 3]], first: u32, count: u32, split: &mut Vec<Spli
     me
 }
 
+/// The plane across `axis` with about `k` of `pts` below it (`p[axis] <
+/// at`), and how far from `k` its count is.
+fn plane(pts: &mut [[f64; 3]], axis: usize, k: usize) -> (f64, usize) {
+    if pts.is_empty() {
+        return (0.0, 0);
+    }
+    let kk = k.min(pts.len() - 1);
+    pts.select_nth_unstable_by(kk, |a, c| a[axis].total_cmp(&c[axis]));
+    let at = pts[kk][axis];
+    let below = pts.iter().filter(|p| p[axis] < at).count();
+    let upto = pts.iter().filter(|p| p[axis] <= at).count();
+    if upto.abs_diff(k) < below.abs_diff(k) {
+        (at.next_up(), upto.abs_diff(k))
+    } else {
+        (at, below.abs_diff(k))
+    }
+}
+
 /// `octolod plan`: reads `input` once and writes the plan to `out`.
 pub fn plan(input: &Path, out: &Path, opts: &PlanOptions, force: bool) -> Result<Plan> {
     let t0 = std::time::Instant::now();
     if opts.shards == 0 || opts.shards > MAX_SHARDS {
         return Err(Error::Usage(format!("--shards must be within 1..={MAX_SHARDS}, not {}", opts.shards)));
+    }
+    if opts.shard_tris == Some(0) {
+        return Err(Error::Usage("--shard-tris must be at least 1".into()));
     }
     crate::lod::check_params(&opts.params)?;
     let _input = crate::io::protect(input);
@@ -309,7 +343,11 @@ pub fn plan(input: &Path, out: &Path, opts: &PlanOptions, force: bool) -> Result
     let mut split = Vec::new();
     let mut parts = Vec::new();
     let total = s.sample.len() as u64;
-    split_into(&mut s.sample, 0, opts.shards, &mut split, &mut parts);
+    let count = match opts.shard_tris {
+        Some(t) => s.triangles.div_ceil(t).clamp(1, MAX_SHARDS as u64) as u32,
+        None => opts.shards,
+    };
+    split_into(&mut s.sample, 0, count, &mut split, &mut parts);
     let mut shards: Vec<ShardPlan> = parts
         .into_iter()
         .map(|(index, pts)| {
@@ -358,4 +396,70 @@ fn default_shard_levels(p: &BuildParams, smallest: u64) -> u8 {
         l += 1;
     }
     l
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn plan_of(split: Vec<Split>, n: u32) -> Plan {
+        let mut p = Plan {
+            format: PLAN_FORMAT.into(),
+            version: PLAN_VERSION,
+            plan_id: String::new(),
+            input: InputId { path: "x".into(), bytes: 1, mtime_ns: 2, head_fnv: "3".into() },
+            params: BuildParams::default(),
+            shard_levels: 0,
+            triangles: 10,
+            vertices: 10,
+            split,
+            shards: (0..n).map(|index| ShardPlan { index, est_triangles: 1, sample_box: [0.0; 6] }).collect(),
+            seconds: 0.0,
+        };
+        p.plan_id = p.content_id();
+        p
+    }
+
+    #[test]
+    fn the_split_balances_the_sample_and_places_every_point_where_it_was_counted() {
+        let mut rng = Rng::new(3);
+        // Clustered points, with ties on one axis (a flat sheet).
+        let pts: Vec<[f64; 3]> = (0..20_000).map(|i| [rng.f64().powi(3), if i % 2 == 0 { 0.5 } else { rng.f64() }, 0.0]).collect();
+        for n in [1u32, 2, 3, 5, 16] {
+            let (mut split, mut parts) = (Vec::new(), Vec::new());
+            split_into(&mut pts.clone(), 0, n, &mut split, &mut parts);
+            let p = plan_of(split, n);
+            p.check_split().unwrap();
+            let mut counts = vec![0usize; n as usize];
+            for (s, part) in &parts {
+                for q in part {
+                    assert_eq!(p.shard_of(*q), *s, "{n} shards: a point counted in {s}");
+                }
+                counts[*s as usize] = part.len();
+            }
+            assert_eq!(counts.iter().sum::<usize>(), pts.len());
+            let even = pts.len() / n as usize;
+            assert!(counts.iter().all(|&c| c.abs_diff(even) <= even / 50 + 1), "{n} shards: {counts:?}");
+        }
+    }
+
+    #[test]
+    fn a_plan_reads_back_and_an_edited_one_is_refused() {
+        let d = tempfile::tempdir().unwrap();
+        let (mut split, mut parts) = (Vec::new(), Vec::new());
+        split_into(&mut vec![[0.1, 0.2, 0.3], [0.7, 0.1, 0.9], [0.5, 0.5, 0.5]], 0, 2, &mut split, &mut parts);
+        let p = plan_of(split, 2);
+        let path = d.path().join("p.json");
+        p.write(&path, false).unwrap();
+        assert_eq!(Plan::read(&path).unwrap(), p);
+        // Floats read back bit for bit (the id is over their text).
+        let text = std::fs::read_to_string(&path).unwrap().replace("\"mtime_ns\": 2", "\"mtime_ns\": 4");
+        std::fs::write(&path, text).unwrap();
+        assert!(Plan::read(&path).unwrap_err().to_string().contains("does not match its content"));
+        // A plan whose shards and split disagree is refused.
+        let mut q = plan_of(vec![Split::Shard(0)], 2);
+        q.plan_id = q.content_id();
+        std::fs::write(&path, serde_json::to_string(&q).unwrap()).unwrap();
+        assert!(Plan::read(&path).is_err());
+    }
 }

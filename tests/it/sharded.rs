@@ -163,9 +163,11 @@ fn a_stale_plan_and_foreign_or_missing_shards_are_refused() {
     let store = d.path().join("a.octolod");
     let dirs = sharded(d.path(), &input, 2, &["--leaf-tris", "1000"], &store);
     let plan = d.path().join("plan.json");
-    // Another plan of the same input (3 shards): its shards are not this plan's.
+    // Another plan of the same input (3 shards, by --shard-tris): its
+    // shards are not this plan's.
     let other = d.path().join("other.json");
-    octolod_ok(&["-q", "plan", s(&input), "-o", s(&other), "--shards", "3", "--leaf-tris", "1000"]);
+    octolod_ok(&["-q", "plan", s(&input), "-o", s(&other), "--shard-tris", "7000", "--leaf-tris", "1000"]);
+    assert_eq!(json(&std::fs::read(&other).unwrap())["shards"].as_array().unwrap().len(), 3);
     let foreign = d.path().join("foreign");
     octolod_ok(&["-q", "build", s(&input), "--plan", s(&other), "--shard", "0", "-o", s(&foreign)]);
     let out_path = d.path().join("m.octolod");
