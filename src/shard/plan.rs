@@ -311,9 +311,20 @@ fn plane(pts: &mut [[f64; 3]], axis: usize, k: usize) -> (f64, usize) {
     let below = pts.iter().filter(|p| p[axis] < at).count();
     let upto = pts.iter().filter(|p| p[axis] <= at).count();
     if upto.abs_diff(k) < below.abs_diff(k) {
-        (at.next_up(), upto.abs_diff(k))
+        (next_up(at), upto.abs_diff(k))
     } else {
         (at, below.abs_diff(k))
+    }
+}
+
+/// The smallest f64 above finite `x` (`f64::next_up`, newer than the MSRV).
+fn next_up(x: f64) -> f64 {
+    if x == 0.0 {
+        f64::from_bits(1)
+    } else if x > 0.0 {
+        f64::from_bits(x.to_bits() + 1)
+    } else {
+        f64::from_bits(x.to_bits() - 1)
     }
 }
 
@@ -447,7 +458,7 @@ mod tests {
     fn a_plan_reads_back_and_an_edited_one_is_refused() {
         let d = tempfile::tempdir().unwrap();
         let (mut split, mut parts) = (Vec::new(), Vec::new());
-        split_into(&mut vec![[0.1, 0.2, 0.3], [0.7, 0.1, 0.9], [0.5, 0.5, 0.5]], 0, 2, &mut split, &mut parts);
+        split_into(&mut [[0.1, 0.2, 0.3], [0.7, 0.1, 0.9], [0.5, 0.5, 0.5]], 0, 2, &mut split, &mut parts);
         let p = plan_of(split, 2);
         let path = d.path().join("p.json");
         p.write(&path, false).unwrap();
