@@ -226,10 +226,17 @@ struct Sampler {
     sample: Vec<[f64; 3]>,
     rng: Rng,
     triangles: u64,
+    file: std::path::PathBuf,
 }
 
 impl BodySink for Sampler {
-    fn vertices(&mut self, _first: u64, batch: &[Vertex]) -> Result<()> {
+    fn vertices(&mut self, first: u64, batch: &[Vertex]) -> Result<()> {
+        if let Some(k) = batch.iter().position(|v| !v.pos.iter().all(|x| x.is_finite())) {
+            return Err(Error::input(
+                Location { file: self.file.clone(), element: Some("vertex".into()), record: Some(first + k as u64), ..Default::default() },
+                "a non-finite coordinate",
+            ));
+        }
         for v in batch {
             self.bbox.add(v.pos);
             if self.sample.len() < self.cap {
@@ -344,7 +351,7 @@ pub fn plan(input: &Path, out: &Path, opts: &PlanOptions, force: bool) -> Result
     let progress = Progress::bytes(id.bytes, "planning", opts.quiet);
     let header = crate::input::read_header(input, &progress)?;
     let cap = ((opts.params.mem / 4 / 24) as usize).clamp(1 << 12, MAX_SAMPLE);
-    let mut s = Sampler { bbox: Aabb::EMPTY, seen: 0, cap, sample: Vec::new(), rng: Rng::new(0x5eed_0c70), triangles: 0 };
+    let mut s = Sampler { bbox: Aabb::EMPTY, seen: 0, cap, sample: Vec::new(), rng: Rng::new(0x5eed_0c70), triangles: 0, file: input.to_path_buf() };
     let scratch = crate::io::scratch_dir(out)?;
     let stats = crate::input::read_body(input, &header, opts.params.mem, scratch.path(), &mut s, &progress)?;
     progress.finish();

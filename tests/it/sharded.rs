@@ -202,6 +202,18 @@ fn a_stale_plan_and_foreign_or_missing_shards_are_refused() {
     let o = octolod(&["-q", "--force", "build", s(&input), "--plan", s(&plan), "--shard", "0", "-o", s(&user)]);
     assert_ne!(o.status.code(), Some(0));
     assert_eq!(std::fs::read_to_string(user.join("notes.txt")).unwrap(), "mine");
+    // A non-finite coordinate: exit 1 naming the record, no plan written.
+    let nan = d.path().join("nan.ply");
+    std::fs::write(
+        &nan,
+        "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 nan 0\n0 1 0\n3 0 1 2\n",
+    )
+    .unwrap();
+    let nan_plan = d.path().join("nan.json");
+    let o = octolod(&["-q", "plan", s(&nan), "-o", s(&nan_plan)]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(err(&o).contains("record 1"), "{}", err(&o));
+    assert!(!nan_plan.exists());
     // Nor a plan over a file that is not a plan.
     let o = octolod(&["-q", "--force", "plan", s(&input), "-o", s(&user.join("notes.txt"))]);
     assert_ne!(o.status.code(), Some(0));
