@@ -157,7 +157,10 @@ fn bad_budget_is_a_usage_error() {
 
 #[test]
 fn missing_input_names_the_path() {
-    let o = octolod(&["soup", "/nonexistent/x.ply", "-o", "/tmp/x.soup"]);
+    // The output in a directory of its own: a /tmp/x.soup left by anything
+    // else would be refused first.
+    let dir = tempfile::tempdir().unwrap();
+    let o = octolod(&["soup", "/nonexistent/x.ply", "-o", s(&dir.path().join("x.soup"))]);
     assert!(!o.status.success());
     assert!(err(&o).contains("/nonexistent/x.ply: open"), "{}", err(&o));
 }
