@@ -5,7 +5,8 @@
 //! `ply` (stream PLY) → `soup` (out-of-core dereference into a triangle
 //! soup) → `octree` (level-0 partition) → `lod` (levels of detail, with
 //! `quadric`) → `store` → `view`, plus `simplify` (one mesh of the size or
-//! error asked, from a store) and `metro`.
+//! error asked, from a store) and `metro`; `shard` runs the same build as
+//! shards on many machines and merges them.
 //! Shared plumbing: [`mesh`] (attribute model), [`geom`] (closest points,
 //! BVH), [`error`], [`io`], [`progress`], [`extsort`], [`mem`].
 
