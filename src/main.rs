@@ -41,8 +41,8 @@ struct Cli {
     #[arg(long, short, global = true)]
     quiet: bool,
     /// Replace an existing output of the same kind (a store, a PLY, glTF or
-    /// soup octolod wrote, a render or tileset directory). Anything else is
-    /// never replaced.
+    /// soup octolod wrote, a render or tileset directory, a plan or a
+    /// shard). Anything else is never replaced.
     #[arg(long, global = true)]
     force: bool,
     #[command(subcommand)]
