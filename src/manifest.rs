@@ -7,7 +7,6 @@
 //! (the index, `nodes.bin`, is the truth).
 
 use crate::error::{Error, IoContext, Location, Result};
-use std::io::Read;
 use std::path::Path;
 
 /// Largest `store.json` read (a real one is a few KiB: a line per level).
@@ -169,15 +168,7 @@ impl Manifest {
 
     pub fn read(dir: &Path) -> Result<Manifest> {
         let path = dir.join("store.json");
-        let (f, len) = crate::io::open_regular(&path, "open")?;
-        if len > MAX_MANIFEST {
-            return Err(Error::input(
-                Location { file: path.clone(), ..Default::default() },
-                format!("a manifest of {len} bytes (at most {MAX_MANIFEST} are read)"),
-            ));
-        }
-        let mut text = String::new();
-        f.take(MAX_MANIFEST).read_to_string(&mut text).ctx(&path, "read")?;
-        serde_json::from_str(&text).map_err(|e| Error::input(Location { file: path.clone(), ..Default::default() }, format!("bad manifest: {e}")))
+        let text = crate::io::read_bounded(&path, MAX_MANIFEST, "a manifest")?;
+        serde_json::from_slice(&text).map_err(|e| Error::input(Location { file: path.clone(), ..Default::default() }, format!("bad manifest: {e}")))
     }
 }

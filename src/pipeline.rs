@@ -107,7 +107,8 @@ pub fn build_store(input: &Path, output: &Path, opts: &BuildOptions) -> Result<B
     Ok(report)
 }
 
-fn dir_bytes(d: &Path) -> u64 {
+/// Bytes of the files directly in `d` (a store's size on disk).
+pub(crate) fn dir_bytes(d: &Path) -> u64 {
     std::fs::read_dir(d).map(|it| it.filter_map(|e| e.ok()).filter_map(|e| e.metadata().ok()).map(|m| m.len()).sum()).unwrap_or(0)
 }
 

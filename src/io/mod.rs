@@ -50,6 +50,23 @@ pub fn open_regular(path: &std::path::Path, op: &'static str) -> Result<(File, u
     Ok((f, len))
 }
 
+/// The whole of regular file `path`, refused (naming it as `what`, e.g.
+/// "a manifest") when it is longer than `max` bytes, which are all that is
+/// read: small metadata files (manifests, plans, shard states).
+pub fn read_bounded(path: &std::path::Path, max: u64, what: &str) -> Result<Vec<u8>> {
+    use std::io::Read;
+    let (f, len) = open_regular(path, "open")?;
+    if len > max {
+        return Err(crate::error::Error::input(
+            crate::error::Location { file: path.to_path_buf(), ..Default::default() },
+            format!("{what} of {len} bytes (at most {max} are read)"),
+        ));
+    }
+    let mut b = Vec::with_capacity(len as usize);
+    f.take(max).read_to_end(&mut b).ctx(path, "read")?;
+    Ok(b)
+}
+
 /// The length of `f` (opened from `path`), refusing what is not a regular
 /// file: a FIFO, a device (`/dev/zero`) or a directory would hang, never
 /// end, or fail late, since inputs and stores are read more than once and

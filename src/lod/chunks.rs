@@ -177,18 +177,6 @@ impl ChunkFile {
         &self.refs
     }
 
-    /// A finished chunk file written before, with its chunks (`refs`) and
-    /// `targets` leaves: a shard's level handed to the merge.
-    pub fn reopen(path: PathBuf, layout: VertexLayout, a_len: usize, refs: Vec<ChunkRef>, targets: usize) -> Result<ChunkFile> {
-        let pos = refs.iter().map(|r| r.offset + r.bytes as u64).max().unwrap_or(0);
-        let mut c = ChunkFile { path, w: None, pos, layout, a_len, refs, by_target: Vec::new(), reader: None };
-        if c.refs.iter().any(|r| r.target as usize >= targets) {
-            return Err(Error::input(Location { file: c.path.clone(), ..Default::default() }, "a chunk targets a leaf the level does not have"));
-        }
-        c.finish(targets)?;
-        Ok(c)
-    }
-
     /// Bytes written.
     pub fn bytes(&self) -> u64 {
         self.pos

@@ -187,20 +187,46 @@ pub fn build(input: Level0Source, dir: &Path, opts: &LodOptions) -> Result<Built
     };
     check_level_count(&opts.params, l0.header.triangles)?;
     let attrs = l0.header.attrs;
-    // The one place a simplifier is chosen.
+    struct Whole<'a> {
+        l0: Level0,
+        dir: &'a Path,
+        scratch: crate::io::ScratchDir,
+        opts: &'a LodOptions,
+    }
+    impl WithSimplifier for Whole<'_> {
+        type Out = Result<Built>;
+        fn run<S: NodeSimplifier>(self, s: S) -> Result<Built> {
+            build_levels(LevelBuilder::new(self.l0, self.dir, self.scratch, self.opts, s), 0, random_id())
+        }
+    }
+    with_simplifier(opts, attrs, Whole { l0, dir, scratch, opts })
+}
+
+/// Work generic over the node simplifier (a generic closure, as a trait):
+/// [`with_simplifier`] runs it with the one `--simplifier` chose.
+pub trait WithSimplifier {
+    type Out;
+    fn run<S: NodeSimplifier>(self, s: S) -> Self::Out;
+}
+
+/// The one place a simplifier is chosen: runs `w` with `opts`' simplifier
+/// for a mesh with `attrs` (a new simplifier is a type and a line here).
+pub fn with_simplifier<W: WithSimplifier>(opts: &LodOptions, attrs: crate::mesh::AttrSet, w: W) -> W::Out {
     match opts.params.simplifier {
-        Simplifier::Cluster => build_levels(LevelBuilder::new(l0, dir, scratch, opts, ClusterNodes { attrs, rel_tol: opts.rel_tol })),
-        Simplifier::Collapse => build_levels(LevelBuilder::new(l0, dir, scratch, opts, CollapseNodes { attrs })),
+        Simplifier::Cluster => w.run(ClusterNodes { attrs, rel_tol: opts.rel_tol }),
+        Simplifier::Collapse => w.run(CollapseNodes { attrs }),
     }
 }
 
-fn build_levels<S: NodeSimplifier>(mut b: LevelBuilder<S>) -> Result<Built> {
-    for level in 0..=MAX_LEVELS {
+/// Builds the levels from `from` up to the top, then links the DAG under
+/// store id `id` (a whole build from level 0, a merge from the shards' top).
+pub fn build_levels<S: NodeSimplifier>(mut b: LevelBuilder<S>, from: u8, id: u64) -> Result<Built> {
+    for level in from..=MAX_LEVELS {
         if !b.build_level(level)? {
             break;
         }
     }
-    b.finish(random_id())
+    b.finish(id)
 }
 
 fn leaf_stats(m: &IndexedMesh) -> LeafStats {

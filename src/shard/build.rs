@@ -12,16 +12,15 @@
 //! far are the shard's output ([`super::state`]).
 
 use super::plan::Plan;
-use super::state::{is_complete, ShardState};
+use super::state::ShardState;
 use crate::error::{Error, IoContext, Result};
 use crate::geom::pos_bits;
 use crate::io::{AtomicDir, OutputKind};
 use crate::lod::level::{LevelBuilder, Paused};
 use crate::lod::octree::build_octree;
 use crate::lod::partition::LevelCube;
-use crate::lod::simplifier::{ClusterNodes, CollapseNodes, NodeSimplifier};
-use crate::lod::LodOptions;
-use crate::manifest::Simplifier;
+use crate::lod::simplifier::NodeSimplifier;
+use crate::lod::{with_simplifier, LodOptions, WithSimplifier};
 use crate::soup::format::{SoupReader, SoupWriter};
 use crate::soup::SoupOptions;
 use rustc_hash::FxHashSet;
@@ -60,8 +59,7 @@ pub fn build_shard(input: &Path, plan: &Plan, plan_path: &Path, shard: u32, out:
         return Err(Error::Usage(format!("--shard {shard}: the plan has shards 0..{}", plan.shards.len())));
     }
     plan.input.check(&super::plan::InputId::of(input)?, plan_path)?;
-    if is_complete(out, plan.store_id(), shard) {
-        let s = ShardState::read(out)?;
+    if let Some(s) = ShardState::read(out).ok().filter(|s| s.plan_id == plan.store_id() && s.shard == shard) {
         return Ok(ShardReport {
             shard,
             skipped: true,
@@ -108,10 +106,7 @@ pub fn build_shard(input: &Path, plan: &Plan, plan_path: &Path, shard: u32, out:
     let attrs = l0.header.attrs;
     let stop = plan.shard_levels;
     let n_locks = locks.len() as u64;
-    let paused = match plan.params.simplifier {
-        Simplifier::Cluster => build_to(LevelBuilder::new(l0, dir.path(), scratch, &lo, ClusterNodes { attrs, rel_tol: lo.rel_tol }), locks, stop, shard)?,
-        Simplifier::Collapse => build_to(LevelBuilder::new(l0, dir.path(), scratch, &lo, CollapseNodes { attrs }), locks, stop, shard)?,
-    };
+    let paused = with_simplifier(&lo, attrs, ShardLevels { l0, dir: dir.path(), scratch, lo: &lo, locks, stop, shard })?;
     let state = ShardState::from_paused(paused, dir.path(), plan.store_id(), shard, attrs, bbox, soup.header.triangles, triangles)?;
     let seconds = t0.elapsed().as_secs_f64();
     state.write(dir.path(), n_locks, seconds)?;
@@ -132,11 +127,15 @@ pub fn build_shard(input: &Path, plan: &Plan, plan_path: &Path, shard: u32, out:
 /// no node, an empty top level, empty packs.
 fn empty_shard(dir: AtomicDir, plan: &Plan, shard: u32, whole: crate::soup::format::SoupHeader, t0: Instant) -> Result<ShardReport> {
     let layout = whole.layout();
-    let carried = match plan.params.simplifier {
-        Simplifier::Cluster => ClusterNodes { attrs: whole.attrs, rel_tol: 0.0 }.carried_len(),
-        Simplifier::Collapse => CollapseNodes { attrs: whole.attrs }.carried_len(),
-    };
-    let a_len = if plan.shard_levels == 0 { 0 } else { carried };
+    struct CarriedLen;
+    impl WithSimplifier for CarriedLen {
+        type Out = usize;
+        fn run<S: NodeSimplifier>(self, s: S) -> usize {
+            s.carried_len()
+        }
+    }
+    let lo = LodOptions { params: plan.params.clone(), ..Default::default() };
+    let a_len = if plan.shard_levels == 0 { 0 } else { with_simplifier(&lo, whole.attrs, CarriedLen) };
     let mut chunks = crate::lod::chunks::ChunkFile::create(dir.path().join("chunks.tmp"), layout, a_len)?;
     chunks.finish(0)?;
     for level in 0..plan.shard_levels as usize {
@@ -171,7 +170,26 @@ fn empty_shard(dir: AtomicDir, plan: &Plan, shard: u32, whole: crate::soup::form
     })
 }
 
-/// Levels `0..stop` with the other shards' positions locked, then paused.
+/// A shard's levels `0..stop` with the other shards' positions locked,
+/// then paused.
+struct ShardLevels<'a> {
+    l0: crate::lod::octree::Level0,
+    dir: &'a Path,
+    scratch: crate::io::ScratchDir,
+    lo: &'a LodOptions,
+    locks: FxHashSet<[u64; 3]>,
+    stop: u8,
+    shard: u32,
+}
+
+impl WithSimplifier for ShardLevels<'_> {
+    type Out = Result<Paused>;
+    fn run<S: NodeSimplifier>(self, s: S) -> Result<Paused> {
+        let b = LevelBuilder::new(self.l0, self.dir, self.scratch, self.lo, s);
+        build_to(b, self.locks, self.stop, self.shard)
+    }
+}
+
 fn build_to<S: NodeSimplifier>(b: LevelBuilder<S>, locks: FxHashSet<[u64; 3]>, stop: u8, shard: u32) -> Result<Paused> {
     let mut b = b.for_shard(locks, stop);
     for level in 0..stop {

@@ -17,9 +17,9 @@ use crate::io::{AtomicDir, OutputKind};
 use crate::lod::chunks::ChunkFile;
 use crate::lod::level::{LevelBuilder, Paused};
 use crate::lod::octree::OctreeReport;
-use crate::lod::simplifier::{ClusterNodes, CollapseNodes, NodeSimplifier};
-use crate::lod::{Built, LodOptions, MAX_LEVELS};
-use crate::manifest::{LevelReport, Manifest, ManifestSeconds, Simplifier};
+use crate::lod::simplifier::NodeSimplifier;
+use crate::lod::{build_levels, with_simplifier, Built, LodOptions, WithSimplifier};
+use crate::manifest::{LevelReport, Manifest, ManifestSeconds};
 use crate::mesh::VertexLayout;
 use crate::soup::format::SoupHeader;
 use crate::store::{pack_file, write_index, PAGE};
@@ -68,15 +68,10 @@ pub fn merge(plan: &Plan, shards: &[PathBuf], out: &Path, mem: u64, quiet: bool,
         bbox: first.bbox,
     };
     let attrs = first.attrs;
-    let built = match plan.params.simplifier {
-        Simplifier::Cluster => {
-            resume(LevelBuilder::resume(paused, header, dir.path(), scratch, &lo, ClusterNodes { attrs, rel_tol: lo.rel_tol }), stop, plan.store_id())?
-        }
-        Simplifier::Collapse => resume(LevelBuilder::resume(paused, header, dir.path(), scratch, &lo, CollapseNodes { attrs }), stop, plan.store_id())?,
-    };
+    let built = with_simplifier(&lo, attrs, Resume { paused, header, dir: dir.path(), scratch, lo: &lo, stop, id: plan.store_id() })?;
     write_index(dir.path(), &built.header, &built.nodes, &built.children, &built.parents)?;
     let seconds = t0.elapsed().as_secs_f64();
-    let disk_bytes = std::fs::read_dir(dir.path()).map(|it| it.flatten().filter_map(|e| e.metadata().ok()).map(|m| m.len()).sum()).unwrap_or(0);
+    let disk_bytes = crate::pipeline::dir_bytes(dir.path());
     let manifest = Manifest {
         format: "octolod-store".into(),
         version: crate::store::VERSION,
@@ -104,13 +99,22 @@ pub fn merge(plan: &Plan, shards: &[PathBuf], out: &Path, mem: u64, quiet: bool,
     })
 }
 
-fn resume<S: NodeSimplifier>(mut b: LevelBuilder<S>, stop: u8, id: u64) -> Result<Built> {
-    for level in stop..=MAX_LEVELS {
-        if !b.build_level(level)? {
-            break;
-        }
+/// The union's levels from the shards' top up to the root.
+struct Resume<'a> {
+    paused: Paused,
+    header: SoupHeader,
+    dir: &'a Path,
+    scratch: crate::io::ScratchDir,
+    lo: &'a LodOptions,
+    stop: u8,
+    id: u64,
+}
+
+impl WithSimplifier for Resume<'_> {
+    type Out = Result<Built>;
+    fn run<S: NodeSimplifier>(self, s: S) -> Result<Built> {
+        build_levels(LevelBuilder::resume(self.paused, self.header, self.dir, self.scratch, self.lo, s), self.stop, self.id)
     }
-    b.finish(id)
 }
 
 /// Every shard of the plan, once, complete, of this plan, alike.

@@ -160,14 +160,9 @@ impl Plan {
 
     /// Reads and checks a plan file.
     pub fn read(path: &Path) -> Result<Plan> {
-        let (f, len) = crate::io::open_regular(path, "open")?;
         let bad = |msg: String| Error::input(Location { file: path.to_path_buf(), ..Default::default() }, msg);
-        if len > MAX_PLAN {
-            return Err(bad(format!("{len} bytes: more than a plan's {MAX_PLAN}")));
-        }
-        let mut text = String::new();
-        f.take(MAX_PLAN).read_to_string(&mut text).ctx(path, "read")?;
-        let p: Plan = serde_json::from_str(&text).map_err(|e| bad(format!("not an octolod plan: {e}")))?;
+        let text = crate::io::read_bounded(path, MAX_PLAN, "a plan")?;
+        let p: Plan = serde_json::from_slice(&text).map_err(|e| bad(format!("not an octolod plan: {e}")))?;
         if p.format != PLAN_FORMAT || p.version != PLAN_VERSION {
             return Err(bad(format!("format {:?} version {}: not an octolod plan of version {PLAN_VERSION}", p.format, p.version)));
         }

@@ -323,10 +323,10 @@ impl ShardState {
     /// Reads a shard directory's state (and its reports from `shard.json`).
     pub fn read(dir: &Path) -> Result<ShardState> {
         let path = dir.join("shard.state");
-        let b = read_bounded(&path, MAX_STATE)?;
+        let b = crate::io::read_bounded(&path, MAX_STATE, "a shard state")?;
         let mut s = ShardState::decode(&b, &path)?;
         let jpath = dir.join("shard.json");
-        let j: ShardJson = serde_json::from_slice(&read_bounded(&jpath, 64 << 20)?)
+        let j: ShardJson = serde_json::from_slice(&crate::io::read_bounded(&jpath, 64 << 20, "a shard report")?)
             .map_err(|e| Error::input(Location { file: jpath.clone(), ..Default::default() }, format!("not a shard report: {e}")))?;
         if !j.complete || j.shard != s.shard || j.plan_id != format!("{:016x}", s.plan_id) {
             return Err(Error::input(Location { file: jpath, ..Default::default() }, "does not match shard.state"));
@@ -339,22 +339,6 @@ impl ShardState {
     pub fn chunks_path(dir: &Path) -> PathBuf {
         dir.join("chunks.bin")
     }
-}
-
-/// Whether `dir` holds the complete shard `shard` of plan `plan_id`.
-pub fn is_complete(dir: &Path, plan_id: u64, shard: u32) -> bool {
-    ShardState::read(dir).is_ok_and(|s| s.plan_id == plan_id && s.shard == shard)
-}
-
-fn read_bounded(path: &Path, max: u64) -> Result<Vec<u8>> {
-    use std::io::Read;
-    let (f, len) = crate::io::open_regular(path, "open")?;
-    if len > max {
-        return Err(Error::input(Location { file: path.to_path_buf(), ..Default::default() }, format!("{len} bytes, more than the {max} read")));
-    }
-    let mut b = Vec::with_capacity(len as usize);
-    f.take(max).read_to_end(&mut b).ctx(path, "read")?;
-    Ok(b)
 }
 
 fn write_synced(path: &Path, b: &[u8]) -> Result<()> {
