@@ -363,6 +363,14 @@ impl<M: GpuBytes> Cache<M> {
                     v.sort_unstable_by(|a, b| b.cmp(a)); // pop() gives the oldest
                     v
                 });
+                // Evict only when that makes room: evictions that leave the
+                // load unissued free memory the prefetch refills, and the
+                // next frame evicts it again, without end.
+                let evictable: u64 = v.iter().map(|(_, u)| self.entries.get(u).map_or(0, |e| e.charged)).sum();
+                if self.charged.saturating_sub(evictable) + need > self.budget {
+                    left += 1;
+                    continue;
+                }
                 while self.charged + need > self.budget {
                     let Some((_, victim)) = v.pop() else { break };
                     if let Some(e) = self.entries.remove(&victim) {

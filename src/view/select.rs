@@ -176,6 +176,12 @@ pub struct Selection {
     pub visited: Vec<Unit>,
     /// Loads wanted now, highest priority first: (node, priority).
     pub wanted: Vec<(Unit, f64)>,
+    /// Resident nodes a wanted load would complete (a refinement needs a
+    /// node with every ancestor it lacks, all at once): kept from eviction
+    /// like the visited ones, or loading the rest could evict them, and
+    /// with a budget that fits only part of such a group every frame
+    /// would evict and load again without end.
+    pub held: Vec<Unit>,
     /// Loads worth doing if memory is free (prefetch), after `wanted`.
     pub prefetch: Vec<(Unit, f64)>,
     /// Triangles the cut draws (all selected nodes' patches, visible or not).
@@ -312,10 +318,13 @@ impl Selector {
                     missing.push(x);
                     stack.extend(h.parents(x).iter().copied().filter(|&q| !sel.selected[q as usize]));
                 }
-                let not_ready: Vec<Unit> = missing.iter().copied().filter(|&x| !ready(x)).collect();
-                if !not_ready.is_empty() {
-                    for x in not_ready {
-                        sel.wanted.push((x, p));
+                if missing.iter().any(|&x| !ready(x)) {
+                    for &x in &missing {
+                        if ready(x) {
+                            sel.held.push(x);
+                        } else {
+                            sel.wanted.push((x, p));
+                        }
                     }
                     continue;
                 }

@@ -194,6 +194,7 @@ impl<M: GpuBytes> Viewer<M> {
         let cache = &self.cache;
         let sel = self.selector.select(&self.hierarchy, cam, viewport, &|u| cache.is_ready(u));
         self.cache.touch(&sel.visited, self.frame);
+        self.cache.touch(&sel.held, self.frame);
         let needed = sel.visited.len() as u64;
         let missing = sel.wanted.len() as u64;
         self.cache.counters.hits += needed;

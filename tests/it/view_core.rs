@@ -320,3 +320,36 @@ fn max_error_counts_only_what_is_on_screen() {
     assert!(v.selection().budget_limited > 0);
     assert!(st.max_error_px > 1.0, "a budget-limited close-up reports {} px", st.max_error_px);
 }
+
+/// At every RAM budget from the smallest that opens the store up, a still
+/// camera settles within a few frames: a refinement that needs several
+/// nodes at once keeps the ones it has while it loads the rest, so a budget
+/// that fits only part of such a group never evicts and reloads it without
+/// end (at `--ram 100K` on this sphere every frame did, 602 of them).
+#[test]
+fn every_budget_settles_without_reloading_without_end() {
+    let dir = tempfile::tempdir().unwrap();
+    let (ply, _) = common::gen_ply_seeded(dir.path(), Shape::Sphere, 20_000, 0, 5);
+    let params = octolod::manifest::BuildParams { leaf_tris: 1000, root_tris: 500, ..Default::default() };
+    let st = common::build_store_at(dir.path(), &ply, &common::build_options(params));
+    let mut settled = 0;
+    for ram in (40u64..=400).step_by(6).map(|k| k << 10) {
+        let Ok(mut v) = Viewer::<DrawMesh>::open(&st, opts(ram)) else { continue };
+        let b = v.bounds();
+        let mut cam = Camera::frame_all(&b, DVec3::Z, 45.0);
+        cam.fit_clip(&b);
+        let mut frames = 0;
+        let s = loop {
+            frames += 1;
+            let s = v.frame(&cam, (200, 150), &mut up);
+            if s.settled || frames == 200 {
+                break s;
+            }
+            v.wait_for_loads();
+        };
+        assert!(frames < 50, "--ram {} KiB: not settled after {frames} frames ({} loads, {} evictions)", ram >> 10, s.loads_done, s.evictions);
+        settled += 1;
+    }
+    assert!(settled > 40, "{settled} budgets opened the store");
+}
+
