@@ -126,6 +126,11 @@ enum Cmd {
         /// Working-memory budget (e.g. 512M, 2G).
         #[arg(long, default_value = mem::DEFAULT_BUDGET_ARG)]
         mem: String,
+        /// Copy the shards' packs into the store's own (one pack file per
+        /// level) instead of hard-linking them in as parts (the default; a
+        /// shard on another filesystem is copied either way).
+        #[arg(long)]
+        copy: bool,
         /// Print the report as JSON.
         #[arg(long)]
         json: bool,
@@ -540,6 +545,7 @@ fn print_build(r: &octolod::pipeline::BuildReport) -> Result<()> {
 
 fn main() -> ExitCode {
     octolod::mem::limit_arenas();
+    octolod::io::raise_open_files();
     // Rust starts with SIGPIPE ignored: a closed stdout (`octolod info S |
     // head -1`) is then an error on write ([`out!`]), which unwinds the
     // command like any error (its temp paths removed, nothing committed
@@ -609,7 +615,7 @@ fn run(cli: Cli) -> Result<ExitCode> {
             let opts = octolod::shard::PlanOptions { params: o.params, shards, shard_tris, shard_levels, quiet: quiet || json };
             cmd_plan(&input, &output, &opts, force, json)
         }
-        Cmd::Merge { plan, shards, output, mem, json } => cmd_merge(&plan, &shards, &output, &mem, json, quiet, force),
+        Cmd::Merge { plan, shards, output, mem, copy, json } => cmd_merge(&plan, &shards, &output, &mem, copy, json, quiet, force),
         Cmd::Info { store } => info(&store).map(|()| ExitCode::SUCCESS),
         Cmd::Tiles(args) => cmd_tiles(args, quiet, force),
         Cmd::Extract(args) => cmd_extract(args, force),
@@ -696,9 +702,11 @@ fn cmd_build_shard(input: &Path, output: &Path, plan_path: &Path, shard: u32, me
     Ok(ExitCode::SUCCESS)
 }
 
-fn cmd_merge(plan_path: &Path, shards: &[PathBuf], output: &Path, mem_arg: &str, json: bool, quiet: bool, force: bool) -> Result<ExitCode> {
+#[allow(clippy::too_many_arguments, reason = "the command's flags")]
+fn cmd_merge(plan_path: &Path, shards: &[PathBuf], output: &Path, mem_arg: &str, copy: bool, json: bool, quiet: bool, force: bool) -> Result<ExitCode> {
     let plan = octolod::shard::Plan::read(plan_path)?;
-    let r = octolod::shard::merge(&plan, shards, output, mem::parse_budget(mem_arg, "--mem")?, quiet || json, force)?;
+    let o = octolod::shard::MergeOptions { mem: mem::parse_budget(mem_arg, "--mem")?, quiet: quiet || json, force, copy };
+    let r = octolod::shard::merge(&plan, shards, output, o)?;
     let peak = peak_rss();
     if json {
         let mut v = serde_json::to_value(&r).expect("the report serializes");
@@ -706,11 +714,12 @@ fn cmd_merge(plan_path: &Path, shards: &[PathBuf], output: &Path, mem_arg: &str,
         out!("{v}");
     } else {
         out!(
-            "merge: {} shards, {} nodes, {} levels; simplified {} triangles of the shards' tops; copied {}; {:.2} s; peak RSS {} -> {}",
+            "merge: {} shards, {} nodes, {} levels; simplified {} triangles of the shards' tops; packs linked {}, copied {}; {:.2} s; peak RSS {} -> {}",
             r.shards,
             r.nodes,
             r.levels,
             r.merged_triangles,
+            octolod::progress::mib(r.linked_bytes),
             octolod::progress::mib(r.copied_bytes),
             r.seconds,
             peak.map(octolod::progress::mib).unwrap_or_else(|| "n/a".into()),

@@ -37,11 +37,16 @@ use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 
 pub const MAGIC: [u8; 8] = crate::io::STORE_MAGIC;
-pub const VERSION: u32 = 2;
+/// The newest format version this octolod writes and reads. Version 3 is
+/// version 2 with two record fields that were zero there: a node's pack
+/// part and patch shift (a merged sharded store's); a store that uses
+/// neither is written as version 2, so older readers still open it.
+pub const VERSION: u32 = 3;
+/// The oldest version read (2: levels of detail v2).
+const OLDEST: u32 = 2;
 pub const PAGE: u64 = 4096;
 pub const NO_NODE: u32 = u32::MAX;
 const HEADER: usize = 128;
-const NODE_REC: usize = 160;
 /// Flag bit: payload vertices carry normals computed at build time.
 const FLAG_DERIVED_NORMALS: u32 = 1;
 
@@ -77,7 +82,7 @@ pub struct NodeRec {
     /// Object-space error of the node's triangles against the input
     /// (measured, maxed over descendants: never below a child's).
     pub error: f32,
-    /// Payload in `level-{level}.pack`.
+    /// Payload in pack file `part` of its level ([`pack_file_part`]).
     pub offset: u64,
     pub bytes: u32,
     pub tris: u32,
@@ -92,7 +97,63 @@ pub struct NodeRec {
     /// Parents: `Store::parents[first_parent..][..parent_count]`.
     pub first_parent: u32,
     pub parent_count: u32,
+    /// Which of its level's pack files holds the payload: 0 the store's
+    /// own `level-L.pack`, p > 0 `level-L.part-p.pack` (a shard's pack,
+    /// linked in place by `merge`).
+    pub part: u32,
+    /// Added (wrapping) to the payload's patch child ids to give store
+    /// ids: a shard's payloads name children by the shard's own ids, and
+    /// the merge keeps the bytes as they are (0 in every other store).
+    pub patch_shift: u32,
 }
+
+impl NodeRec {
+    /// Appends the record's [`NODE_REC`] bytes (the layout in
+    /// `docs/store-format.md`); the shard state stores records this way too.
+    pub fn encode(&self, b: &mut Vec<u8>) {
+        let at = b.len();
+        b.extend_from_slice(&[self.level, 0, 0, 0]);
+        put_aabb(b, &self.cell);
+        put_aabb(b, &self.bounds);
+        b.extend_from_slice(&self.error.to_le_bytes());
+        b.extend_from_slice(&self.offset.to_le_bytes());
+        let w = [self.bytes, self.tris, self.verts, self.crc, self.first_child, self.child_count, self.first_parent, self.parent_count, self.simp_tris];
+        for x in w.into_iter().chain([self.part, self.patch_shift]) {
+            b.extend_from_slice(&x.to_le_bytes());
+        }
+        debug_assert!(b.len() - at <= NODE_REC);
+        b.resize(at + NODE_REC, 0);
+    }
+
+    /// Decodes the record at the start of `b` (at least [`NODE_REC`] bytes).
+    pub fn decode(b: &[u8]) -> NodeRec {
+        let u32_at = |o: usize| u32::from_le_bytes(b[o..o + 4].try_into().unwrap());
+        let f64_at = |o: usize| f64::from_le_bytes(b[o..o + 8].try_into().unwrap());
+        let aabb = |o: usize| Aabb { min: [f64_at(o), f64_at(o + 8), f64_at(o + 16)], max: [f64_at(o + 24), f64_at(o + 32), f64_at(o + 40)] };
+        let w = |k: usize| u32_at(112 + 4 * k);
+        NodeRec {
+            level: b[0],
+            cell: aabb(4),
+            bounds: aabb(52),
+            error: f32::from_le_bytes(b[100..104].try_into().unwrap()),
+            offset: u64::from_le_bytes(b[104..112].try_into().unwrap()),
+            bytes: w(0),
+            tris: w(1),
+            verts: w(2),
+            crc: w(3),
+            first_child: w(4),
+            child_count: w(5),
+            first_parent: w(6),
+            parent_count: w(7),
+            simp_tris: w(8),
+            part: w(9),
+            patch_shift: w(10),
+        }
+    }
+}
+
+/// Bytes of a [`NodeRec`] in `nodes.bin` and in a shard's state.
+pub const NODE_REC: usize = 160;
 
 /// One patch of a node: the triangles `first..first + count` came from `child`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -213,6 +274,13 @@ pub fn decode_payload(layout: &VertexLayout, b: &[u8], file: &Path, offset: u64)
     Ok(NodeMesh { mesh: IndexedMesh { vertices, triangles }, patches })
 }
 
+/// Turns a payload's patch child ids into store ids ([`NodeRec::patch_shift`]).
+pub fn shift_patches(patches: &mut [Patch], shift: u32) {
+    for p in patches.iter_mut().filter(|p| p.child != NO_NODE) {
+        p.child = p.child.wrapping_add(shift);
+    }
+}
+
 /// Appends page-aligned payloads to one level's pack file.
 pub struct PackWriter {
     path: PathBuf,
@@ -252,18 +320,53 @@ impl PackWriter {
 /// before the index that makes the store readable, so a store that opens
 /// has its payload on disk. (No slower than syncing each pack when
 /// complete: `docs/build-costs.md`, "Syncs".)
-pub fn sync_packs(dir: &Path, levels: usize) -> Result<()> {
-    for level in 0..levels {
-        let path = pack_file(dir, level);
+pub fn sync_packs(dir: &Path, nodes: &[NodeRec]) -> Result<()> {
+    for (level, part) in packs_of(nodes) {
+        let path = pack_file_part(dir, level, part);
         File::open(&path).ctx(&path, "open pack file")?.sync_all().ctx(&path, "sync")?;
     }
     Ok(())
+}
+
+/// The (level, part) pack files `nodes` have payloads in, in order.
+pub fn packs_of(nodes: &[NodeRec]) -> std::collections::BTreeSet<(u8, u32)> {
+    nodes.iter().map(|n| (n.level, n.part)).collect()
+}
+
+/// The format version a store of `nodes` is written as: 2 unless a node
+/// uses a field version 3 added.
+pub fn format_version(nodes: &[NodeRec]) -> u32 {
+    if nodes.iter().any(|n| n.part != 0 || n.patch_shift != 0) {
+        VERSION
+    } else {
+        OLDEST
+    }
 }
 
 /// The pack file of `level` in store directory `dir`.
 pub fn pack_file(dir: &Path, level: usize) -> PathBuf {
     dir.join(format!("level-{level}.pack"))
 }
+
+/// Pack file `part` of `level` (see [`NodeRec::part`]).
+pub fn pack_file_part(dir: &Path, level: u8, part: u32) -> PathBuf {
+    if part == 0 {
+        pack_file(dir, level as usize)
+    } else {
+        dir.join(pack_part_name(level, part))
+    }
+}
+
+/// The name of pack file `part` > 0 of `level`.
+pub fn pack_part_name(level: u8, part: u32) -> String {
+    format!("level-{level}.part-{part}.pack")
+}
+
+/// Header bytes 36..40 of `nodes.bin`: the highest part number any node
+/// uses (0 when every payload is in the store's own packs).
+pub const HEADER_PARTS_AT: usize = 36;
+/// The most pack parts per level a store may have.
+pub const MAX_PARTS: u32 = 1 << 16;
 
 fn put_aabb(b: &mut Vec<u8>, a: &Aabb) {
     for v in a.min.iter().chain(a.max.iter()) {
@@ -276,29 +379,19 @@ pub fn write_index(dir: &Path, h: &StoreHeader, nodes: &[NodeRec], children: &[u
     let path = dir.join("nodes.bin");
     let mut b = Vec::with_capacity(HEADER + nodes.len() * NODE_REC + 4 * (children.len() + parents.len()));
     b.extend_from_slice(&MAGIC);
-    for x in [VERSION, h.attrs.0, if h.derived_normals { FLAG_DERIVED_NORMALS } else { 0 }, h.levels] {
+    for x in [format_version(nodes), h.attrs.0, if h.derived_normals { FLAG_DERIVED_NORMALS } else { 0 }, h.levels] {
         b.extend_from_slice(&x.to_le_bytes());
     }
     b.extend_from_slice(&(nodes.len() as u64).to_le_bytes());
     b.extend_from_slice(&h.root.to_le_bytes());
-    b.extend_from_slice(&[0u8; 4]);
+    b.extend_from_slice(&nodes.iter().map(|n| n.part).max().unwrap_or(0).to_le_bytes());
     b.extend_from_slice(&h.store_id.to_le_bytes());
     b.extend_from_slice(&(children.len() as u64).to_le_bytes());
     b.extend_from_slice(&(parents.len() as u64).to_le_bytes());
     put_aabb(&mut b, &h.bbox);
     b.resize(HEADER, 0);
     for n in nodes {
-        let at = b.len();
-        b.extend_from_slice(&[n.level, 0, 0, 0]);
-        put_aabb(&mut b, &n.cell);
-        put_aabb(&mut b, &n.bounds);
-        b.extend_from_slice(&n.error.to_le_bytes());
-        b.extend_from_slice(&n.offset.to_le_bytes());
-        for x in [n.bytes, n.tris, n.verts, n.crc, n.first_child, n.child_count, n.first_parent, n.parent_count, n.simp_tris] {
-            b.extend_from_slice(&x.to_le_bytes());
-        }
-        debug_assert!(b.len() - at <= NODE_REC);
-        b.resize(at + NODE_REC, 0);
+        n.encode(&mut b);
     }
     for &c in children.iter().chain(parents) {
         b.extend_from_slice(&c.to_le_bytes());
@@ -315,7 +408,7 @@ pub struct Store {
     /// Pack files, opened once when the store is opened: a store rewritten
     /// in place later (`build --force` swaps the directory) cannot mix its
     /// new payloads into this reader's old index.
-    packs: Vec<File>,
+    packs: std::collections::BTreeMap<(u8, u32), File>,
     pub dir: PathBuf,
     pub header: StoreHeader,
     pub nodes: Vec<NodeRec>,
@@ -345,10 +438,15 @@ impl Store {
         let f64_at = |o: usize| f64::from_le_bytes(b[o..o + 8].try_into().unwrap());
         let aabb = |o: usize| Aabb { min: [f64_at(o), f64_at(o + 8), f64_at(o + 16)], max: [f64_at(o + 24), f64_at(o + 32), f64_at(o + 40)] };
         let version = u32_at(8);
-        if version != VERSION {
+        if !(OLDEST..=VERSION).contains(&version) {
             return Err(bad(format!(
-                "store format version {version}; this octolod reads version {VERSION}: rebuild the store with `octolod build` (levels of detail v2 changed the format)"
+                "store format version {version}; this octolod reads versions {OLDEST} to {VERSION}: rebuild the store with `octolod build`{}",
+                if version < OLDEST { " (levels of detail v2 changed the format)" } else { " of this version" }
             )));
+        }
+        let parts = u32_at(HEADER_PARTS_AT);
+        if parts > MAX_PARTS || (version < 3 && parts != 0) {
+            return Err(bad(format!("{parts} pack parts declared (a version {version} store has 0 to {})", if version < 3 { 0 } else { MAX_PARTS })));
         }
         let attrs = AttrSet::from_bits(u32_at(12)).ok_or_else(|| bad("unknown attribute bits".into()))?;
         let flags = u32_at(16);
@@ -363,18 +461,6 @@ impl Store {
         let levels = u32_at(20);
         if levels == 0 || levels > 256 {
             return Err(bad(format!("{levels} levels declared (a store has 1 to 256)")));
-        }
-        // Every payload starts a page of its level's pack.
-        let mut packs = Vec::with_capacity(levels as usize);
-        let mut pages = 0u64;
-        for l in 0..levels as usize {
-            let p = pack_file(dir, l);
-            let (f, plen) = crate::io::open_regular(&p, "open pack file")?;
-            pages += plen.div_ceil(PAGE);
-            packs.push(f);
-        }
-        if n > pages {
-            return Err(bad(format!("{n} nodes declared, but the level packs hold only {pages} pages (each payload starts one)")));
         }
         if len > MAX_INDEX {
             return Err(bad(format!("an index of {len} bytes: larger than any store octolod builds ({MAX_INDEX} bytes)")));
@@ -392,29 +478,21 @@ impl Store {
         b.resize(len as usize, 0);
         f.read_exact(&mut b[HEADER..]).ctx(&path, "read")?;
         let u32_at = |o: usize| u32::from_le_bytes(b[o..o + 4].try_into().unwrap());
-        let u64_at = |o: usize| u64::from_le_bytes(b[o..o + 8].try_into().unwrap());
-        let f64_at = |o: usize| f64::from_le_bytes(b[o..o + 8].try_into().unwrap());
-        let aabb = |o: usize| Aabb { min: [f64_at(o), f64_at(o + 8), f64_at(o + 16)], max: [f64_at(o + 24), f64_at(o + 32), f64_at(o + 40)] };
-        let mut nodes = Vec::with_capacity(n);
-        for i in 0..n {
-            let o = HEADER + i * NODE_REC;
-            let w = |k: usize| u32_at(o + 112 + 4 * k);
-            nodes.push(NodeRec {
-                level: b[o],
-                cell: aabb(o + 4),
-                bounds: aabb(o + 52),
-                error: f32::from_le_bytes(b[o + 100..o + 104].try_into().unwrap()),
-                offset: u64_at(o + 104),
-                bytes: w(0),
-                tris: w(1),
-                verts: w(2),
-                crc: w(3),
-                first_child: w(4),
-                child_count: w(5),
-                first_parent: w(6),
-                parent_count: w(7),
-                simp_tris: w(8),
-            });
+        let nodes: Vec<NodeRec> = (0..n).map(|i| NodeRec::decode(&b[HEADER + i * NODE_REC..])).collect();
+        if let Some((i, r)) = nodes.iter().enumerate().find(|(_, r)| r.part > parts || (version < 3 && r.patch_shift != 0)) {
+            return Err(bad(format!("node {i}: pack part {} or patch shift {} beyond what the header declares", r.part, r.patch_shift)));
+        }
+        // Every payload starts a page of its pack.
+        let mut packs = std::collections::BTreeMap::new();
+        let mut pages = 0u64;
+        for (level, part) in packs_of(&nodes) {
+            let p = pack_file_part(dir, level, part);
+            let (f, plen) = crate::io::open_regular(&p, "open pack file")?;
+            pages += plen.div_ceil(PAGE);
+            packs.insert((level, part), f);
+        }
+        if n as u64 > pages {
+            return Err(bad(format!("{n} nodes declared, but the packs hold only {pages} pages (each payload starts one)")));
         }
         let lists = HEADER + n * NODE_REC;
         let list = |from: usize, len: u64| (0..len as usize).map(|k| u32_at(from + 4 * k)).collect::<Vec<u32>>();
@@ -423,7 +501,7 @@ impl Store {
         let payload_attrs = attrs.with(AttrSet::NORMAL, attrs.normal() || header.derived_normals);
         let mut s = Store {
             _protect: crate::io::protect(dir),
-            packs: Vec::new(),
+            packs: std::collections::BTreeMap::new(),
             dir: dir.to_path_buf(),
             layout: VertexLayout::new(attrs),
             payload_layout: VertexLayout::new(payload_attrs),
@@ -441,9 +519,11 @@ impl Store {
     /// Every node's payload lies inside its level's pack file (so no read
     /// asks for more than the file holds, whatever the record says).
     fn check_pack_ranges(&self) -> Result<()> {
-        let len = (0..self.packs.len()).map(|l| Ok(self.packs[l].metadata().ctx(self.pack_path(l), "open pack file")?.len())).collect::<Result<Vec<u64>>>()?;
+        let mut len = std::collections::BTreeMap::new();
+        for (&k, f) in &self.packs {
+            len.insert(k, f.metadata().ctx(pack_file_part(&self.dir, k.0, k.1), "open pack file")?.len());
+        }
         for (i, n) in self.nodes.iter().enumerate() {
-            let l = n.level as usize;
             // The record's counts give the payload's exact size (see the
             // module doc): damaged counts are an error here, not a node no
             // budget can load.
@@ -458,10 +538,11 @@ impl Store {
                     ),
                 ));
             }
-            if n.offset.checked_add(n.bytes as u64).is_none_or(|e| e > len[l]) {
+            let have = len[&(n.level, n.part)];
+            if n.offset.checked_add(n.bytes as u64).is_none_or(|e| e > have) {
                 return Err(Error::input(
-                    Location { file: self.pack_path(l), offset: Some(n.offset), ..Default::default() },
-                    format!("node {i}: payload of {} bytes at {} lies beyond the pack file's {} bytes", n.bytes, n.offset, len[l]),
+                    Location { file: self.pack_path_of(i), offset: Some(n.offset), ..Default::default() },
+                    format!("node {i}: payload of {} bytes at {} lies beyond the pack file's {have} bytes", n.bytes, n.offset),
                 ));
             }
         }
@@ -554,15 +635,16 @@ impl Store {
         &self.parents[n.first_parent as usize..n.first_parent as usize + n.parent_count as usize]
     }
 
-    pub fn pack_path(&self, level: usize) -> PathBuf {
-        pack_file(&self.dir, level)
+    /// The pack file holding node `id`'s payload.
+    pub fn pack_path_of(&self, id: usize) -> PathBuf {
+        let n = &self.nodes[id];
+        pack_file_part(&self.dir, n.level, n.part)
     }
 
     /// Reads node `id`'s payload with one positioned read, checking its CRC.
     pub fn read_node(&self, id: usize) -> Result<NodeMesh> {
         let n = &self.nodes[id];
-        let path = self.pack_path(n.level as usize);
-        let bytes = read_at(&self.packs[n.level as usize], &path, n.offset, n.bytes)?;
+        let bytes = read_at(&self.packs[&(n.level, n.part)], &self.pack_path_of(id), n.offset, n.bytes)?;
         self.decode_node(id, &bytes)
     }
 
@@ -570,12 +652,13 @@ impl Store {
     /// CRC and that the counts match the node record.
     pub fn decode_node(&self, id: usize, bytes: &[u8]) -> Result<NodeMesh> {
         let n = &self.nodes[id];
-        let path = self.pack_path(n.level as usize);
+        let path = self.pack_path_of(id);
         let bad = |msg: String| Error::input(Location { file: path.clone(), offset: Some(n.offset), ..Default::default() }, format!("node {id}: {msg}"));
         if crc32c::crc32c(bytes) != n.crc {
             return Err(bad("payload checksum mismatch (the store is damaged or was rewritten)".into()));
         }
-        let m = decode_payload(&self.payload_layout, bytes, &path, n.offset)?;
+        let mut m = decode_payload(&self.payload_layout, bytes, &path, n.offset)?;
+        shift_patches(&mut m.patches, n.patch_shift);
         if m.mesh.vertices.len() != n.verts as usize || m.mesh.triangles.len() != n.tris as usize {
             return Err(bad(format!(
                 "payload holds {} vertices and {} triangles, the index says {} and {}",
@@ -629,12 +712,11 @@ impl Store {
         let mut mesh = Mesh::default();
         let mut weld = crate::geom::Welder::default();
         for i in self.level_nodes(level) {
-            let n = &self.nodes[i];
             let m = self.read_node(i)?.mesh;
             let ids: Vec<u32> = m.vertices.iter().map(|v| weld.id(v.pos, |p| mesh.positions.push(p))).collect();
             for t in &m.triangles {
                 if t.iter().any(|&k| k as usize >= ids.len()) {
-                    return Err(Error::input(loc(self.pack_path(n.level as usize)), format!("node {i}: vertex index out of range")));
+                    return Err(Error::input(loc(self.pack_path_of(i)), format!("node {i}: vertex index out of range")));
                 }
                 mesh.triangles.push(t.map(|k| ids[k as usize]));
             }

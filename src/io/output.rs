@@ -139,10 +139,10 @@ impl OutputKind {
     fn own_entries(self, dir: &Path) -> OwnEntries {
         match self {
             OutputKind::Store => {
-                let levels = head(&dir.join("nodes.bin"), 24).filter(|b| b.len() == 24).map_or(0, |b| u32::from_le_bytes(b[20..24].try_into().unwrap()));
-                let mut v: Vec<PathBuf> = ["nodes.bin", "store.json"].iter().map(PathBuf::from).collect();
-                v.extend((0..levels.min(256)).map(|l| PathBuf::from(format!("level-{l}.pack"))));
-                OwnEntries::Listed(v)
+                // The header's levels (bytes 20..24) and pack parts (36..40).
+                let h = head(&dir.join("nodes.bin"), 40).unwrap_or_default();
+                let at = |o: usize| h.get(o..o + 4).map_or(0, |b| u32::from_le_bytes(b.try_into().unwrap()));
+                OwnEntries::Store { levels: at(20).min(256), parts: at(crate::store::HEADER_PARTS_AT).min(crate::store::MAX_PARTS) }
             }
             OutputKind::Shard => {
                 // The state's byte 24: the level the shard stopped before.
@@ -168,6 +168,9 @@ impl OutputKind {
 /// What octolod wrote inside a directory output.
 enum OwnEntries {
     Listed(Vec<PathBuf>),
+    /// A store's index, manifest, level packs and pack parts (a merged
+    /// sharded store's links to its shards' packs).
+    Store { levels: u32, parts: u32 },
     /// An older render directory: `frame-N.png`, `stats.csv`, `stats.json`,
     /// the marker, `reference/frame-N.png`.
     RenderNames,
@@ -179,6 +182,15 @@ impl OwnEntries {
     fn holds(&self, rel: &Path) -> bool {
         match self {
             OwnEntries::Listed(v) => v.iter().any(|p| p == rel),
+            OwnEntries::Store { levels, parts } => {
+                let s = rel.to_string_lossy();
+                let num = |d: &str| (!d.is_empty() && d.len() < 10 && d.bytes().all(|c| c.is_ascii_digit()) && !(d.len() > 1 && d.starts_with('0'))).then(|| d.parse::<u32>().ok()).flatten();
+                let pack = s.strip_prefix("level-").and_then(|r| r.strip_suffix(".pack")).map(|r| match r.split_once(".part-") {
+                    Some((l, p)) => num(l).is_some_and(|l| l < *levels) && num(p).is_some_and(|p| p >= 1 && p <= *parts),
+                    None => num(r).is_some_and(|l| l < *levels),
+                });
+                s == "nodes.bin" || s == "store.json" || pack == Some(true)
+            }
             OwnEntries::All => true,
             OwnEntries::RenderNames => {
                 let s = rel.to_string_lossy();
@@ -1031,6 +1043,43 @@ mod tests {
         a.commit().unwrap();
         assert_eq!(names(&p), ["nodes.bin"]);
         assert_eq!(names(d.path()), ["s.octolod"]);
+    }
+
+    /// A merged store's pack parts are its own up to its header's part
+    /// number; a part beyond it, or a name like one, is not.
+    #[test]
+    fn a_merged_stores_pack_parts_are_its_own() {
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("s.octolod");
+        fake_store(&p, b"old");
+        let mut b = fs::read(p.join("nodes.bin")).unwrap();
+        b.resize(40, 0);
+        b[20..24].copy_from_slice(&2u32.to_le_bytes());
+        b[36..40].copy_from_slice(&3u32.to_le_bytes());
+        fs::write(p.join("nodes.bin"), b).unwrap();
+        for f in ["level-0.part-1.pack", "level-1.part-3.pack", "level-1.pack"] {
+            fs::write(p.join(f), b"").unwrap();
+        }
+        let own = OutputKind::Store.own_entries(&p);
+        for (f, mine) in [
+            ("level-1.part-3.pack", true),
+            ("level-1.part-4.pack", false),
+            ("level-2.part-1.pack", false),
+            ("level-0.part-0.pack", false),
+            ("level-0.part-01.pack", false),
+            ("level-0.part-.pack", false),
+            ("level-1.pack", true),
+            ("level-2.pack", false),
+        ] {
+            assert_eq!(own.holds(Path::new(f)), mine, "{f}");
+        }
+        fs::write(p.join("level-0.part-9.pack"), b"mine").unwrap();
+        assert!(AtomicDir::create(&p, OutputKind::Store, true).is_err());
+        fs::remove_file(p.join("level-0.part-9.pack")).unwrap();
+        let a = AtomicDir::create(&p, OutputKind::Store, true).unwrap();
+        fake_store(a.path(), b"new");
+        a.commit().unwrap();
+        assert_eq!(names(&p), ["nodes.bin"]);
     }
 
     #[test]

@@ -447,6 +447,8 @@ impl<'a, S: NodeSimplifier> LevelBuilder<'a, S> {
                     child_count: 0,
                     first_parent: 0,
                     parent_count: 0,
+                    part: 0,
+                    patch_shift: 0,
                 });
                 dag.children.push(r.children);
                 dag.simp_err.push(r.error);
@@ -504,7 +506,7 @@ impl<'a, S: NodeSimplifier> LevelBuilder<'a, S> {
     pub fn finish(self, store_id: u64) -> Result<Built> {
         let Dag { mut nodes, children: node_children, .. } = self.dag;
         let (children, parents) = link_dag(&mut nodes, &node_children);
-        crate::store::sync_packs(self.cfg.dir, self.reports.len())?;
+        crate::store::sync_packs(self.cfg.dir, &nodes)?;
         let header = StoreHeader {
             attrs: self.cfg.attrs,
             derived_normals: self.cfg.derived,
@@ -825,6 +827,8 @@ mod tests {
             child_count: 9,
             first_parent: 9,
             parent_count: 9,
+            part: 0,
+            patch_shift: 0,
         };
         let mut nodes = vec![rec(0), rec(0), rec(0), rec(1), rec(1), rec(2)];
         let kids = vec![vec![], vec![], vec![], vec![0, 1], vec![1, 2], vec![4, 3]];

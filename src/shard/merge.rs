@@ -1,9 +1,15 @@
 //! `octolod merge PLAN SHARD... -o STORE`: one store from a plan's shards.
 //!
 //! The shards' nodes are renumbered level by level (the store's nodes are
-//! in level order), their level packs concatenated page-aligned into the
-//! store's (`copy_file_range`: a reflink on filesystems that have them),
-//! and the union of their top levels — each shard's leaves, overlapping
+//! in level order). Their level packs are taken as they are: hard-linked
+//! into the store as pack parts (`level-L.part-P.pack`, P = shard + 1; no
+//! byte copied, and the store stays whole when the shards are deleted),
+//! copied part by part where a link cannot be made (another filesystem),
+//! or, with `--copy`, concatenated page-aligned into the store's own
+//! `level-L.pack` (`copy_file_range`: a reflink on filesystems that have
+//! them). Payload bytes are never rewritten: a payload names its children
+//! by the shard's ids, and its record's patch shift turns them into the
+//! store's (`store::NodeRec::patch_shift`). The union of their top levels — each shard's leaves, overlapping
 //! cells allowed, and their chunks with targets and sources renumbered —
 //! becomes the current level of one level builder, which goes on to the
 //! root as a monolithic build does from there: the shards' boundary
@@ -22,7 +28,7 @@ use crate::lod::{build_levels, with_simplifier, Built, LodOptions, WithSimplifie
 use crate::manifest::{LevelReport, Manifest, ManifestSeconds};
 use crate::mesh::VertexLayout;
 use crate::soup::format::SoupHeader;
-use crate::store::{pack_file, write_index, PAGE};
+use crate::store::{pack_file, pack_file_part, write_index, MAX_PARTS, PAGE};
 use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -35,30 +41,45 @@ pub struct MergeReport {
     pub levels: usize,
     /// Triangles of the union of the shards' top levels: what the merge simplified.
     pub merged_triangles: u64,
-    /// Bytes of the shards' packs copied.
+    /// Bytes of the shards' packs hard-linked into the store (no copy).
+    pub linked_bytes: u64,
+    /// Bytes of the shards' packs copied (`--copy`, or where no link could be made).
     pub copied_bytes: u64,
     pub seconds: f64,
     pub level_reports: Vec<LevelReport>,
 }
 
+/// How to merge.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct MergeOptions {
+    /// Working-memory budget of the levels the merge builds.
+    pub mem: u64,
+    pub quiet: bool,
+    /// Replace an existing store at the output.
+    pub force: bool,
+    /// Concatenate the shards' packs into the store's own instead of
+    /// linking them in as parts.
+    pub copy: bool,
+}
+
 /// Merges `shards` (directories, any order) of `plan` into store `out`.
-pub fn merge(plan: &Plan, shards: &[PathBuf], out: &Path, mem: u64, quiet: bool, force: bool) -> Result<MergeReport> {
+pub fn merge(plan: &Plan, shards: &[PathBuf], out: &Path, o: MergeOptions) -> Result<MergeReport> {
+    let MergeOptions { mem, quiet, force, copy } = o;
     let t0 = Instant::now();
     let _protect: Vec<_> = shards.iter().map(|d| crate::io::protect(d)).collect();
-    let (states, dirs) = read_shards(plan, shards)?;
+    let (mut states, dirs) = read_shards(plan, shards)?;
     let dir = AtomicDir::create(out, OutputKind::Store, force)?;
     let stop = plan.shard_levels;
     let map = renumber(&states, stop);
-    let (copied_bytes, pack_base) = concat_packs(&dirs, dir.path(), stop)?;
-    let mut states = states;
-    renumber_patches(&mut states, &map, &pack_base, dir.path())?;
+    let placed = if copy { concat_packs(&dirs, dir.path(), stop)? } else { link_packs(&dirs, dir.path(), stop)? };
+    place_nodes(&mut states, &dirs, &map, &placed)?;
     let mut lo = LodOptions { params: plan.params.clone(), quiet, ..Default::default() };
     lo.params.mem = mem;
     let scratch = crate::io::scratch_dir(dir.path())?;
     let first = &states[0];
     let chunks = union_chunks(&states, &dirs, &map, scratch.path().join(format!("chunks-{stop}.bin")), stop)?;
     let merged_triangles = states.iter().map(|s| s.leaves.iter().map(|l| l.tris).sum::<u64>()).sum();
-    let paused = union_state(&states, &map, &pack_base, chunks, stop);
+    let paused = union_state(&states, &map, chunks, stop);
     let header = SoupHeader {
         attrs: first.attrs,
         triangles: states.iter().map(|s| s.triangles).sum(),
@@ -74,7 +95,7 @@ pub fn merge(plan: &Plan, shards: &[PathBuf], out: &Path, mem: u64, quiet: bool,
     let disk_bytes = crate::pipeline::dir_bytes(dir.path());
     let manifest = Manifest {
         format: "octolod-store".into(),
-        version: crate::store::VERSION,
+        version: crate::store::format_version(&built.nodes),
         input: plan.input.path.clone(),
         attributes: attrs.describe(),
         quadric_dim: attrs.quadric_dim(),
@@ -93,7 +114,8 @@ pub fn merge(plan: &Plan, shards: &[PathBuf], out: &Path, mem: u64, quiet: bool,
         nodes: built.nodes.len() as u64,
         levels: built.levels.len(),
         merged_triangles,
-        copied_bytes,
+        linked_bytes: placed.linked,
+        copied_bytes: placed.copied,
         seconds,
         level_reports: built.levels,
     })
@@ -165,13 +187,20 @@ fn renumber(states: &[ShardState], stop: u8) -> Vec<Vec<u32>> {
     map
 }
 
-/// The store's level packs: each shard's, in shard order, page-aligned.
-/// Gives the bytes copied and where each shard's pack of each level starts.
+/// Where the shards' payloads went: per shard and level, the pack part
+/// and the offset its pack starts at there; the bytes linked and copied.
+struct Placed {
+    at: Vec<Vec<(u32, u64)>>,
+    linked: u64,
+    copied: u64,
+}
+
+/// `--copy`: the store's level packs, each shard's in shard order, page-aligned.
 #[allow(clippy::needless_range_loop, reason = "one pack per level, each shard's part of it")]
-fn concat_packs(dirs: &[PathBuf], out: &Path, stop: u8) -> Result<(u64, Vec<Vec<u64>>)> {
+fn concat_packs(dirs: &[PathBuf], out: &Path, stop: u8) -> Result<Placed> {
     use std::io::Seek;
     let mut copied = 0u64;
-    let mut base = vec![vec![0u64; stop as usize]; dirs.len()];
+    let mut at = vec![vec![(0u32, 0u64); stop as usize]; dirs.len()];
     for level in 0..stop as usize {
         let dest = pack_file(out, level);
         let mut w = std::fs::File::create(&dest).ctx(&dest, "create pack file")?;
@@ -181,49 +210,57 @@ fn concat_packs(dirs: &[PathBuf], out: &Path, stop: u8) -> Result<(u64, Vec<Vec<
             let mut r = std::fs::File::open(&src).ctx(&src, "open pack file")?;
             pos += (PAGE - pos % PAGE) % PAGE;
             w.seek(std::io::SeekFrom::Start(pos)).ctx(&dest, "seek")?;
-            base[k][level] = pos;
+            at[k][level] = (0, pos);
             let n = std::io::copy(&mut r, &mut w).ctx(&src, "copy pack file")?;
             pos += n;
             copied += n;
         }
         w.set_len(pos).ctx(&dest, "write pack file")?;
     }
-    Ok((copied, base))
+    Ok(Placed { at, linked: 0, copied })
 }
 
-/// A payload's patches name its children by shard-local ids: each is
-/// rewritten in the store's pack with the store's id, and the node's
-/// checksum with it.
-fn renumber_patches(states: &mut [ShardState], map: &[Vec<u32>], pack_base: &[Vec<u64>], out: &Path) -> Result<()> {
-    let mut files: Vec<std::fs::File> = Vec::new();
-    for level in 0..pack_base.first().map_or(0, |b| b.len()) {
-        let p = pack_file(out, level);
-        files.push(std::fs::OpenOptions::new().read(true).write(true).open(&p).ctx(&p, "open pack file")?);
+/// Each shard's level packs, hard-linked into the store as pack parts
+/// (shard k's are part k + 1); copied where a link cannot be made (the
+/// shard on another filesystem, or one without links).
+fn link_packs(dirs: &[PathBuf], out: &Path, stop: u8) -> Result<Placed> {
+    let (mut linked, mut copied) = (0u64, 0u64);
+    let mut at = vec![vec![(0u32, 0u64); stop as usize]; dirs.len()];
+    for (k, d) in dirs.iter().enumerate() {
+        let part = u32::try_from(k + 1).ok().filter(|&p| p <= MAX_PARTS).ok_or_else(|| Error::Usage(format!("more than {MAX_PARTS} shards to link: merge with --copy")))?;
+        for level in 0..stop {
+            let (src, dest) = (pack_file(d, level as usize), pack_file_part(out, level, part));
+            let bytes = std::fs::metadata(&src).ctx(&src, "open pack file")?.len();
+            if std::fs::hard_link(&src, &dest).is_ok() {
+                linked += bytes;
+            } else {
+                copied += std::fs::copy(&src, &dest).ctx(&dest, "copy pack file")?;
+            }
+            at[k][level as usize] = (part, 0);
+        }
     }
-    let mut b = Vec::new();
+    Ok(Placed { at, linked, copied })
+}
+
+/// Each shard node's record as the store's: its pack part and offset
+/// there, and the patch shift that turns the shard's child ids in its
+/// payload into store ids (the shard's level is numbered contiguously, and
+/// so is its share of the store's level: one shift per shard and level).
+fn place_nodes(states: &mut [ShardState], dirs: &[PathBuf], map: &[Vec<u32>], placed: &Placed) -> Result<()> {
     for (k, s) in states.iter_mut().enumerate() {
-        for n in s.nodes.iter_mut().filter(|n| n.level > 0) {
-            let level = n.level as usize;
-            let (f, at) = (&files[level], pack_base[k][level] + n.offset);
-            let path = pack_file(out, level);
-            let bad = || Error::input(Location { file: path.clone(), offset: Some(at), ..Default::default() }, "a shard's payload is damaged");
-            b.resize(n.bytes as usize, 0);
-            f.read_exact_at(&mut b, at).ctx(&path, "read pack file")?;
-            if b.len() < 16 || crc32c::crc32c(&b) != n.crc {
-                return Err(bad());
+        for (i, n) in s.nodes.iter_mut().enumerate() {
+            let (part, base) = placed.at[k][n.level as usize];
+            n.part = part;
+            n.offset += base;
+            let kids = &s.children[i];
+            let shift = kids.first().map_or(0, |&c| map[k][c as usize].wrapping_sub(c));
+            if kids.iter().any(|&c| map[k][c as usize].wrapping_sub(c) != shift) {
+                return Err(Error::input(
+                    Location { file: dirs[k].join("shard.state"), ..Default::default() },
+                    format!("node {i}: its children are not numbered contiguously in their level (a damaged shard state)"),
+                ));
             }
-            let np = u32::from_le_bytes(b[12..16].try_into().unwrap()) as usize;
-            if b.len() < 16 + 8 * np {
-                return Err(bad());
-            }
-            for p in 0..np {
-                let o = 16 + 8 * p;
-                let local = u32::from_le_bytes(b[o..o + 4].try_into().unwrap()) as usize;
-                let id = *map[k].get(local).ok_or_else(bad)?;
-                b[o..o + 4].copy_from_slice(&id.to_le_bytes());
-            }
-            f.write_all_at(&b[..16 + 8 * np], at).ctx(&path, "write pack file")?;
-            n.crc = crc32c::crc32c(&b);
+            n.patch_shift = shift;
         }
     }
     Ok(())
@@ -265,7 +302,7 @@ fn union_chunks(states: &[ShardState], dirs: &[PathBuf], map: &[Vec<u32>], path:
 
 /// The builder's state for the union: nodes in store order with their
 /// children, the leaves side by side, the levels' reports added up.
-fn union_state(states: &[ShardState], map: &[Vec<u32>], pack_base: &[Vec<u64>], chunks: ChunkFile, stop: u8) -> Paused {
+fn union_state(states: &[ShardState], map: &[Vec<u32>], chunks: ChunkFile, stop: u8) -> Paused {
     let total: usize = states.iter().map(|s| s.nodes.len()).sum();
     let mut nodes = vec![None; total];
     let mut children = vec![Vec::new(); total];
@@ -273,9 +310,7 @@ fn union_state(states: &[ShardState], map: &[Vec<u32>], pack_base: &[Vec<u64>], 
     for (k, s) in states.iter().enumerate() {
         for (i, n) in s.nodes.iter().enumerate() {
             let g = map[k][i] as usize;
-            let mut n = n.clone();
-            n.offset += pack_base[k][n.level as usize];
-            nodes[g] = Some(n);
+            nodes[g] = Some(n.clone());
             children[g] = s.children[i].iter().map(|&c| map[k][c as usize]).collect();
             simp_err[g] = s.simp_err[i];
         }

@@ -20,5 +20,5 @@ pub mod plan;
 pub mod state;
 
 pub use build::{build_shard, ShardOptions, ShardReport};
-pub use merge::{merge, MergeReport};
+pub use merge::{merge, MergeOptions, MergeReport};
 pub use plan::{plan, Plan, PlanOptions};

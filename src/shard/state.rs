@@ -21,10 +21,10 @@ use crate::lod::octree::OctreeReport;
 use crate::lod::LeafStats;
 use crate::manifest::LevelReport;
 use crate::mesh::{Aabb, AttrSet};
-use crate::store::NodeRec;
+use crate::store::{NodeRec, NODE_REC};
 use std::path::{Path, PathBuf};
 
-const VERSION: u32 = 1;
+const VERSION: u32 = 2;
 /// Largest `shard.state` read.
 const MAX_STATE: u64 = 4 << 30;
 
@@ -162,14 +162,7 @@ impl ShardState {
         }
         e.u64(self.nodes.len() as u64);
         for ((n, kids), err) in self.nodes.iter().zip(&self.children).zip(&self.simp_err) {
-            e.u8(n.level);
-            e.aabb(&n.cell);
-            e.aabb(&n.bounds);
-            e.u32(n.error.to_bits());
-            e.u64(n.offset);
-            for x in [n.bytes, n.tris, n.verts, n.crc, n.simp_tris] {
-                e.u32(x);
-            }
+            n.encode(&mut e.0);
             e.f64(*err);
             e.u64(kids.len() as u64);
             for &c in kids {
@@ -203,34 +196,18 @@ impl ShardState {
         if refs.iter().any(|r| r.target as usize >= tiling.len()) {
             return Err(bad("a chunk targets a leaf the shard does not have"));
         }
-        let n = d.count(137)?;
+        let n = d.count(NODE_REC + 16)?;
         let (mut nodes, mut children, mut simp_err) = (Vec::with_capacity(n), Vec::with_capacity(n), Vec::with_capacity(n));
         for _ in 0..n {
-            let (lv, cell, bounds, error, offset) = (d.u8()?, d.aabb()?, d.aabb()?, f32::from_bits(d.u32()?), d.u64()?);
-            let w: Vec<u32> = (0..5).map(|_| d.u32()).collect::<Result<_>>()?;
+            let rec = NodeRec::decode(d.take(NODE_REC)?);
             simp_err.push(d.f64()?);
             let k = d.count(4)?;
             let kids = (0..k).map(|_| d.u32()).collect::<Result<Vec<_>>>()?;
-            if lv >= level || kids.iter().any(|&c| c as usize >= nodes.len()) {
-                return Err(bad("a node's level or children do not fit the shard"));
+            if rec.level >= level || rec.part != 0 || kids.iter().any(|&c| c as usize >= nodes.len()) {
+                return Err(bad("a node's level, pack or children do not fit the shard"));
             }
             children.push(kids);
-            nodes.push(NodeRec {
-                level: lv,
-                cell,
-                bounds,
-                error,
-                offset,
-                bytes: w[0],
-                tris: w[1],
-                verts: w[2],
-                crc: w[3],
-                simp_tris: w[4],
-                first_child: 0,
-                child_count: 0,
-                first_parent: 0,
-                parent_count: 0,
-            });
+            nodes.push(rec);
         }
         let o: Vec<u64> = (0..6).map(|_| d.u64()).collect::<Result<_>>()?;
         let octree = OctreeReport {
@@ -303,7 +280,7 @@ impl ShardState {
 
     /// Writes `shard.state` and `shard.json` into `dir` (synced, with the packs).
     pub fn write(&self, dir: &Path, boundary_positions: u64, seconds: f64) -> Result<()> {
-        crate::store::sync_packs(dir, self.level as usize)?;
+        crate::store::sync_packs(dir, &self.nodes)?;
         let path = dir.join("shard.state");
         write_synced(&path, &self.encode())?;
         let j = ShardJson {

@@ -27,19 +27,20 @@ use std::sync::mpsc::{channel, Receiver, Sender};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-/// A load job: node, pack level, byte range, checksum.
+/// A load job: node, pack file (level, part), byte range, checksum, patch shift.
 struct Job {
     unit: Unit,
-    pack: u8,
+    pack: (u8, u32),
     offset: u64,
     bytes: u32,
     crc: u32,
+    shift: u32,
 }
 
 impl Job {
     fn of(h: &Hierarchy, u: Unit) -> Job {
         let i = h.info(u);
-        Job { unit: u, pack: i.level, offset: i.offset, bytes: i.bytes, crc: i.crc }
+        Job { unit: u, pack: (i.level, i.part), offset: i.offset, bytes: i.bytes, crc: i.crc, shift: i.patch_shift }
     }
 }
 
@@ -71,7 +72,7 @@ impl IoPool {
             .map(|_| {
                 let (jrx, dtx, dir) = (jrx.clone(), dtx.clone(), dir.to_path_buf());
                 std::thread::spawn(move || {
-                    let mut files: HashMap<u8, std::fs::File> = HashMap::new();
+                    let mut files: HashMap<(u8, u32), std::fs::File> = HashMap::new();
                     loop {
                         let job = match jrx.lock().map(|r| r.recv()) {
                             Ok(Ok(j)) => j,
@@ -102,9 +103,9 @@ impl Drop for IoPool {
 }
 
 /// Reads, checks and decodes one node (used by the I/O threads and for pinned nodes).
-fn load(dir: &Path, files: &mut HashMap<u8, std::fs::File>, ctx: LoadCtx, job: &Job) -> Result<DrawMesh> {
+fn load(dir: &Path, files: &mut HashMap<(u8, u32), std::fs::File>, ctx: LoadCtx, job: &Job) -> Result<DrawMesh> {
     use std::os::unix::fs::FileExt;
-    let path = crate::store::pack_file(dir, job.pack as usize);
+    let path = crate::store::pack_file_part(dir, job.pack.0, job.pack.1);
     let f = match files.entry(job.pack) {
         std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
         std::collections::hash_map::Entry::Vacant(e) => e.insert(std::fs::File::open(&path).ctx(&path, "open pack file")?),
@@ -117,8 +118,9 @@ fn load(dir: &Path, files: &mut HashMap<u8, std::fs::File>, ctx: LoadCtx, job: &
             format!("node {}: payload checksum mismatch (the store is damaged or was rewritten)", job.unit),
         ));
     }
-    let m = decode_payload(&ctx.layout, &b, &path, job.offset)?;
+    let mut m = decode_payload(&ctx.layout, &b, &path, job.offset)?;
     drop(b);
+    crate::store::shift_patches(&mut m.patches, job.shift);
     Ok(draw_node(&m, ctx.attrs, ctx.origin))
 }
 

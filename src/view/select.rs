@@ -47,12 +47,16 @@ pub struct UnitInfo {
     pub bytes: u32,
     pub offset: u64,
     pub crc: u32,
-    /// Object-space error of the node's triangles (0 at level 0).
-    pub error: f64,
+    /// Its pack file's part and its payload's patch shift (`store::NodeRec`).
+    pub part: u32,
+    pub patch_shift: u32,
+    /// Object-space error of the node's triangles (0 at level 0; the
+    /// record's `f32`, kept as it is so the index stays 96 bytes a node).
+    pub error: f32,
     /// Bounds of the node and its descendants.
     pub bounds: Aabb,
     /// Diagonal of the node's cell (distance-only mode).
-    pub cell_diag: f64,
+    pub cell_diag: f32,
 }
 
 /// The DAG as the viewer sees it.
@@ -81,9 +85,11 @@ impl Hierarchy {
                 bytes: n.bytes,
                 offset: n.offset,
                 crc: n.crc,
-                error: n.error as f64,
+                part: n.part,
+                patch_shift: n.patch_shift,
+                error: n.error,
                 bounds: n.bounds,
-                cell_diag: n.cell.diagonal(),
+                cell_diag: n.cell.diagonal() as f32,
             })
             .collect();
         let roots: Vec<Unit> = store.roots().into_iter().map(|r| r as Unit).collect();
@@ -246,10 +252,10 @@ impl Selector {
                 if i.level == 0 {
                     0.0
                 } else {
-                    f * i.cell_diag / d.max(1e-12)
+                    f * i.cell_diag as f64 / d.max(1e-12)
                 }
             }
-            None => i.error * cam.pixels_per_unit(d, height_px),
+            None => i.error as f64 * cam.pixels_per_unit(d, height_px),
         }
     }
 

@@ -238,3 +238,81 @@ fn a_shard_builds_within_its_mem() {
     assert!(peak <= mem + (64 << 20), "peak RSS {} MiB under --mem 16M", peak >> 20);
     eprintln!("shard 0 of a 600 K-triangle terrain under --mem 16M: peak RSS {:.1} MiB", peak as f64 / (1 << 20) as f64);
 }
+
+/// Every node of `st` read: its mesh and patches (patch children as store ids).
+fn all_nodes(st: &Store) -> Vec<octolod::store::NodeMesh> {
+    (0..st.nodes.len()).map(|i| st.read_node(i).unwrap()).collect()
+}
+
+/// The merge links the shards' packs in as pack parts (no byte copied,
+/// the same files), or with `--copy` concatenates them into the store's own
+/// packs; both give the same nodes, patches naming the store's children,
+/// in the store and in the viewer's loader. A linked store outlives its
+/// shards, and `--force` replaces it without touching them.
+#[test]
+fn merged_packs_are_linked_in_place_or_copied() {
+    use std::os::unix::fs::MetadataExt;
+    let d = tempfile::tempdir().unwrap();
+    let input = d.path().join("in.ply");
+    gen("scan", 24_000, &input);
+    let linked = d.path().join("linked.octolod");
+    let dirs = sharded(d.path(), &input, 3, &["--leaf-tris", "1000", "--shard-levels", "3"], &linked);
+    let plan = d.path().join("plan.json");
+    let merge = |out: &Path, extra: &[&str]| {
+        let mut args = vec!["-q", "merge", s(&plan)];
+        args.extend(dirs.iter().map(|p| s(p)));
+        args.extend_from_slice(&["-o", s(out), "--json"]);
+        args.extend_from_slice(extra);
+        json(&octolod_ok(&args).stdout)
+    };
+    let shard_files = || dirs.iter().map(|d| files(d)).collect::<Vec<_>>();
+    let shards_before = shard_files();
+    // Merged again over the first with --force: its pack parts are its own.
+    let r = merge(&linked, &["--force"]);
+    let shard_bytes: u64 = dirs.iter().flat_map(|d| std::fs::read_dir(d).unwrap().flatten()).filter(|e| e.file_name().to_string_lossy().starts_with("level-")).map(|e| e.metadata().unwrap().len()).sum();
+    assert_eq!((r["linked_bytes"].as_u64(), r["copied_bytes"].as_u64()), (Some(shard_bytes), Some(0)), "{r}");
+    assert_eq!(shard_files(), shards_before, "the shards are untouched");
+    let st = Store::open(&linked).unwrap();
+    let stop = json(&std::fs::read(&plan).unwrap())["shard_levels"].as_u64().unwrap() as u8;
+    for (k, dir) in dirs.iter().enumerate() {
+        for level in 0..stop {
+            let (a, b) = (std::fs::metadata(octolod::store::pack_file_part(&linked, level, k as u32 + 1)).unwrap(), std::fs::metadata(dir.join(format!("level-{level}.pack"))).unwrap());
+            assert_eq!((a.dev(), a.ino()), (b.dev(), b.ino()), "shard {k} level {level}: the same file");
+        }
+        assert!(!linked.join(format!("level-{}.part-{}.pack", stop, k + 1)).exists());
+    }
+    assert!(st.nodes.iter().any(|n| n.patch_shift != 0), "shard payloads keep their own ids");
+    // --copy: one pack per level, the same nodes.
+    let copied = d.path().join("copied.octolod");
+    let r = merge(&copied, &["--copy"]);
+    assert_eq!((r["linked_bytes"].as_u64(), r["copied_bytes"].as_u64()), (Some(0), Some(shard_bytes)), "{r}");
+    assert!(!std::fs::read_dir(&copied).unwrap().flatten().any(|e| e.file_name().to_string_lossy().contains(".part-")));
+    let sc = Store::open(&copied).unwrap();
+    let nodes = all_nodes(&st);
+    assert_eq!(nodes, all_nodes(&sc));
+    for (i, m) in nodes.iter().enumerate() {
+        let kids: Vec<u32> = m.patches.iter().map(|p| p.child).collect();
+        let want = if st.nodes[i].level == 0 { vec![octolod::store::NO_NODE] } else { st.children_of(i).to_vec() };
+        assert_eq!(kids, want, "node {i}");
+    }
+    // The viewer's loader reads the parts and shifts the patches too.
+    #[cfg(feature = "view")]
+    {
+        use octolod::view::{cache::Cache, select::Hierarchy, DrawMesh};
+        let h = Hierarchy::new(&st);
+        let ctx = octolod::view::viewer::load_ctx(&st);
+        let mut c: Cache<DrawMesh> = Cache::new(&linked, ctx, u64::MAX / 4, 1, std::time::Duration::ZERO);
+        let units: Vec<u32> = (0..st.nodes.len() as u32).collect();
+        c.pin(&h, &linked, ctx, &units).unwrap();
+        for (i, m) in nodes.iter().enumerate() {
+            assert_eq!(c.patches(i as u32), &m.patches[..], "node {i} in the viewer");
+        }
+    }
+    // The linked store outlives its shards.
+    drop((st, sc));
+    for dir in &dirs {
+        std::fs::remove_dir_all(dir).unwrap();
+    }
+    assert_eq!(all_nodes(&Store::open(&linked).unwrap()), nodes);
+    octolod_ok(&["-q", "metro", s(&input), &format!("{}@1", s(&linked)), "--json", "--samples", "20000"]);
+}

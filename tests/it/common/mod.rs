@@ -274,8 +274,8 @@ pub fn crack_report(input: &IndexedMesh, pos: &[[f64; 3]], tris: &[[u32; 3]], sh
 /// flipped), so their loads fail their checksums; the roots stay intact.
 pub fn corrupt_packs_below_top(store: &Path) {
     let st = Store::open(store).unwrap();
-    for l in 0..st.top_level() {
-        let p = st.pack_path(l as usize);
+    for (l, part) in octolod::store::packs_of(&st.nodes).into_iter().filter(|&(l, _)| l < st.top_level()) {
+        let p = octolod::store::pack_file_part(&st.dir, l, part);
         let mut b = std::fs::read(&p).unwrap();
         for i in (0..b.len()).step_by(97) {
             b[i] ^= 0x5a;

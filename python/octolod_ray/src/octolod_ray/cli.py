@@ -115,6 +115,11 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--json", metavar="REPORT.json", help="write the timings report as JSON here")
     b.add_argument("--quiet", "-q", action="store_true", help="no progress, no table (errors only)")
     b.add_argument("--force", action="store_true", help="replace an existing STORE (passed to octolod merge)")
+    b.add_argument(
+        "--copy",
+        action="store_true",
+        help="copy the shards' packs into the store (passed to octolod merge; default: hard-linked in place)",
+    )
     return p
 
 
@@ -662,6 +667,8 @@ def build(args, extra: list[str]) -> int:
             cmd.append("--quiet")
             if args.force:
                 cmd.append("--force")
+            if args.copy:
+                cmd.append("--copy")
             _run_local(cmd, "merge")
             _write_json(work.merged, {"plan_id": plan["plan_id"], "store": store, "store_json": _store_stamp(store)})
         report["seconds"]["merge"] = round(time.monotonic() - t0, 3)
