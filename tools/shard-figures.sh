@@ -35,7 +35,8 @@ for n in "${counts[@]}"; do
   done
   read -r mw mc mr < <(measure "$bin" -q merge "$work/plan.json" "${dirs[@]}" -o "$work/m.octolod" --mem "$mem")
   levels=$(python3 -c "import json; print(json.load(open('$work/plan.json'))['shard_levels'])")
-  merged=$("$bin" merge "$work/plan.json" "${dirs[@]}" -o "$work/m2.octolod" --mem "$mem" --json -q | python3 -c "import json,sys; print(json.load(sys.stdin)['merged_triangles'])")
-  echo "shards $n (levels per shard $levels): plan ${pw} s ($((pr / 1024)) MiB); shards: sum wall ${sw} s, slowest ${slow} s, cpu ${sc} s, peak RSS per task $((smax / 1024)) MiB; merge ${mw} s wall, ${mc} s cpu, $((mr / 1024)) MiB, ${merged} triangles simplified"
+  merged=$("$bin" merge "$work/plan.json" "${dirs[@]}" -o "$work/m2.octolod" --mem "$mem" --json -q | python3 -c "import json,sys; j=json.load(sys.stdin); print(j['merged_triangles'], 'triangles simplified, packs linked', j['linked_bytes'] >> 20, 'MiB, copied', j['copied_bytes'] >> 20, 'MiB')")
+  under=$([ $((smax * 1024)) -le "$(numfmt --from=iec "$mem")" ] && echo "under --mem" || echo "OVER --mem")
+  echo "shards $n (levels per shard $levels): plan ${pw} s ($((pr / 1024)) MiB); shards: sum wall ${sw} s, slowest ${slow} s, cpu ${sc} s, peak RSS per task $((smax / 1024)) MiB ($under); merge ${mw} s wall, ${mc} s cpu, $((mr / 1024)) MiB, ${merged}"
   rm -rf "$work"/s* "$work"/m.octolod "$work"/m2.octolod
 done
