@@ -220,6 +220,10 @@ fn a_stale_plan_and_foreign_or_missing_shards_are_refused() {
     assert_eq!(std::fs::read_to_string(user.join("notes.txt")).unwrap(), "mine");
 }
 
+/// A shard task's peak RSS stays under its `--mem` (the figures' 2 × 10^7
+/// terrain: 123 MiB under 128M, `tools/shard-figures.sh`); under a budget
+/// below the process's own floor (code, libraries, stacks, about 20 MiB,
+/// and the levels' working set) within that floor of it.
 #[test]
 fn a_shard_builds_within_its_mem() {
     if measuring_child() {
@@ -228,15 +232,17 @@ fn a_shard_builds_within_its_mem() {
     let d = tempfile::tempdir().unwrap();
     let input = d.path().join("in.ply");
     gen("terrain", 600_000, &input);
-    let plan = d.path().join("plan.json");
-    octolod_ok(&["-q", "plan", s(&input), "-o", s(&plan), "--shards", "2", "--mem", "16M"]);
-    let dir = d.path().join("shard-0");
-    let mem = 16u64 << 20;
-    let args = ["--quiet", "build", s(&input), "--plan", s(&plan), "--shard", "0", "-o", s(&dir), "--mem", "16M"];
-    let (code, _, stderr, peak) = run_measured(module_path!(), "a_shard_builds_within_its_mem", &args);
-    assert_eq!(code, Some(0), "{stderr}");
-    assert!(peak <= mem + (64 << 20), "peak RSS {} MiB under --mem 16M", peak >> 20);
-    eprintln!("shard 0 of a 600 K-triangle terrain under --mem 16M: peak RSS {:.1} MiB", peak as f64 / (1 << 20) as f64);
+    for (mem, over) in [(64u64 << 20, 0u64), (16 << 20, 24 << 20)] {
+        let m = format!("{}M", mem >> 20);
+        let plan = d.path().join(format!("plan-{m}.json"));
+        octolod_ok(&["-q", "plan", s(&input), "-o", s(&plan), "--shards", "2", "--mem", &m]);
+        let dir = d.path().join(format!("shard-0-{m}"));
+        let args = ["--quiet", "build", s(&input), "--plan", s(&plan), "--shard", "0", "-o", s(&dir), "--mem", &m];
+        let (code, _, stderr, peak) = run_measured(module_path!(), "a_shard_builds_within_its_mem", &args);
+        assert_eq!(code, Some(0), "{stderr}");
+        eprintln!("shard 0 of a 600 K-triangle terrain under --mem {m}: peak RSS {:.1} MiB", peak as f64 / (1 << 20) as f64);
+        assert!(peak <= mem + over, "peak RSS {} MiB under --mem {m}", peak >> 20);
+    }
 }
 
 /// Every node of `st` read: its mesh and patches (patch children as store ids).
