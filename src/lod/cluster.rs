@@ -300,15 +300,22 @@ impl<'a> Splits<'a> {
             sp.cq.resize(at + 2 * cl, 0.0);
             let (q0, q1) = sp.cq[at..].split_at_mut(cl);
             let mut mo = [[0.0; 6]; 2];
-            // Row lengths of dimensions 3, 5 and 6 (positions; +uv;
-            // +normal or colour).
+            // Row lengths of every dimension a mesh can have: 3, 5, 6
+            // (positions; +uv; +normal or colour), 8, 9 and 11 (+two or
+            // three of them).
             const CL3: usize = Quadric::coeff_len(3);
             const CL5: usize = Quadric::coeff_len(5);
             const CL6: usize = Quadric::coeff_len(6);
+            const CL8: usize = Quadric::coeff_len(8);
+            const CL9: usize = Quadric::coeff_len(9);
+            const CL11: usize = Quadric::coeff_len(11);
             let i = match cl {
                 CL3 => rows.partition::<CL3>(start, end, axis, mid, q0, q1, &mut mo),
                 CL5 => rows.partition::<CL5>(start, end, axis, mid, q0, q1, &mut mo),
                 CL6 => rows.partition::<CL6>(start, end, axis, mid, q0, q1, &mut mo),
+                CL8 => rows.partition::<CL8>(start, end, axis, mid, q0, q1, &mut mo),
+                CL9 => rows.partition::<CL9>(start, end, axis, mid, q0, q1, &mut mo),
+                CL11 => rows.partition::<CL11>(start, end, axis, mid, q0, q1, &mut mo),
                 _ => rows.partition::<0>(start, end, axis, mid, q0, q1, &mut mo),
             };
             if i == start || i == end {
@@ -467,7 +474,7 @@ impl<'a> Splits<'a> {
                     let cell = &self.cells[c];
                     let k = &self.cq[c * cl..(c + 1) * cl];
                     let bounds = (cell.lo, cell.hi);
-                    // The common dimensions on arrays of their size
+                    // Every dimension on arrays of its size
                     // (`solve_sized`); the general path where the box clamps.
                     let mut x = [0.0; MAX_DIM];
                     let mut ge = [0.0; MAX_DIM + 1];
@@ -475,6 +482,9 @@ impl<'a> Splits<'a> {
                         3 => sized_solve::<3>(k, rel_tol, bounds, &mut x, &mut ge),
                         5 => sized_solve::<5>(k, rel_tol, bounds, &mut x, &mut ge),
                         6 => sized_solve::<6>(k, rel_tol, bounds, &mut x, &mut ge),
+                        8 => sized_solve::<8>(k, rel_tol, bounds, &mut x, &mut ge),
+                        9 => sized_solve::<9>(k, rel_tol, bounds, &mut x, &mut ge),
+                        11 => sized_solve::<11>(k, rel_tol, bounds, &mut x, &mut ge),
                         _ => false,
                     };
                     if !sized {

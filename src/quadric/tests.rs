@@ -867,6 +867,9 @@ fn sized_solve_matches_the_general_solve() {
             3 => solve_sized::<3>(k, DEFAULT_REL_TOL, (lo, hi)).map(|(x, g, e)| (x.to_vec(), g.to_vec(), e)),
             5 => solve_sized::<5>(k, DEFAULT_REL_TOL, (lo, hi)).map(|(x, g, e)| (x.to_vec(), g.to_vec(), e)),
             6 => solve_sized::<6>(k, DEFAULT_REL_TOL, (lo, hi)).map(|(x, g, e)| (x.to_vec(), g.to_vec(), e)),
+            8 => solve_sized::<8>(k, DEFAULT_REL_TOL, (lo, hi)).map(|(x, g, e)| (x.to_vec(), g.to_vec(), e)),
+            9 => solve_sized::<9>(k, DEFAULT_REL_TOL, (lo, hi)).map(|(x, g, e)| (x.to_vec(), g.to_vec(), e)),
+            11 => solve_sized::<11>(k, DEFAULT_REL_TOL, (lo, hi)).map(|(x, g, e)| (x.to_vec(), g.to_vec(), e)),
             _ => unreachable!(),
         };
         match sized {
@@ -924,7 +927,13 @@ fn sized_solve_matches_the_general_solve() {
         let half = if trial % 5 == 0 { 1e-3 } else { 1.0 };
         check(&q, [m[0] - half, m[1] - half, m[2] - half], [m[0] + half, m[1] + half, m[2] + half], &format!("dim 3 trial {trial}"));
     }
-    for (attrs, trials) in [(AttrSet(AttrSet::UV), 200), (AttrSet(AttrSet::NORMAL), 200)] {
+    for (attrs, trials) in [
+        (AttrSet(AttrSet::UV), 200),
+        (AttrSet(AttrSet::NORMAL), 200),
+        (AttrSet(AttrSet::UV | AttrSet::COLOR), 100),
+        (AttrSet(AttrSet::NORMAL | AttrSet::COLOR), 100),
+        (AttrSet(AttrSet::UV | AttrSet::NORMAL | AttrSet::COLOR), 100),
+    ] {
         let s = QuadricSpace::new(attrs, AttrWeights::uniform(0.5), [0.0; 3]);
         for trial in 0..trials {
             let mut q = Quadric::zero(s.dim);
@@ -934,7 +943,7 @@ fn sized_solve_matches_the_general_solve() {
                         pos: rng.vec3(-1.0, 1.0),
                         normal: unit3(rng.vec3(-1.0, 1.0)).map(|c| c as f32),
                         uv: [rng.next() as f32, rng.next() as f32],
-                        ..Default::default()
+                        color: [0; 4].map(|_| (rng.next() * 255.0) as u8),
                     })
                 });
                 q.add_triangle(&v[0], &v[1], &v[2]);
