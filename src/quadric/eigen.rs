@@ -125,6 +125,19 @@ fn decompose<const N: usize>(mut m: [[f64; N]; N], n: usize) -> ([f64; N], [[f64
     (vals, v, sweeps)
 }
 
+/// √(a² + b²): directly where neither square can overflow or lose the
+/// larger operand to underflow, else libm's `hypot` (which scales, at
+/// several times the cost: it was 9 % of a build with normals and colours).
+#[inline]
+fn hypot(a: f64, b: f64) -> f64 {
+    let m = a.abs().max(b.abs());
+    if m > 1e-150 && m < 1e150 {
+        (a * a + b * b).sqrt()
+    } else {
+        a.hypot(b)
+    }
+}
+
 /// Symmetric eigen-decomposition by Householder tridiagonalisation and
 /// the implicit QL algorithm with Wilkinson-like shifts (EISPACK's `tred2`
 /// and `tql2`, as in JAMA): eigenvalues, eigenvectors in V's columns, and
@@ -255,7 +268,7 @@ fn tridiagonal_ql<const N: usize>(a: [[f64; N]; N]) -> ([f64; N], [[f64; N]; N],
                 iter += 1;
                 let g = d[l];
                 let mut p = (d[l + 1] - g) / (2.0 * e[l]);
-                let mut r = p.hypot(1.0);
+                let mut r = hypot(p, 1.0);
                 if p < 0.0 {
                     r = -r;
                 }
@@ -277,7 +290,7 @@ fn tridiagonal_ql<const N: usize>(a: [[f64; N]; N]) -> ([f64; N], [[f64; N]; N],
                     s2 = s;
                     let g = c * e[i];
                     let h = c * p;
-                    r = p.hypot(e[i]);
+                    r = hypot(p, e[i]);
                     e[i + 1] = s * r;
                     s = e[i] / r;
                     c = p / r;
