@@ -225,6 +225,21 @@ impl Drop for WriteBehind {
     }
 }
 
+/// Raises this process's soft limit of open files to its hard limit (as
+/// Go's runtime does): a store merged from many shards opens one pack part
+/// per shard and level (`store::Store::open` keeps every pack open), more
+/// than the usual soft limit of 1024 with a thousand shards.
+pub fn raise_open_files() {
+    let mut r = libc::rlimit { rlim_cur: 0, rlim_max: 0 };
+    // SAFETY: getrlimit/setrlimit read and write the struct passed only.
+    unsafe {
+        if libc::getrlimit(libc::RLIMIT_NOFILE, &mut r) == 0 && r.rlim_cur < r.rlim_max {
+            r.rlim_cur = r.rlim_max;
+            libc::setrlimit(libc::RLIMIT_NOFILE, &r);
+        }
+    }
+}
+
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
@@ -261,20 +276,5 @@ pub(crate) mod tests {
         let r = w.write_all(&vec![1u8; 3 * SEQ_BUF]).and_then(|_| w.finish());
         let e = r.expect_err("writing a read-only handle must fail").to_string();
         assert!(e.contains("a.bin") && e.contains("write test file"), "{e}");
-    }
-}
-
-/// Raises this process's soft limit of open files to its hard limit (as
-/// Go's runtime does): a store merged from many shards opens one pack part
-/// per shard and level (`store::Store::open` keeps every pack open), more
-/// than the usual soft limit of 1024 with a thousand shards.
-pub fn raise_open_files() {
-    let mut r = libc::rlimit { rlim_cur: 0, rlim_max: 0 };
-    // SAFETY: getrlimit/setrlimit read and write the struct passed only.
-    unsafe {
-        if libc::getrlimit(libc::RLIMIT_NOFILE, &mut r) == 0 && r.rlim_cur < r.rlim_max {
-            r.rlim_cur = r.rlim_max;
-            libc::setrlimit(libc::RLIMIT_NOFILE, &r);
-        }
     }
 }

@@ -170,7 +170,10 @@ enum OwnEntries {
     Listed(Vec<PathBuf>),
     /// A store's index, manifest, level packs and pack parts (a merged
     /// sharded store's links to its shards' packs).
-    Store { levels: u32, parts: u32 },
+    Store {
+        levels: u32,
+        parts: u32,
+    },
     /// An older render directory: `frame-N.png`, `stats.csv`, `stats.json`,
     /// the marker, `reference/frame-N.png`.
     RenderNames,
@@ -184,7 +187,11 @@ impl OwnEntries {
             OwnEntries::Listed(v) => v.iter().any(|p| p == rel),
             OwnEntries::Store { levels, parts } => {
                 let s = rel.to_string_lossy();
-                let num = |d: &str| (!d.is_empty() && d.len() < 10 && d.bytes().all(|c| c.is_ascii_digit()) && !(d.len() > 1 && d.starts_with('0'))).then(|| d.parse::<u32>().ok()).flatten();
+                let num = |d: &str| {
+                    (!d.is_empty() && d.len() < 10 && d.bytes().all(|c| c.is_ascii_digit()) && !(d.len() > 1 && d.starts_with('0')))
+                        .then(|| d.parse::<u32>().ok())
+                        .flatten()
+                };
                 let pack = s.strip_prefix("level-").and_then(|r| r.strip_suffix(".pack")).map(|r| match r.split_once(".part-") {
                     Some((l, p)) => num(l).is_some_and(|l| l < *levels) && num(p).is_some_and(|p| p >= 1 && p <= *parts),
                     None => num(r).is_some_and(|l| l < *levels),

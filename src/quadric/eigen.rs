@@ -156,9 +156,7 @@ fn tridiagonal_ql<const N: usize>(a: [[f64; N]; N]) -> ([f64; N], [[f64; N]; N],
         return (d, v, 0);
     }
     // tred2: Householder reduction to tridiagonal form, V accumulating.
-    for j in 0..n {
-        d[j] = v[n - 1][j];
-    }
+    d[..n].copy_from_slice(&v[n - 1][..n]);
     for i in (1..n).rev() {
         let mut scale = 0.0;
         let mut h = 0.0;

@@ -227,7 +227,10 @@ fn link_packs(dirs: &[PathBuf], out: &Path, stop: u8) -> Result<Placed> {
     let (mut linked, mut copied) = (0u64, 0u64);
     let mut at = vec![vec![(0u32, 0u64); stop as usize]; dirs.len()];
     for (k, d) in dirs.iter().enumerate() {
-        let part = u32::try_from(k + 1).ok().filter(|&p| p <= MAX_PARTS).ok_or_else(|| Error::Usage(format!("more than {MAX_PARTS} shards to link: merge with --copy")))?;
+        let part = u32::try_from(k + 1)
+            .ok()
+            .filter(|&p| p <= MAX_PARTS)
+            .ok_or_else(|| Error::Usage(format!("more than {MAX_PARTS} shards to link: merge with --copy")))?;
         for level in 0..stop {
             let (src, dest) = (pack_file(d, level as usize), pack_file_part(out, level, part));
             let bytes = std::fs::metadata(&src).ctx(&src, "open pack file")?.len();

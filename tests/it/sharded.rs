@@ -275,14 +275,22 @@ fn merged_packs_are_linked_in_place_or_copied() {
     let shards_before = shard_files();
     // Merged again over the first with --force: its pack parts are its own.
     let r = merge(&linked, &["--force"]);
-    let shard_bytes: u64 = dirs.iter().flat_map(|d| std::fs::read_dir(d).unwrap().flatten()).filter(|e| e.file_name().to_string_lossy().starts_with("level-")).map(|e| e.metadata().unwrap().len()).sum();
+    let shard_bytes: u64 = dirs
+        .iter()
+        .flat_map(|d| std::fs::read_dir(d).unwrap().flatten())
+        .filter(|e| e.file_name().to_string_lossy().starts_with("level-"))
+        .map(|e| e.metadata().unwrap().len())
+        .sum();
     assert_eq!((r["linked_bytes"].as_u64(), r["copied_bytes"].as_u64()), (Some(shard_bytes), Some(0)), "{r}");
     assert_eq!(shard_files(), shards_before, "the shards are untouched");
     let st = Store::open(&linked).unwrap();
     let stop = json(&std::fs::read(&plan).unwrap())["shard_levels"].as_u64().unwrap() as u8;
     for (k, dir) in dirs.iter().enumerate() {
         for level in 0..stop {
-            let (a, b) = (std::fs::metadata(octolod::store::pack_file_part(&linked, level, k as u32 + 1)).unwrap(), std::fs::metadata(dir.join(format!("level-{level}.pack"))).unwrap());
+            let (a, b) = (
+                std::fs::metadata(octolod::store::pack_file_part(&linked, level, k as u32 + 1)).unwrap(),
+                std::fs::metadata(dir.join(format!("level-{level}.pack"))).unwrap(),
+            );
             assert_eq!((a.dev(), a.ino()), (b.dev(), b.ino()), "shard {k} level {level}: the same file");
         }
         assert!(!linked.join(format!("level-{}.part-{}.pack", stop, k + 1)).exists());

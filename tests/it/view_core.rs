@@ -352,4 +352,3 @@ fn every_budget_settles_without_reloading_without_end() {
     }
     assert!(settled > 40, "{settled} budgets opened the store");
 }
-
