@@ -1,4 +1,5 @@
-//! The on-disk store `NAME.octolod/` (format version 2): a DAG of levels of
+//! The on-disk store `NAME.octolod/` (format version 2; 3 where a merged
+//! sharded store links its shards' packs in as parts): a DAG of levels of
 //! detail, and the cut queries every reader shares.
 //!
 //! Takes: node records and indexed meshes from the LOD builder
@@ -11,7 +12,9 @@
 //! Invariants:
 //! * Files: `nodes.bin` (a [`StoreHeader`], one fixed-size [`NodeRec`] per
 //!   node, then the children and parents lists), `level-L.pack` (each
-//!   payload on a [`PAGE`] boundary, read with one positioned read) and
+//!   payload on a [`PAGE`] boundary, read with one positioned read), in a
+//!   merged store `level-L.part-P.pack` (a shard's pack, named by the
+//!   record's part, its patch ids shifted by the record's patch shift) and
 //!   `store.json`; all little-endian. Nodes are numbered level by level from
 //!   the finest (level 0 = the input, bit-exact); the root is the last node.
 //! * A node's payload is its triangles *at its level*, grouped into patches
