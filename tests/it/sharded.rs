@@ -330,3 +330,44 @@ fn merged_packs_are_linked_in_place_or_copied() {
     assert_eq!(all_nodes(&Store::open(&linked).unwrap()), nodes);
     octolod_ok(&["-q", "metro", s(&input), &format!("{}@1", s(&linked)), "--json", "--samples", "20000"]);
 }
+
+/// Shards on another filesystem than the store (here /dev/shm, a tmpfs)
+/// cannot be linked: their packs are copied as parts, and the store reads
+/// the same. Skipped where /dev/shm is missing or on the store's
+/// filesystem.
+#[test]
+fn shards_on_another_filesystem_are_copied_as_parts() {
+    use std::os::unix::fs::MetadataExt;
+    let d = tempfile::tempdir().unwrap();
+    let shm = Path::new("/dev/shm");
+    if !shm.is_dir() || std::fs::metadata(shm).unwrap().dev() == std::fs::metadata(d.path()).unwrap().dev() {
+        eprintln!("skipped: no /dev/shm on another filesystem than {}", d.path().display());
+        return;
+    }
+    let Ok(far) = tempfile::tempdir_in(shm) else {
+        eprintln!("skipped: /dev/shm is not writable");
+        return;
+    };
+    let input = d.path().join("in.ply");
+    gen("terrain", 20_000, &input);
+    let plan = d.path().join("plan.json");
+    octolod_ok(&["-q", "plan", s(&input), "-o", s(&plan), "--shards", "2", "--leaf-tris", "1000", "--shard-levels", "2"]);
+    let dirs: Vec<PathBuf> = (0..2).map(|i| far.path().join(format!("shard-{i}"))).collect();
+    for (i, dir) in dirs.iter().enumerate() {
+        octolod_ok(&["-q", "build", s(&input), "--plan", s(&plan), "--shard", &i.to_string(), "-o", s(dir)]);
+    }
+    let store = d.path().join("s.octolod");
+    let o = octolod_ok(&["-q", "merge", s(&plan), s(&dirs[0]), s(&dirs[1]), "-o", s(&store), "--json"]);
+    let r = json(&o.stdout);
+    let shard_bytes: u64 = dirs
+        .iter()
+        .flat_map(|d| std::fs::read_dir(d).unwrap().flatten())
+        .filter(|e| e.file_name().to_string_lossy().starts_with("level-"))
+        .map(|e| e.metadata().unwrap().len())
+        .sum();
+    assert_eq!((r["linked_bytes"].as_u64(), r["copied_bytes"].as_u64()), (Some(0), Some(shard_bytes)), "{r}");
+    let nodes = all_nodes(&Store::open(&store).unwrap());
+    assert!(store.join("level-0.part-1.pack").is_file() && store.join("level-1.part-2.pack").is_file());
+    drop(far);
+    assert_eq!(all_nodes(&Store::open(&store).unwrap()), nodes, "the copies outlive the shards");
+}
