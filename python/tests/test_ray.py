@@ -164,6 +164,10 @@ def test_sharded_build_then_resume_skips_every_shard(cluster, mesh, tmp_path):
 
     info = subprocess.run([OCTOLOD, "info", str(store)], capture_output=True, text=True, timeout=RUN_TIMEOUT)
     assert info.returncode == 0, info.stderr
+    # The merge links the shards' packs in as parts (the shards live in the
+    # work directory, on the store's filesystem): no byte copied.
+    parts = [p for p in store.iterdir() if ".part-" in p.name]
+    assert parts and all(p.stat().st_nlink >= 2 for p in parts), sorted(p.name for p in store.iterdir())
     before = _files(store)
 
     # The same command again: the plan is reused, the binary skips every
@@ -175,6 +179,19 @@ def test_sharded_build_then_resume_skips_every_shard(cluster, mesh, tmp_path):
     assert [s["status"] for s in r2["shards"]] == ["skipped"] * 4, r2["shards"]
     assert r2["merge"]["skipped"]
     assert _files(store) == before
+
+    # --copy (passed on to merge): one pack per level, copied, the same nodes.
+    copied = tmp_path / "copied"
+    _ok(run_build(cluster, mesh, copied, work, "--copy"))
+    names = sorted(p.name for p in copied.iterdir())
+    assert not any(".part-" in n for n in names) and all(p.stat().st_nlink == 1 for p in copied.iterdir()), names
+    for level in range(2):
+        a, b = (
+            subprocess.run([OCTOLOD, "-q", "metro", str(mesh), f"{st}@{level}", "--json", "--samples", "20000"], capture_output=True, text=True, timeout=RUN_TIMEOUT)
+            for st in (store, copied)
+        )
+        assert a.returncode == 0 and b.returncode == 0, a.stderr + b.stderr
+        assert json.loads(a.stdout)["combined"] == json.loads(b.stdout)["combined"], level
 
 
 KILLER = r"""#!/bin/bash
