@@ -1,18 +1,19 @@
-//! Symmetric eigen-decomposition for the quadric solve: cyclic Jacobi for
-//! any size, a closed form for 3×3 ([`eigen3`]).
+//! Symmetric eigen-decomposition for the quadric solve: Householder
+//! tridiagonalisation and implicit QL for any size ([`tridiagonal_ql`]), a
+//! closed form for 3×3 ([`eigen3`]).
 
 use super::{Mat, MAX_DIM};
 use crate::geom::{cross, dot};
 
-/// Symmetric eigen-decomposition of an n×n (n ≤ MAX_DIM) matrix by cyclic
-/// Jacobi rotations: `A = V diag(vals) Vᵀ`, eigenvectors in V's columns.
+/// Symmetric eigen-decomposition of an n×n (n ≤ MAX_DIM) matrix
+/// ([`tridiagonal_ql`]): `A = V diag(vals) Vᵀ`, eigenvectors in V's columns.
 pub(super) struct Eigen {
     pub(super) n: usize,
     pub(super) vals: [f64; MAX_DIM],
     pub(super) vecs: Mat,
-    /// Sweeps used (for tests).
+    /// The most QL iterations one eigenvalue took (for tests).
     #[cfg_attr(not(test), allow(dead_code))]
-    pub(super) sweeps: usize,
+    pub(super) iters: usize,
 }
 
 impl Eigen {
@@ -21,7 +22,8 @@ impl Eigen {
         // colour; +uv and one of them; +normal and colour; all) runs on
         // arrays of its own size: unrolled, in registers, without
         // copying and clearing MAX_DIM² matrices per solve. Same arithmetic,
-        // same results.
+        // same results as on MAX_DIM arrays (which the box-constrained
+        // solves' reduced sizes use).
         match n {
             3 => Self::sized::<3>(a, n),
             5 => Self::sized::<5>(a, n),
@@ -37,14 +39,14 @@ impl Eigen {
         for i in 0..n {
             m[i][..n].copy_from_slice(&a[i][..n]);
         }
-        let (l, v, sweeps) = decompose(m, n);
+        let (l, v, iters) = tridiagonal_ql(m, n);
         let mut vals = [0.0; MAX_DIM];
         let mut vecs = [[0.0; MAX_DIM]; MAX_DIM];
         for i in 0..n {
             vals[i] = l[i];
             vecs[i][..n].copy_from_slice(&v[i][..n]);
         }
-        Eigen { n, vals, vecs, sweeps }
+        Eigen { n, vals, vecs, iters }
     }
 
     /// `out = A⁺ r`, keeping eigenvalues > rel_tol · λmax; returns the rank
@@ -81,7 +83,7 @@ fn apply_pinv<const M: usize>(vals: &[f64], vecs: &[[f64; M]], rel_tol: f64, r: 
 
 /// [`Eigen::pinv_apply`] of an N×N matrix, on arrays of that size. N = 3
 /// (positions only, most of a build's solves) uses the closed-form
-/// decomposition [`eigen3`]; other sizes the same Jacobi rotations as
+/// decomposition [`eigen3`]; other sizes the same QL steps as
 /// [`Eigen::new`] (same results).
 pub(super) fn pinv_apply_sized<const N: usize>(a: &[[f64; N]; N], rel_tol: f64, r: &[f64; N], out: &mut [f64; N]) -> usize {
     let (vals, v) = if N == 3 {
@@ -98,31 +100,10 @@ pub(super) fn pinv_apply_sized<const N: usize>(a: &[[f64; N]; N], rel_tol: f64, 
         }
         (vals, v)
     } else {
-        let (vals, v, _) = decompose(*a, N);
+        let (vals, v, _) = tridiagonal_ql(*a, N);
         (vals, v)
     };
     apply_pinv(&vals, &v, rel_tol, r, out)
-}
-
-/// Eigen-decomposition of the leading n×n block of `m`: its eigenvalues,
-/// eigenvectors (V's columns) and the iterations used. Householder
-/// reduction to tridiagonal form and the implicit QL algorithm
-/// ([`tridiagonal_ql`]) where n == N (every call but the general path's);
-/// cyclic Jacobi otherwise.
-fn decompose<const N: usize>(mut m: [[f64; N]; N], n: usize) -> ([f64; N], [[f64; N]; N], usize) {
-    if n == N {
-        return tridiagonal_ql(m);
-    }
-    let mut v = [[0.0; N]; N];
-    for (i, row) in v.iter_mut().enumerate().take(n) {
-        row[i] = 1.0;
-    }
-    let sweeps = jacobi(&mut m, &mut v, n);
-    let mut vals = [0.0; N];
-    for i in 0..n {
-        vals[i] = m[i][i];
-    }
-    (vals, v, sweeps)
 }
 
 /// √(a² + b²): directly where neither square can overflow or lose the
@@ -141,15 +122,20 @@ fn hypot(a: f64, b: f64) -> f64 {
 /// Symmetric eigen-decomposition by Householder tridiagonalisation and
 /// the implicit QL algorithm with Wilkinson-like shifts (EISPACK's `tred2`
 /// and `tql2`, as in JAMA): eigenvalues, eigenvectors in V's columns, and
-/// the most QL iterations one eigenvalue took. About a fifth of cyclic
-/// Jacobi's work at dimension 9 (Jacobi's sweeps rotate every pair,
-/// each rotation two square roots and two divisions): the solve of the
-/// quadric clusters of a mesh with normals and colours was 36 % of its
-/// build. A non-finite matrix gives non-finite eigenvalues (iterations
-/// are capped), which the pseudo-inverse treats as rank 0.
-fn tridiagonal_ql<const N: usize>(a: [[f64; N]; N]) -> ([f64; N], [[f64; N]; N], usize) {
-    let n = N;
-    let mut v = a;
+/// the most QL iterations one eigenvalue took. About a fifth of the work
+/// of the cyclic Jacobi sweeps it replaced at dimension 9 (they rotate
+/// every pair, each rotation two square roots and two divisions, and were
+/// 36 % of a build with normals and colours). A non-finite matrix gives non-finite eigenvalues (iterations
+/// are capped), which the pseudo-inverse treats as rank 0. Works on the
+/// leading n×n block of `a` (n ≤ N; the rest of V is left zero).
+fn tridiagonal_ql<const N: usize>(a: [[f64; N]; N], n: usize) -> ([f64; N], [[f64; N]; N], usize) {
+    // The sized arrays are called with n == N: a constant bound lets the
+    // loops unroll.
+    let n = if N < MAX_DIM { N } else { n };
+    let mut v = [[0.0; N]; N];
+    for i in 0..n {
+        v[i][..n].copy_from_slice(&a[i][..n]);
+    }
     let mut d = [0.0; N];
     let mut e = [0.0; N];
     if n == 0 {
@@ -294,7 +280,7 @@ fn tridiagonal_ql<const N: usize>(a: [[f64; N]; N]) -> ([f64; N], [[f64; N]; N],
                     c = p / r;
                     p = c * d[i] - s * g;
                     d[i + 1] = h + s * (c * g + s * d[i]);
-                    for row in v.iter_mut() {
+                    for row in v.iter_mut().take(n) {
                         let h = row[i + 1];
                         row[i + 1] = s * row[i] + c * h;
                         row[i] = c * row[i] - s * h;
@@ -326,64 +312,6 @@ fn rotation(app: f64, aqq: f64, apq: f64) -> (f64, f64, f64) {
     (c, t * c, t)
 }
 
-/// Cyclic Jacobi on the leading n×n block (n ≤ N) of `a`, accumulating the
-/// rotations in `v`; returns the sweeps used.
-fn jacobi<const N: usize>(a: &mut [[f64; N]; N], v: &mut [[f64; N]; N], n: usize) -> usize {
-    // The sized arrays are called with n == N: a constant bound lets the
-    // loops unroll (same operations in the same order).
-    let n = if N < MAX_DIM { N } else { n };
-    let mut sweeps = 0;
-    while sweeps < 50 {
-        let mut off = 0.0;
-        let mut diag = 0.0;
-        for p in 0..n {
-            diag += a[p][p] * a[p][p];
-            for q in p + 1..n {
-                off += a[p][q] * a[p][q];
-            }
-        }
-        // Converged (or NaN: stop rather than spin).
-        if !(off > 1e-32 * diag) {
-            break;
-        }
-        sweeps += 1;
-        for p in 0..n {
-            for q in p + 1..n {
-                let apq = a[p][q];
-                if apq == 0.0 {
-                    continue;
-                }
-                // Negligible next to both diagonal entries: drop it
-                // rather than churn on roundoff.
-                if apq.abs() <= 1e-18 * (a[p][p].abs() + a[q][q].abs()) {
-                    a[p][q] = 0.0;
-                    a[q][p] = 0.0;
-                    continue;
-                }
-                let (c, s, _) = rotation(a[p][p], a[q][q], apq);
-                for k in 0..n {
-                    let (akp, akq) = (a[k][p], a[k][q]);
-                    a[k][p] = c * akp - s * akq;
-                    a[k][q] = s * akp + c * akq;
-                }
-                for k in 0..n {
-                    let (apk, aqk) = (a[p][k], a[q][k]);
-                    a[p][k] = c * apk - s * aqk;
-                    a[q][k] = s * apk + c * aqk;
-                }
-                a[p][q] = 0.0;
-                a[q][p] = 0.0;
-                for k in 0..n {
-                    let (vkp, vkq) = (v[k][p], v[k][q]);
-                    v[k][p] = c * vkp - s * vkq;
-                    v[k][q] = s * vkp + c * vkq;
-                }
-            }
-        }
-    }
-    sweeps
-}
-
 /// Eigenvalues and eigenvectors (V's columns) of a symmetric 3×3 matrix,
 /// without iterating. The eigenvalue farthest from the other two comes from
 /// the trigonometric solution of the characteristic cubic (D. Eberly, "A
@@ -394,7 +322,7 @@ fn jacobi<const N: usize>(a: &mut [[f64; N]; N], v: &mut [[f64; N]; N], n: usize
 /// vector's orthogonal complement. V is orthonormal to roundoff and each
 /// eigenvalue is its vector's Rayleigh quotient, accurate to a few ulps of
 /// the largest entry, however the eigenvalues cluster (flat: two zeros;
-/// cylinder: two equal). Cheaper than the Jacobi sweeps, which it replaces
+/// cylinder: two equal). Cheaper than the general decomposition, which it replaces
 /// at dimension 3 (`docs/build-costs.md`).
 pub(super) fn eigen3(a: &[[f64; 3]; 3]) -> ([f64; 3], [[f64; 3]; 3]) {
     let (a00, a01, a02, a11, a12, a22) = (a[0][0], a[0][1], a[0][2], a[1][1], a[1][2], a[2][2]);

@@ -408,7 +408,7 @@ fn in_box(x: &[f64], lo: [f64; 3], hi: [f64; 3]) -> bool {
 /// quadrics and matrices per solve, a large share of a small solve's time:
 /// `docs/build-costs.md`). The same operations as the general path, so the
 /// same bits, except at N = 3, whose eigen-decomposition is the closed form
-/// (`eigen3`, cheaper than the Jacobi sweeps). None when the
+/// (`eigen3`, cheaper than the general decomposition). None when the
 /// minimiser must be clamped into the box (the caller takes the general
 /// path, which minimises over the box).
 pub fn solve_sized<const N: usize>(k: &[f64], rel_tol: f64, bounds: ([f64; 3], [f64; 3])) -> Option<([f64; N], [f64; N], f64)> {

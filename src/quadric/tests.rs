@@ -719,7 +719,7 @@ fn eigen_decomposition_reconstructs() {
             }
         }
         let e = Eigen::new(&a, n);
-        assert!(e.sweeps <= 12, "trial {trial}: {} sweeps", e.sweeps);
+        assert!(e.iters <= 12, "trial {trial}: {} iterations", e.iters);
         let scale = e.vals[..n].iter().fold(0.0f64, |m, v| m.max(v.abs())).max(1e-300);
         for i in 0..n {
             for j in 0..n {
@@ -745,7 +745,7 @@ fn eigen_decomposition_reconstructs() {
         });
         let q = Quadric::from_triangle(&s, &v[0], &v[1], &v[2]);
         let e = Eigen::new(&q.matrix(), 11);
-        assert!(e.sweeps <= 12, "{} sweeps", e.sweeps);
+        assert!(e.iters <= 12, "{} iterations", e.iters);
         let mut vals = e.vals;
         vals.sort_by(f64::total_cmp);
         assert!(vals[..2].iter().all(|v| v.abs() < 1e-13 * q.area()));
@@ -829,7 +829,7 @@ fn closed_form_3x3_eigen_is_orthonormal_and_reconstructs() {
                 assert!((o - (i == j) as u8 as f64).abs() < 1e-12, "trial {trial} orthogonality");
             }
         }
-        // Same eigenvalues as the Jacobi sweeps.
+        // Same eigenvalues as the general decomposition.
         let mut big = [[0.0; MAX_DIM]; MAX_DIM];
         for i in 0..3 {
             big[i][..3].copy_from_slice(&a[i]);
