@@ -245,6 +245,15 @@ fn a_shard_builds_within_its_mem() {
     }
 }
 
+/// Bytes of the shards' level packs.
+fn pack_bytes(dirs: &[PathBuf]) -> u64 {
+    dirs.iter()
+        .flat_map(|d| std::fs::read_dir(d).unwrap().flatten())
+        .filter(|e| e.file_name().to_string_lossy().starts_with("level-"))
+        .map(|e| e.metadata().unwrap().len())
+        .sum()
+}
+
 /// Every node of `st` read: its mesh and patches (patch children as store ids).
 fn all_nodes(st: &Store) -> Vec<octolod::store::NodeMesh> {
     (0..st.nodes.len()).map(|i| st.read_node(i).unwrap()).collect()
@@ -275,12 +284,7 @@ fn merged_packs_are_linked_in_place_or_copied() {
     let shards_before = shard_files();
     // Merged again over the first with --force: its pack parts are its own.
     let r = merge(&linked, &["--force"]);
-    let shard_bytes: u64 = dirs
-        .iter()
-        .flat_map(|d| std::fs::read_dir(d).unwrap().flatten())
-        .filter(|e| e.file_name().to_string_lossy().starts_with("level-"))
-        .map(|e| e.metadata().unwrap().len())
-        .sum();
+    let shard_bytes = pack_bytes(&dirs);
     assert_eq!((r["linked_bytes"].as_u64(), r["copied_bytes"].as_u64()), (Some(shard_bytes), Some(0)), "{r}");
     assert_eq!(shard_files(), shards_before, "the shards are untouched");
     let st = Store::open(&linked).unwrap();
@@ -359,12 +363,7 @@ fn shards_on_another_filesystem_are_copied_as_parts() {
     let store = d.path().join("s.octolod");
     let o = octolod_ok(&["-q", "merge", s(&plan), s(&dirs[0]), s(&dirs[1]), "-o", s(&store), "--json"]);
     let r = json(&o.stdout);
-    let shard_bytes: u64 = dirs
-        .iter()
-        .flat_map(|d| std::fs::read_dir(d).unwrap().flatten())
-        .filter(|e| e.file_name().to_string_lossy().starts_with("level-"))
-        .map(|e| e.metadata().unwrap().len())
-        .sum();
+    let shard_bytes = pack_bytes(&dirs);
     assert_eq!((r["linked_bytes"].as_u64(), r["copied_bytes"].as_u64()), (Some(0), Some(shard_bytes)), "{r}");
     let nodes = all_nodes(&Store::open(&store).unwrap());
     assert!(store.join("level-0.part-1.pack").is_file() && store.join("level-1.part-2.pack").is_file());
