@@ -758,7 +758,7 @@ fn cluster_to_count(mesh: &IndexedMesh, locked: &[bool], attrs: AttrSet, n: usiz
     if n >= mesh.triangles.len() {
         return cluster_node(mesh, locked, attrs, n, crate::quadric::DEFAULT_REL_TOL).0;
     }
-    let sp = Splits::new(mesh, None, locked, attrs, usize::MAX, 0.0);
+    let sp = Splits::new(mesh, None, locked, None, attrs, usize::MAX, 0.0);
     let mut ask = n;
     let mut best: Option<IndexedMesh> = None;
     for _ in 0..6 {

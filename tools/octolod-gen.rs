@@ -78,6 +78,11 @@ struct Args {
     /// Replace an existing PLY that octolod wrote (never any other file).
     #[arg(long)]
     force: bool,
+    /// A texture atlas of about CELLS³ islands (the cells of a grid over the
+    /// box), split along every island border as photogrammetry writes them
+    /// (implies --uvs; PLY only; built in memory, up to 5e7 triangles).
+    #[arg(long, value_name = "CELLS")]
+    atlas: Option<u32>,
     /// Output file (PLY, or OBJ/STL with --format).
     #[arg(short, long)]
     output: PathBuf,
@@ -159,7 +164,7 @@ fn run(args: Args) -> anyhow::Result<()> {
     attrs = attrs.with(AttrSet::NORMAL, args.normals);
     attrs = attrs.with(AttrSet::COLOR, args.colors || args.alpha);
     attrs = attrs.with(AttrSet::ALPHA, args.alpha);
-    attrs = attrs.with(AttrSet::UV, args.uvs);
+    attrs = attrs.with(AttrSet::UV, args.uvs || args.atlas.is_some());
     let opts = GenOptions { shape, tris: args.tris, seed: args.seed, attrs };
     let (nv, nf) = {
         let g = Generator::new(&opts);
@@ -196,14 +201,31 @@ fn run(args: Args) -> anyhow::Result<()> {
         Format::StlAscii => Some(OtherFormat::StlAscii),
         _ => None,
     };
-    let bytes = match other {
-        Some(f) => {
+    let bytes = match (other, args.atlas) {
+        (Some(_), Some(_)) => bail!("--atlas writes PLY only"),
+        (None, Some(cells)) => {
+            if args.tris > 50_000_000 {
+                bail!("--atlas builds the mesh in memory: at most 5e7 triangles");
+            }
+            if args.output.exists() && !args.force {
+                bail!("{} exists (--force replaces a PLY octolod wrote)", args.output.display());
+            }
+            let (vertices, triangles) = Generator::new(&opts).mesh();
+            let (m, tiles) = octolod::gen::atlas::atlas(&octolod::mesh::IndexedMesh { vertices, triangles }, cells);
+            let wopts = PlyWriteOptions {
+                comments: vec![format!("octolod-gen shape {} tris {} seed {} atlas {cells} ({tiles}x{tiles} tiles)", shape.name(), args.tris, args.seed)],
+                ..wopts
+            };
+            octolod::ply::write::write_ply(&args.output, &wopts, &m.vertices, &m.triangles)
+                .map(|_| std::fs::metadata(&args.output).map(|m| m.len()).unwrap_or(0))
+        }
+        (Some(f), None) => {
             if args.force {
                 bail!("--force replaces only PLYs octolod wrote; remove {} yourself", args.output.display());
             }
             octolod::gen::write_other(&opts, f, &args.output, args.quiet)
         }
-        None => octolod::gen::write(&opts, &wopts, &args.output, args.quiet, args.force),
+        (None, None) => octolod::gen::write(&opts, &wopts, &args.output, args.quiet, args.force),
     }
     .map_err(|e| anyhow!("{e}"))?;
     let secs = start.elapsed().as_secs_f64();

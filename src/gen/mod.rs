@@ -15,6 +15,7 @@
 //! duplicated faces, far from the origin, a single triangle, non-manifold
 //! fans, an open sphere). See [`Shape`] for each.
 
+pub mod atlas;
 mod portable;
 mod shapes;
 #[cfg(test)]

@@ -4,8 +4,9 @@
 //!
 //! Takes: the node's indexed mesh, each vertex's propagated quadric matrix
 //! (or none: its triangles' sum), which vertices are locked (shared with
-//! another node of the level, or attribute-seam positions), the attribute
-//! set. Gives: the split sequence ([`Splits`]) evaluated at any prefix —
+//! another node of the level), each vertex's position id where the caller
+//! welded them, the attribute set. Attribute seams are not locked: they
+//! simplify along themselves, each side keeping its attributes ([`Seams`]). Gives: the split sequence ([`Splits`]) evaluated at any prefix —
 //! by error threshold (the level builder) or by triangle target — and the
 //! simplified mesh with each output vertex's quadric ([`Splits::build`]).
 //!
@@ -108,7 +109,74 @@ pub struct Splits<'a> {
     prio: Vec<f64>,
     /// Each input vertex's quadric matrix (packed).
     va: Vec<f64>,
+    /// Attribute seams, where the node has any.
+    seams: Option<Seams>,
     pub stats: ClusterStats,
+}
+
+/// A node's attribute seams: positions holding several vertices (wedges:
+/// one per side of a uv, normal or colour discontinuity).
+///
+/// Seam vertices simplify along their seams instead of being locked: they
+/// are clustered among themselves (never with a chart's inner vertices, as
+/// meshoptimizer collapses a seam vertex only along its seam), every cluster
+/// is one position, and each of its wedges (members joined by the node's
+/// edges inside the cluster) keeps its own attributes. Inner vertices are
+/// clustered per chart (a connected piece of the node's index), so no
+/// cluster mixes two uv islands and no priority is inflated by their
+/// distance in the atlas.
+struct Seams {
+    /// Position id per vertex.
+    pos_of: Vec<u32>,
+    positions: usize,
+    /// Vertex sits on a seam (its position holds another used vertex).
+    seam: Vec<bool>,
+}
+
+impl Seams {
+    /// The seams of `mesh` (positions `pos_of`, or welded here), or None
+    /// when no position holds two used vertices.
+    fn find(mesh: &IndexedMesh, pos_of: Option<&[u32]>, used: &[bool]) -> Option<Seams> {
+        let pos_of: Vec<u32> = match pos_of {
+            Some(p) => p.to_vec(),
+            None => {
+                let mut weld = crate::geom::Welder::with_capacity(mesh.vertices.len());
+                let mut n = 0u32;
+                mesh.vertices.iter().map(|v| weld.id(v.pos, |_| n += 1)).collect()
+            }
+        };
+        let positions = pos_of.iter().map(|&p| p as usize + 1).max().unwrap_or(0);
+        let mut count = vec![0u8; positions];
+        for (v, &p) in pos_of.iter().enumerate() {
+            if used[v] {
+                count[p as usize] = count[p as usize].saturating_add(1);
+            }
+        }
+        if !count.iter().any(|&c| c > 1) {
+            return None;
+        }
+        let seam = pos_of.iter().enumerate().map(|(v, &p)| used[v] && count[p as usize] > 1).collect();
+        Some(Seams { pos_of, positions, seam })
+    }
+}
+
+/// A root cell: its first and end rows and its local box.
+type Root = (usize, usize, [f64; 3], [f64; 3]);
+
+/// Union-find root with path halving.
+fn find_root(parent: &mut [u32], mut x: u32) -> u32 {
+    while parent[x as usize] != x {
+        parent[x as usize] = parent[parent[x as usize] as usize];
+        x = parent[x as usize];
+    }
+    x
+}
+
+fn union(parent: &mut [u32], a: u32, b: u32) {
+    let (ra, rb) = (find_root(parent, a), find_root(parent, b));
+    if ra != rb {
+        parent[ra.max(rb) as usize] = ra.min(rb);
+    }
 }
 
 impl<'a> Splits<'a> {
@@ -118,8 +186,18 @@ impl<'a> Splits<'a> {
     /// [`Quadric::at_point`]), or None to take the sum of its triangles'.
     /// Splitting stops at `max_clusters` clusters or when the largest
     /// priority left is ≤ `min_priority`.
-    pub fn new(mesh: &'a IndexedMesh, vertex_a: Option<&[f64]>, locked: &[bool], attrs: AttrSet, max_clusters: usize, min_priority: f64) -> Splits<'a> {
-        Self::grow(mesh, vertex_a, locked, attrs, max_clusters, min_priority, true)
+    /// `pos_of`: each vertex's position id where the caller has welded
+    /// them (else they are welded here when the mesh has attributes).
+    pub fn new(
+        mesh: &'a IndexedMesh,
+        vertex_a: Option<&[f64]>,
+        locked: &[bool],
+        pos_of: Option<&[u32]>,
+        attrs: AttrSet,
+        max_clusters: usize,
+        min_priority: f64,
+    ) -> Splits<'a> {
+        Self::grow(mesh, vertex_a, locked, pos_of, attrs, max_clusters, min_priority, true)
     }
 
     /// Every split whose priority is above `tau`, in no particular order:
@@ -127,32 +205,112 @@ impl<'a> Splits<'a> {
     /// (every cell above it is split, whatever the order, and its children
     /// do not depend on when), without a priority queue. Only
     /// `build(steps())` is meaningful on the result.
-    pub fn to_threshold(mesh: &'a IndexedMesh, vertex_a: Option<&[f64]>, locked: &[bool], attrs: AttrSet, tau: f64) -> Splits<'a> {
-        Self::grow(mesh, vertex_a, locked, attrs, usize::MAX, tau, false)
+    pub fn to_threshold(mesh: &'a IndexedMesh, vertex_a: Option<&[f64]>, locked: &[bool], pos_of: Option<&[u32]>, attrs: AttrSet, tau: f64) -> Splits<'a> {
+        Self::grow(mesh, vertex_a, locked, pos_of, attrs, usize::MAX, tau, false)
     }
 
+    #[allow(clippy::too_many_arguments)]
     fn grow(
         mesh: &'a IndexedMesh,
         vertex_a: Option<&[f64]>,
         locked: &[bool],
+        pos_of: Option<&[u32]>,
         attrs: AttrSet,
         max_clusters: usize,
         min_priority: f64,
         ordered: bool,
     ) -> Splits<'a> {
-        let (mut sp, embedded, root) = Self::setup(mesh, vertex_a, locked, attrs);
+        let (mut sp, embedded, root) = Self::setup(mesh, vertex_a, locked, pos_of, attrs);
         if sp.free.is_empty() {
             return sp;
         }
         let rows = sp.member_rows(&embedded);
-        sp.split_cells(rows, &root, max_clusters, min_priority, ordered);
+        let (rows, roots) = match &sp.seams {
+            None => {
+                let (lo, hi) = sp.space.local_bounds(&root);
+                (rows, vec![(0, sp.free.len(), lo, hi)])
+            }
+            Some(_) => sp.class_roots(rows),
+        };
+        sp.split_cells(rows, &roots, max_clusters, min_priority, ordered);
         sp
+    }
+
+    /// With seams: the rows ordered by class (seam vertices first, then
+    /// each chart's inner vertices) and one root cell per class, over its
+    /// members' box.
+    fn class_roots(&self, rows: Rows) -> (Rows, Vec<Root>) {
+        let sm = self.seams.as_ref().expect("seams");
+        let mesh = self.mesh;
+        let nv = mesh.vertices.len();
+        // Charts: connected pieces of the index.
+        let mut parent: Vec<u32> = (0..nv as u32).collect();
+        for t in &mesh.triangles {
+            union(&mut parent, t[0], t[1]);
+            union(&mut parent, t[1], t[2]);
+        }
+        let mut class_of_root = vec![u32::MAX; nv];
+        let mut classes = 1u32;
+        let class: Vec<u32> = self
+            .free
+            .iter()
+            .map(|&v| {
+                if sm.seam[v as usize] {
+                    return 0;
+                }
+                let r = find_root(&mut parent, v) as usize;
+                if class_of_root[r] == u32::MAX {
+                    class_of_root[r] = classes;
+                    classes += 1;
+                }
+                class_of_root[r]
+            })
+            .collect();
+        // Counting sort of the rows by class.
+        let mut first = vec![0usize; classes as usize + 1];
+        for &c in &class {
+            first[c as usize + 1] += 1;
+        }
+        for c in 0..classes as usize {
+            first[c + 1] += first[c];
+        }
+        let mut next = first.clone();
+        let cl = rows.cl;
+        let nf = class.len();
+        let mut out = Rows { q: vec![0.0; nf * cl], pts: vec![[0.0; 3]; nf], ids: vec![0; nf], cl };
+        for i in 0..nf {
+            let j = next[class[i] as usize];
+            next[class[i] as usize] += 1;
+            out.q[j * cl..(j + 1) * cl].copy_from_slice(&rows.q[i * cl..(i + 1) * cl]);
+            out.pts[j] = rows.pts[i];
+            out.ids[j] = rows.ids[i];
+        }
+        let roots = (0..classes as usize)
+            .filter(|&c| first[c + 1] > first[c])
+            .map(|c| {
+                let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+                for p in &out.pts[first[c]..first[c + 1]] {
+                    for k in 0..3 {
+                        lo[k] = lo[k].min(p[k]);
+                        hi[k] = hi[k].max(p[k]);
+                    }
+                }
+                (first[c], first[c + 1], lo, hi)
+            })
+            .collect();
+        (out, roots)
     }
 
     /// The free (unlocked, used) vertices, the quadric space over their
     /// box, and every vertex's quadric (carried, or its triangles' planes
     /// plus border planes); also each vertex embedded and the free box.
-    fn setup(mesh: &'a IndexedMesh, vertex_a: Option<&[f64]>, locked: &[bool], attrs: AttrSet) -> (Splits<'a>, Vec<[f64; MAX_DIM]>, Aabb) {
+    fn setup(
+        mesh: &'a IndexedMesh,
+        vertex_a: Option<&[f64]>,
+        locked: &[bool],
+        pos_of: Option<&[u32]>,
+        attrs: AttrSet,
+    ) -> (Splits<'a>, Vec<[f64; MAX_DIM]>, Aabb) {
         let nv = mesh.vertices.len();
         let mut stats = ClusterStats::default();
         let mut used = vec![false; nv];
@@ -161,6 +319,20 @@ impl<'a> Splits<'a> {
                 used[v as usize] = true;
             }
         }
+        let seams = if attrs.quadric_dim() > 3 { Seams::find(mesh, pos_of, &used) } else { None };
+        // A position is locked whole: every wedge with the one locked.
+        let lock_all: Vec<bool>;
+        let locked = match &seams {
+            Some(sm) => {
+                let mut at = vec![false; sm.positions];
+                for (v, &p) in sm.pos_of.iter().enumerate() {
+                    at[p as usize] |= locked[v];
+                }
+                lock_all = sm.pos_of.iter().map(|&p| at[p as usize]).collect();
+                &lock_all[..]
+            }
+            None => locked,
+        };
         stats.locked = (0..nv).filter(|&v| used[v] && locked[v]).count() as u64;
         let free: Vec<u32> = (0..nv as u32).filter(|&v| used[v as usize] && !locked[v as usize]).collect();
         let mut root = Aabb::EMPTY;
@@ -174,7 +346,8 @@ impl<'a> Splits<'a> {
         for (i, &v) in free.iter().enumerate() {
             slot[v as usize] = i as u32;
         }
-        let mut sp = Splits { mesh, space, cl, free, slot, cells: Vec::new(), cq: Vec::new(), leaf_of: Vec::new(), prio: Vec::new(), va: Vec::new(), stats };
+        let mut sp =
+            Splits { mesh, space, cl, free, slot, cells: Vec::new(), cq: Vec::new(), leaf_of: Vec::new(), prio: Vec::new(), va: Vec::new(), seams, stats };
         // Per vertex: its quadric matrix (propagated, or its triangles' sum).
         let embedded: Vec<[f64; MAX_DIM]> = mesh.vertices.iter().map(|v| sp.space.embed(v)).collect();
         let al = dim * (dim + 1) / 2;
@@ -212,26 +385,14 @@ impl<'a> Splits<'a> {
     /// Each free vertex's row: its quadric about its own position, in
     /// packed form, its local position and its free index.
     fn member_rows(&self, embedded: &[[f64; MAX_DIM]]) -> Rows {
-        let (sp, mesh, cl, dim) = (self, self.mesh, self.cl, self.space.dim);
-        let (al, cs) = (dim * (dim + 1) / 2, carry_len(dim));
+        let (sp, mesh, cl) = (self, self.mesh, self.cl);
         let nf = sp.free.len();
         let mut vq = vec![0.0f64; nf * cl];
         for (i, &v) in sp.free.iter().enumerate() {
-            let c = &sp.va[v as usize * cs..(v as usize + 1) * cs];
-            let a = &c[..al];
-            // The trace stands for the area (only its being non-zero matters).
-            let area = (0..dim).map(|k| a[diag_at(dim, k)]).sum::<f64>().max(f64::MIN_POSITIVE);
-            let p = &embedded[v as usize];
-            let q = &mut vq[i * cl..(i + 1) * cl];
-            crate::quadric::packed_at_point(dim, a, p, area, q);
-            // The exact input quadric about p: its gradient there too (a
-            // representative of a curved patch is not on its planes). The
-            // residual e is left out, so priorities measure what a split
-            // can still gain; the build adds the members' back.
-            for k in 0..dim {
-                q[al + k] += c[al + k];
-                q[al + dim] -= 2.0 * c[al + k] * p[k];
-            }
+            // A seam vertex's attributes are its wedge's own: only its
+            // position error drives the seam's clusters.
+            let seam = sp.seams.as_ref().is_some_and(|sm| sm.seam[v as usize]);
+            sp.row_into(v, &embedded[v as usize], seam, &mut vq[i * cl..(i + 1) * cl]);
         }
         // Members' rows (quadric, local position, free index) are kept in
         // cell order, each cell's members contiguous: a split reads and
@@ -245,30 +406,34 @@ impl<'a> Splits<'a> {
     /// largest variance until `max_clusters` or `min_priority` (in priority
     /// order when `ordered`, else every cell above `min_priority`); then
     /// each member's deepest cell.
-    fn split_cells(&mut self, mut rows: Rows, root: &Aabb, max_clusters: usize, min_priority: f64, ordered: bool) {
+    /// `roots`: (first row, end row, local box) of each root cell.
+    fn split_cells(&mut self, mut rows: Rows, roots: &[Root], max_clusters: usize, min_priority: f64, ordered: bool) {
         let sp = self;
         let (cl, dim, nf) = (sp.cl, sp.space.dim, sp.free.len());
-        let (rlo, rhi) = sp.space.local_bounds(root);
         sp.cells.reserve(2 * nf);
-        sp.cells.push(Cell { lo: rlo, hi: rhi, start: 0, end: nf as u32, created: 0, parent: u32::MAX });
         sp.cq = Vec::with_capacity(2 * nf * cl);
-        sp.cq.resize(cl, 0.0);
         // Per cell: the sums of its members' local positions and of their
         // squares (the split's mean and variance), kept as cells are made
         // so a split reads its members once.
         let mut moments: Vec<[f64; 6]> = Vec::with_capacity(2 * nf);
-        moments.push([0.0; 6]);
-        for i in 0..nf {
-            rows.add_to(i, cl, &mut sp.cq[..cl], &mut moments[0]);
-        }
-        let mut split = vec![false];
+        let mut split = Vec::with_capacity(2 * nf);
         // The error at the members' mean: measured better than the error
         // at the optimum on the scans and terrains tried (it also favours
         // compact clusters).
         let prio = |q: &[f64]| -> f64 { crate::quadric::packed_error_at_mean(dim, q) };
         let mut heap = if ordered { Queue::Heap(BinaryHeap::new()) } else { Queue::Stack(Vec::new()) };
-        heap.push(Prio(prio(&sp.cq[..cl]), 0));
-        let mut clusters = 1usize;
+        for &(start, end, rlo, rhi) in roots {
+            let c = sp.cells.len();
+            sp.cells.push(Cell { lo: rlo, hi: rhi, start: start as u32, end: end as u32, created: 0, parent: u32::MAX });
+            sp.cq.resize((c + 1) * cl, 0.0);
+            moments.push([0.0; 6]);
+            for i in start..end {
+                rows.add_to(i, cl, &mut sp.cq[c * cl..(c + 1) * cl], &mut moments[c]);
+            }
+            split.push(false);
+            heap.push(Prio(prio(&sp.cq[c * cl..(c + 1) * cl]), c as u32));
+        }
+        let mut clusters = roots.len();
         while clusters < max_clusters {
             let Some(Prio(p, c)) = heap.pop() else { break };
             if !(p > 0.0) || p <= min_priority {
@@ -392,18 +557,49 @@ impl<'a> Splits<'a> {
             .collect()
     }
 
+    /// Per free vertex its wedge (a union-find root among free indices:
+    /// members of one cluster joined by the node's edges inside it), and
+    /// per cell whether it takes the wedge solve (it holds seam vertices or
+    /// several wedges).
+    fn wedges(&self, a: &[u32], sm: &Seams) -> (Vec<u32>, Vec<bool>) {
+        let nf = self.free.len();
+        let mut parent: Vec<u32> = (0..nf as u32).collect();
+        for t in &self.mesh.triangles {
+            for k in 0..3 {
+                let (x, y) = (self.slot[t[k] as usize], self.slot[t[(k + 1) % 3] as usize]);
+                if x != u32::MAX && y != u32::MAX && a[x as usize] == a[y as usize] {
+                    union(&mut parent, x, y);
+                }
+            }
+        }
+        let root: Vec<u32> = (0..nf as u32).map(|i| find_root(&mut parent, i)).collect();
+        let mut first = vec![u32::MAX; self.cells.len()];
+        let mut multi = vec![false; self.cells.len()];
+        for i in 0..nf {
+            let c = a[i] as usize;
+            multi[c] |= sm.seam[self.free[i] as usize];
+            if first[c] == u32::MAX {
+                first[c] = root[i];
+            } else if first[c] != root[i] {
+                multi[c] = true;
+            }
+        }
+        (root, multi)
+    }
+
     /// Output triangles after `s` splits.
     pub fn count_at(&self, s: u32) -> usize {
         if self.free.is_empty() {
             return self.mesh.triangles.len();
         }
         let a = self.assign(s);
+        let pos_of = self.seams.as_ref().map(|sm| &sm.pos_of[..]);
         self.mesh
             .triangles
             .iter()
             .filter(|t| {
                 let r = t.map(|v| match self.slot[v as usize] {
-                    u32::MAX => v as u64,
+                    u32::MAX => pos_of.map_or(v, |p| p[v as usize]) as u64,
                     i => (1u64 << 32) | a[i as usize] as u64,
                 });
                 r[0] != r[1] && r[1] != r[2] && r[0] != r[2]
@@ -450,7 +646,11 @@ impl<'a> Splits<'a> {
         let mut remap = vec![u32::MAX; nv];
         let mut rep_cell: Vec<u32> = Vec::new();
         let mut reps: Vec<Vertex> = Vec::new();
-        let mut rep_of_free = Vec::new();
+        let mut rep_of_free = vec![u32::MAX; self.free.len()];
+        // A wedge representative's own matrix: its index in `wedge_a` (MAX:
+        // its cell's).
+        let mut rep_own_a: Vec<u32> = Vec::new();
+        let mut wedge_a: Vec<f64> = Vec::new();
         // Per representative: half-gradient and residual of its quadric at
         // its position (the members' residuals added below).
         let mut rep_ge: Vec<f64> = Vec::new();
@@ -466,9 +666,13 @@ impl<'a> Splits<'a> {
         });
         if !self.free.is_empty() {
             let a = self.assign(s);
+            let wedges = self.seams.as_ref().map(|sm| self.wedges(&a, sm));
             let mut rep_of_cell = vec![u32::MAX; self.cells.len()];
             for (i, &v) in self.free.iter().enumerate() {
                 let c = a[i] as usize;
+                if wedges.as_ref().is_some_and(|w| w.1[c]) {
+                    continue; // below, wedge by wedge
+                }
                 if rep_of_cell[c] == u32::MAX {
                     rep_cell.push(c as u32);
                     let cell = &self.cells[c];
@@ -501,16 +705,86 @@ impl<'a> Splits<'a> {
                         r.uv = [r.uv[0].clamp(lo[0], hi[0]), r.uv[1].clamp(lo[1], hi[1])];
                     }
                     reps.push(r);
+                    rep_own_a.push(u32::MAX);
                     rep_ge.extend_from_slice(&ge[..dim]);
                     rep_ge.push(ge[dim].max(0.0));
                 }
                 rep_ge[rep_of_cell[c] as usize * (dim + 1) + dim] += self.va[v as usize * cs + al + dim];
                 remap[v as usize] = rep_of_cell[c];
-                rep_of_free.push(rep_of_cell[c]);
+                rep_of_free[i] = rep_of_cell[c];
+            }
+            if let Some((root, multi)) = &wedges {
+                // Clusters holding seam vertices or several wedges: one
+                // position for all (minimising the sum of each wedge's
+                // position error with its attributes free), then each
+                // wedge's attributes at that position from its own
+                // members' quadrics. Sides of a seam share every position
+                // (nothing tears) and keep their own attributes (no uv
+                // island bleeds into another).
+                let mut order: Vec<(u32, u32, u32)> = (0..self.free.len()).filter(|&i| multi[a[i] as usize]).map(|i| (a[i], root[i], i as u32)).collect();
+                order.sort_unstable();
+                let mut wk: Vec<f64> = Vec::new();
+                let mut row = vec![0.0; cl];
+                for group in order.chunk_by(|x, y| x.0 == y.0) {
+                    let c = group[0].0 as usize;
+                    let wedges: Vec<&[(u32, u32, u32)]> = group.chunk_by(|x, y| x.1 == y.1).collect();
+                    wk.clear();
+                    wk.resize(wedges.len() * cl, 0.0);
+                    let mut sum = vec![0.0; cl];
+                    for (w, members) in wedges.iter().enumerate() {
+                        let k = &mut wk[w * cl..(w + 1) * cl];
+                        for &(_, _, i) in members.iter() {
+                            let v = self.free[i as usize];
+                            self.row_into(v, &self.space.embed(&self.mesh.vertices[v as usize]), false, &mut row);
+                            add(k, &row);
+                        }
+                        row.copy_from_slice(k);
+                        let (am, rest) = row.split_at_mut(al);
+                        let (g, e) = rest.split_at_mut(dim);
+                        crate::quadric::eliminate_attrs(dim, am, g, &mut e[0], rel_tol);
+                        add(&mut sum, &row);
+                    }
+                    let cell = &self.cells[c];
+                    let sol = Quadric::from_coeffs(dim, &sum).solve(rel_tol, Some((cell.lo, cell.hi)));
+                    st.clamped += sol.clamped as u64;
+                    for (w, members) in wedges.iter().enumerate() {
+                        let k = &wk[w * cl..(w + 1) * cl];
+                        let x = crate::quadric::attrs_at(dim, k, [sol.x[0], sol.x[1], sol.x[2]], rel_tol);
+                        let q = Quadric::from_coeffs(dim, k);
+                        let template = &self.mesh.vertices[self.free[members[0].2 as usize] as usize];
+                        let mut r = self.space.unembed(&x[..dim], template);
+                        if self.space.attrs.uv() {
+                            // Inside the wedge's own uvs (its island).
+                            let (mut lo, mut hi) = ([f32::MAX; 2], [f32::MIN; 2]);
+                            for &(_, _, i) in members.iter() {
+                                let uv = self.mesh.vertices[self.free[i as usize] as usize].uv;
+                                for d in 0..2 {
+                                    lo[d] = lo[d].min(uv[d]);
+                                    hi[d] = hi[d].max(uv[d]);
+                                }
+                            }
+                            r.uv = [r.uv[0].clamp(lo[0], hi[0]), r.uv[1].clamp(lo[1], hi[1])];
+                        }
+                        let id = reps.len() as u32;
+                        reps.push(r);
+                        rep_cell.push(c as u32);
+                        rep_own_a.push((wedge_a.len() / al) as u32);
+                        wedge_a.extend_from_slice(&k[..al]);
+                        rep_ge.extend_from_slice(&q.half_gradient(&x)[..dim]);
+                        let mut e = q.error(&x).max(0.0);
+                        for &(_, _, i) in members.iter() {
+                            let v = self.free[i as usize] as usize;
+                            e += self.va[v * cs + al + dim];
+                            remap[v] = id;
+                            rep_of_free[i as usize] = id;
+                        }
+                        rep_ge.push(e);
+                    }
+                }
             }
         }
         st.clusters = reps.len() as u64;
-        let (mesh, src) = compact(self.mesh, &remap, &reps);
+        let (mesh, src) = compact(self.mesh, &remap, &reps, self.seams.as_ref().map(|sm| (sm, &rep_cell[..])));
         let mut out_a = vec![0.0; src.len() * cs];
         for (o, &k) in src.iter().enumerate() {
             let dst = &mut out_a[o * cs..(o + 1) * cs];
@@ -518,7 +792,10 @@ impl<'a> Splits<'a> {
                 dst.copy_from_slice(&self.va[k * cs..(k + 1) * cs]);
             } else {
                 let r = k - nv;
-                dst[..al].copy_from_slice(self.rep_a(rep_cell[r] as usize));
+                match rep_own_a[r] {
+                    u32::MAX => dst[..al].copy_from_slice(self.rep_a(rep_cell[r] as usize)),
+                    w => dst[..al].copy_from_slice(&wedge_a[w as usize * al..(w as usize + 1) * al]),
+                }
                 dst[al..].copy_from_slice(&rep_ge[r * (dim + 1)..(r + 1) * (dim + 1)]);
             }
             if rescale {
@@ -555,6 +832,38 @@ impl<'a> Splits<'a> {
         NodeOut { mesh, a: out_a, kept_from, members_first, members, stats: st }
     }
 
+    /// Vertex `v`'s row (embedded at `p`): its quadric about its own
+    /// position, packed, with attributes eliminated when `eliminate`
+    /// ([`crate::quadric::eliminate_attrs`]).
+    fn row_into(&self, v: u32, p: &[f64], eliminate: bool, q: &mut [f64]) {
+        let dim = self.space.dim;
+        let (al, cs) = (dim * (dim + 1) / 2, carry_len(dim));
+        let mut t = [0.0; crate::quadric::MAX_COEFFS];
+        let c = &self.va[v as usize * cs..(v as usize + 1) * cs];
+        let c = if eliminate {
+            let t = &mut t[..cs];
+            t.copy_from_slice(c);
+            let (a, rest) = t.split_at_mut(al);
+            let (g, e) = rest.split_at_mut(dim);
+            crate::quadric::eliminate_attrs(dim, a, g, &mut e[0], crate::quadric::DEFAULT_REL_TOL);
+            &t[..]
+        } else {
+            c
+        };
+        let a = &c[..al];
+        // The trace stands for the area (only its being non-zero matters).
+        let area = (0..dim).map(|k| a[diag_at(dim, k)]).sum::<f64>().max(f64::MIN_POSITIVE);
+        crate::quadric::packed_at_point(dim, a, p, area, q);
+        // The exact input quadric about p: its gradient there too (a
+        // representative of a curved patch is not on its planes). The
+        // residual e is left out, so priorities measure what a split
+        // can still gain; the build adds the members' back.
+        for k in 0..dim {
+            q[al + k] += c[al + k];
+            q[al + dim] -= 2.0 * c[al + k] * p[k];
+        }
+    }
+
     fn rep_a(&self, c: usize) -> &[f64] {
         let al = self.space.dim * (self.space.dim + 1) / 2;
         &self.cq[c * self.cl..c * self.cl + al]
@@ -565,12 +874,12 @@ impl<'a> Splits<'a> {
 /// `locked[v]` keeps vertex `v` as it is. A target at or above the input's
 /// count returns the input unchanged (unreferenced vertices dropped).
 pub fn cluster_node(mesh: &IndexedMesh, locked: &[bool], attrs: AttrSet, target: usize, rel_tol: f64) -> (IndexedMesh, ClusterStats) {
-    let sp = Splits::new(mesh, None, locked, attrs, if target >= mesh.triangles.len() { 1 } else { usize::MAX }, 0.0);
+    let sp = Splits::new(mesh, None, locked, None, attrs, if target >= mesh.triangles.len() { 1 } else { usize::MAX }, 0.0);
     let s = if target >= mesh.triangles.len() { sp.steps() } else { sp.steps_for_target(target) };
     if target >= mesh.triangles.len() {
         let mut st = sp.stats;
         st.clusters = 0;
-        return (compact(mesh, &vec![u32::MAX; mesh.vertices.len()], &[]).0, st);
+        return (compact(mesh, &vec![u32::MAX; mesh.vertices.len()], &[], None).0, st);
     }
     let o = sp.build(s, rel_tol);
     (o.mesh, o.stats)
@@ -845,12 +1154,31 @@ fn sized_solve<const N: usize>(k: &[f64], rel_tol: f64, bounds: ([f64; 3], [f64;
 /// unreferenced vertices dropped.
 /// Also gives each output vertex's source: `v < nv` a kept vertex, `nv + r`
 /// representative `r`.
-fn compact(mesh: &IndexedMesh, remap: &[u32], reps: &[Vertex]) -> (IndexedMesh, Vec<usize>) {
+/// With seams (`welded`: the seams and each representative's cell), the
+/// corners' points decide what is dropped: a kept vertex's position, a
+/// representative's cluster (its wedges are one point).
+fn compact(mesh: &IndexedMesh, remap: &[u32], reps: &[Vertex], welded: Option<(&Seams, &[u32])>) -> (IndexedMesh, Vec<usize>) {
     let nv = mesh.vertices.len();
     // Output id per source: kept vertex v -> v, representative r -> nv + r.
     let key = |v: u32| if remap[v as usize] == u32::MAX { v as usize } else { nv + remap[v as usize] as usize };
-    let images: Vec<[usize; 3]> = mesh.triangles.iter().map(|t| t.map(key)).filter(|k| k[0] != k[1] && k[1] != k[2] && k[0] != k[2]).collect();
-    let keep = unfold(&images);
+    let distinct = |k: &[usize; 3]| k[0] != k[1] && k[1] != k[2] && k[0] != k[2];
+    let (images, keep) = match welded {
+        None => {
+            let images: Vec<[usize; 3]> = mesh.triangles.iter().map(|t| t.map(key)).filter(distinct).collect();
+            let keep = unfold(&images);
+            (images, keep)
+        }
+        Some((sm, rep_cell)) => {
+            let point = |v: u32| match remap[v as usize] {
+                u32::MAX => sm.pos_of[v as usize] as usize,
+                r => sm.positions + rep_cell[r as usize] as usize,
+            };
+            let (images, points): (Vec<[usize; 3]>, Vec<[usize; 3]>) =
+                mesh.triangles.iter().map(|t| (t.map(key), t.map(point))).filter(|(_, p)| distinct(p)).unzip();
+            let keep = unfold(&points);
+            (images, keep)
+        }
+    };
     let mut map = vec![u32::MAX; nv + reps.len()];
     let mut out = IndexedMesh::default();
     let mut src = Vec::new();

@@ -275,7 +275,11 @@ impl<'a, S: NodeSimplifier> LevelBuilder<'a, S> {
         let p = &self.cfg.opts.params;
         let ids: Vec<usize> = (0..cur.tiling.leaves.len()).filter(|&i| cur.leaves[i].tris > 0 || !cur.chunks.refs_of(i).is_empty()).collect();
         let triangles: u64 = ids.iter().map(|&i| cur.leaves[i].tris).sum();
-        let is_final = level >= self.cfg.min_top && ((ids.len() == 1 && triangles <= p.root_tris) || p.levels == Some(level));
+        // A single node its simplifier could not shrink (one level below it
+        // was the same single node, now at ≥ 95 % of its triangles: islands
+        // of a texture atlas each keep a few) is the root too.
+        let stalled = self.reports.last().is_some_and(|r| r.nodes == 1 && triangles as f64 >= 0.95 * r.triangles as f64);
+        let is_final = level >= self.cfg.min_top && ((ids.len() == 1 && (triangles <= p.root_tris || stalled)) || p.levels == Some(level));
         if level == MAX_LEVELS && !is_final {
             // Once a silent stop: a top level of many nodes, no single root.
             return Err(Error::Usage(format!(
@@ -365,7 +369,7 @@ impl<'a, S: NodeSimplifier> LevelBuilder<'a, S> {
                 let w = Welded::new(&g.mesh, cfg.unique_positions);
                 let locked = w.locks_at(|pi| set.contains_key(&pos_bits(w.pos[pi])) || cfg.extra_locked(&w.pos[pi]));
                 let carried = (lv.level > 0).then_some(&g.a[..]);
-                Ok(cfg.simplifier.curve(&NodeInput { mesh: &g.mesh, carried, locked: &locked }))
+                Ok(cfg.simplifier.curve(&NodeInput { mesh: &g.mesh, carried, locked: &locked, pos_of: Some(&w.pos_of) }))
             })
             .collect();
         let curves = curves.into_iter().collect::<Result<Vec<_>>>()?;
@@ -610,14 +614,14 @@ fn self_node<S: NodeSimplifier>(
     let hits: Vec<Option<&([f32; 3], u32)>> = w.pos.iter().map(|p| set.get(&pos_bits(*p))).collect();
     // A shard's positions shared with other shards count as shared.
     let shared_at = |pi: usize| hits[pi].is_some() || cfg.extra_locked(&w.pos[pi]);
-    // Locks: shared positions and attribute seams.
+    // Locks: shared positions (attribute seams simplify along themselves).
     let locked = w.locks_at(shared_at);
     for (pi, hit) in hits.iter().enumerate() {
         let (hit, sh) = (hit.is_some(), shared_at(pi));
         // Another shard's positions count with the seams (the level's
         // distinct shared positions come from the sort).
         p2.shared += hit as u64;
-        p2.seam_only += ((w.seam[pi] || sh) && !hit) as u64;
+        p2.seam_only += (sh && !hit) as u64;
         p2.prev_freed += (w.was_locked(&g, pi) && !sh) as u64;
     }
     // The stored mesh, with normals from the whole neighbourhood. Set in
@@ -651,7 +655,7 @@ fn self_node<S: NodeSimplifier>(
         }
     };
     let carried = (lv.level > 0).then_some(&g.a[..]);
-    let s = cfg.simplifier.simplify(&NodeInput { mesh: &g.mesh, carried, locked: &locked }, tau, &as_stored);
+    let s = cfg.simplifier.simplify(&NodeInput { mesh: &g.mesh, carried, locked: &locked, pos_of: Some(&w.pos_of) }, tau, &as_stored);
     p2.clamped = s.clamped;
     p2.set_error(s.error);
     let out = &s.mesh;

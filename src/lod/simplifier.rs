@@ -22,8 +22,11 @@ pub struct NodeInput<'a> {
     /// The quadrics its vertices carry ([`NodeSimplifier::carried_len`]
     /// values each); `None` at level 0, whose quadrics are the input's own.
     pub carried: Option<&'a [f64]>,
-    /// Per vertex: kept exactly (a shared position or an attribute seam).
+    /// Per vertex: kept exactly (a position shared with another node).
     pub locked: &'a [bool],
+    /// Per vertex: its position id, where the builder welded them (attribute
+    /// seams are the positions holding several vertices).
+    pub pos_of: Option<&'a [u32]>,
 }
 
 /// A node's simplification.
@@ -70,7 +73,7 @@ impl NodeSimplifier for ClusterNodes {
     }
 
     fn curve(&self, n: &NodeInput) -> SplitCurve {
-        let sp = Splits::new(n.mesh, n.carried, n.locked, self.attrs, usize::MAX, 0.0);
+        let sp = Splits::new(n.mesh, n.carried, n.locked, n.pos_of, self.attrs, usize::MAX, 0.0);
         SplitCurve::of(&sp, n.mesh.triangles.len())
     }
 
@@ -79,7 +82,7 @@ impl NodeSimplifier for ClusterNodes {
     }
 
     fn simplify(&self, n: &NodeInput, tau: f64, as_stored: &dyn Fn(&mut IndexedMesh)) -> Simplified {
-        let sp = Splits::to_threshold(n.mesh, n.carried, n.locked, self.attrs, tau);
+        let sp = Splits::to_threshold(n.mesh, n.carried, n.locked, n.pos_of, self.attrs, tau);
         let mut out = sp.build(sp.steps(), self.rel_tol);
         as_stored(&mut out.mesh);
         let error = node_error(n.mesh, &out);
@@ -212,7 +215,7 @@ mod tests {
     fn check(s: &impl NodeSimplifier) {
         let m = grid(24, true);
         let locked = vec![false; m.vertices.len()];
-        let node = NodeInput { mesh: &m, carried: None, locked: &locked };
+        let node = NodeInput { mesh: &m, carried: None, locked: &locked, pos_of: None };
         let curves = vec![s.curve(&node)];
         let (limit, kept) = s.choose_limit(&curves, 0.5);
         assert!(limit > 0.0 && limit.is_finite(), "limit {limit}");
@@ -226,7 +229,7 @@ mod tests {
         // No limit: nothing to remove on a flat grid but its error stays 0.
         let flat = grid(8, false);
         let fl = vec![false; flat.vertices.len()];
-        let fo = s.simplify(&NodeInput { mesh: &flat, carried: None, locked: &fl }, 0.0, &|_| {});
+        let fo = s.simplify(&NodeInput { mesh: &flat, carried: None, locked: &fl, pos_of: None }, 0.0, &|_| {});
         assert!(fo.error.error <= 1e-12, "flat error {}", fo.error.error);
     }
 
@@ -246,7 +249,7 @@ mod tests {
             CollapseNodes { attrs: AttrSet::default() }.simplify(n, 1e-2, &|_| {})
         }];
         for f in cl {
-            let out = f(&NodeInput { mesh: &m, carried: None, locked: &locked });
+            let out = f(&NodeInput { mesh: &m, carried: None, locked: &locked, pos_of: None });
             assert_eq!(out.locked.iter().filter(|&&l| l).count(), ring);
             for (v, &l) in out.mesh.vertices.iter().zip(&out.locked) {
                 if l {

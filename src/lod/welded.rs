@@ -6,13 +6,12 @@ use crate::geom::{cross, sub, Welder};
 use crate::mesh::{Aabb, IndexedMesh};
 
 /// A node's vertices welded by position: per position its point, the
-/// area-weighted normal of its triangles in the node, whether several
-/// vertex variants sit there (an attribute seam), its bounds.
+/// area-weighted normal of its triangles in the node, the vertices there
+/// (several: an attribute seam), its bounds.
 pub(super) struct Welded {
     pub pos: Vec<[f64; 3]>,
     pub pos_of: Vec<u32>,
     pub normal: Vec<[f64; 3]>,
-    pub seam: Vec<bool>,
     /// Vertices per position: `members[first[p]..first[p+1]]`.
     first: Vec<u32>,
     members: Vec<u32>,
@@ -36,7 +35,6 @@ impl Welded {
         for &p in &pos_of {
             count[p as usize + 1] += 1;
         }
-        let seam = (0..pos.len()).map(|p| count[p + 1] > 1).collect();
         for i in 0..pos.len() {
             count[i + 1] += count[i];
         }
@@ -64,10 +62,11 @@ impl Welded {
                 seen[k] = p;
             }
         }
-        Welded { pos, pos_of, normal, seam, first: count, members, bounds }
+        Welded { pos, pos_of, normal, first: count, members, bounds }
     }
 
-    /// Per vertex: locked (its position is shared, or an attribute seam).
+    /// Per vertex: locked (its position is shared). Attribute seams are not
+    /// locked: the simplifier moves their wedges together.
     #[cfg(test)]
     pub fn locks(&self, shared: &super::shared::SharedSet) -> Vec<bool> {
         self.locks_at(|p| shared.contains_key(&crate::geom::pos_bits(self.pos[p])))
@@ -75,7 +74,7 @@ impl Welded {
 
     /// [`Welded::locks`], given whether position `p` is shared.
     pub fn locks_at(&self, is_shared: impl Fn(usize) -> bool) -> Vec<bool> {
-        let at: Vec<bool> = (0..self.pos.len()).map(|p| self.seam[p] || is_shared(p)).collect();
+        let at: Vec<bool> = (0..self.pos.len()).map(is_shared).collect();
         self.pos_of.iter().map(|&p| at[p as usize]).collect()
     }
 
@@ -97,7 +96,7 @@ mod tests {
     use crate::mesh::Vertex;
 
     #[test]
-    fn seams_and_shared_positions_lock_every_variant() {
+    fn shared_positions_lock_every_variant_and_seams_stay_free() {
         // Two triangles sharing an edge whose second copy of vertex 1 has another uv (a seam).
         let v = |p: [f64; 3], u: f32| Vertex { pos: p, uv: [u, 0.0], ..Default::default() };
         let m = IndexedMesh {
@@ -107,19 +106,20 @@ mod tests {
         let w = Welded::new(&m, false);
         assert_eq!(w.pos.len(), 4);
         assert_eq!(w.pos_of, [0, 1, 2, 1, 3]);
-        assert_eq!(w.seam, [false, true, false, false]);
         assert_eq!(w.verts_at(1), [1, 3]);
         // Both triangles face +z: every position's normal points up.
         assert!(w.normal.iter().all(|n| n[2] > 0.0 && n[0] == 0.0 && n[1] == 0.0));
         assert_eq!(w.bounds.max, [1.0, 1.0, 0.0]);
-        assert_eq!(w.locks_at(|_| false), [false, true, false, true, false]);
-        assert_eq!(w.locks_at(|p| p == 3), [false, true, false, true, true]);
+        // A seam is not locked; a shared position locks every variant.
+        assert_eq!(w.locks_at(|_| false), [false; 5]);
+        assert_eq!(w.locks_at(|p| p == 3), [false, false, false, false, true]);
+        assert_eq!(w.locks_at(|p| p == 1), [false, true, false, true, false]);
         let mut shared = SharedSet::default();
         shared.insert(pos_bits([0.0; 3]), ([0.0; 3], 0));
-        assert_eq!(w.locks(&shared), [true, true, false, true, false]);
+        assert_eq!(w.locks(&shared), [true, false, false, false, false]);
         // Unique positions (no attributes): no lookup, no seam.
         let u = Welded::new(&IndexedMesh { vertices: m.vertices[..3].to_vec(), triangles: vec![[0, 1, 2]] }, true);
         assert_eq!(u.pos_of, [0, 1, 2]);
-        assert!(u.seam.iter().all(|&s| !s));
+        assert!((0..3).all(|p| u.verts_at(p).len() == 1));
     }
 }

@@ -266,6 +266,96 @@ pub fn packed_error_at_mean(dim: usize, k: &[f64]) -> f64 {
     }
 }
 
+/// Index of (i, j), i ≤ j, in a packed upper-triangular row-major n×n matrix.
+#[inline]
+fn packed_index(n: usize, i: usize, j: usize) -> usize {
+    i * n - i * i.saturating_sub(1) / 2 + j - i
+}
+
+/// Eliminates the attribute coordinates (3..`dim`) of a quadric
+/// `Q(x) = xᵀAx + 2 lᵀx + c` (A packed in `a`, `l` in `lin`, `c` in `cst`):
+/// afterwards `Q'(p) = min_s Q(p, s)` over the attributes s (the Schur
+/// complement `A_pp − A_ps A_ss⁺ A_sp`, eigenvalues of `A_ss` below
+/// `rel_tol` × its largest dropped), and the attribute rows, columns and
+/// linear terms are zero. This is the position error of a vertex whose
+/// attributes may take any value: a wedge of an attribute seam, whose sides
+/// keep their own attributes while they share one position. Works on the
+/// carried form as well (x the offset from the vertex, `l` the half-gradient).
+pub fn eliminate_attrs(dim: usize, a: &mut [f64], lin: &mut [f64], cst: &mut f64, rel_tol: f64) {
+    if dim <= 3 {
+        return;
+    }
+    let k = dim - 3;
+    let mut s: Mat = [[0.0; MAX_DIM]; MAX_DIM];
+    for i in 0..k {
+        for j in i..k {
+            let v = a[packed_index(dim, 3 + i, 3 + j)];
+            s[i][j] = v;
+            s[j][i] = v;
+        }
+    }
+    let eig = Eigen::new(&s, k);
+    let rel_tol = solve_rel_tol(rel_tol);
+    // Y = A_ss⁺ [A_sp | l_s], one column at a time.
+    let mut y = [[0.0; MAX_DIM]; 4];
+    for (col, yc) in y.iter_mut().enumerate() {
+        let mut r = [0.0; MAX_DIM];
+        for i in 0..k {
+            r[i] = if col < 3 { a[packed_index(dim, col, 3 + i)] } else { lin[3 + i] };
+        }
+        eig.pinv_apply(rel_tol, &r[..k], &mut yc[..k]);
+    }
+    // A_ps = A_spᵀ: entry (p, 3 + i) of the packed matrix.
+    let aps = |p: usize, i: usize, a: &[f64]| a[packed_index(dim, p, 3 + i)];
+    let mut app = [[0.0; 3]; 3];
+    let mut lp = [0.0; 3];
+    for p in 0..3 {
+        for q in p..3 {
+            app[p][q] = a[packed_index(dim, p, q)] - (0..k).map(|i| aps(p, i, a) * y[q][i]).sum::<f64>();
+        }
+        lp[p] = lin[p] - (0..k).map(|i| aps(p, i, a) * y[3][i]).sum::<f64>();
+    }
+    *cst -= (0..k).map(|i| lin[3 + i] * y[3][i]).sum::<f64>();
+    for i in 0..dim {
+        for j in i..dim {
+            a[packed_index(dim, i, j)] = if j < 3 { app[i][j] } else { 0.0 };
+        }
+    }
+    lin[..3].copy_from_slice(&lp);
+    lin[3..dim].fill(0.0);
+}
+
+/// The attributes minimising stored coefficients `k` (dimension `dim`) with
+/// the position held at `pos` (local): `x = (pos, s)`, `s` from the
+/// attribute block's pseudo-inverse about the points' mean (so attributes
+/// the quadric does not constrain stay at the mean). Finite always.
+pub fn attrs_at(dim: usize, k: &[f64], pos: [f64; 3], rel_tol: f64) -> [f64; MAX_DIM] {
+    let mut x = packed_mean::<MAX_DIM>(k, dim);
+    x[..3].copy_from_slice(&pos);
+    if dim <= 3 || !(k[a_len(dim) + dim + 1] > 0.0) {
+        return x;
+    }
+    let n = dim - 3;
+    let a = packed_matrix::<MAX_DIM>(k, dim);
+    let g = half_gradient_at(&a, &k[a_len(dim)..a_len(dim) + dim], &x, dim);
+    let mut s: Mat = [[0.0; MAX_DIM]; MAX_DIM];
+    let mut r = [0.0; MAX_DIM];
+    for i in 0..n {
+        for j in 0..n {
+            s[i][j] = a[3 + i][3 + j];
+        }
+        r[i] = -g[3 + i];
+    }
+    let mut dx = [0.0; MAX_DIM];
+    Eigen::new(&s, n).pinv_apply(solve_rel_tol(rel_tol), &r[..n], &mut dx[..n]);
+    if dx[..n].iter().all(|v| v.is_finite()) {
+        for i in 0..n {
+            x[3 + i] += dx[i];
+        }
+    }
+    x
+}
+
 /// Minimiser found by [`Quadric::solve`], in local embedded coordinates
 /// (decode with [`QuadricSpace::unembed`]).
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -955,3 +955,53 @@ fn sized_solve_matches_the_general_solve() {
         }
     }
 }
+
+/// Eliminating the attributes gives min over them at every position, and
+/// [`attrs_at`] finds that minimum: on random uv + colour quadrics (dim 8)
+/// of a few triangles, at random positions.
+#[test]
+fn eliminated_attributes_are_their_minimum_at_every_position() {
+    let space = QuadricSpace::new(AttrSet(AttrSet::UV | AttrSet::COLOR), AttrWeights::uniform(1.0), [0.0; 3]);
+    let dim = space.dim;
+    assert_eq!(dim, 8);
+    let mut rng = Rng::at(91);
+    for case in 0..20 {
+        let mut q = Quadric::zero(dim);
+        for _ in 0..3 {
+            let pts: Vec<[f64; MAX_DIM]> = (0..3)
+                .map(|_| {
+                    let mut x = [0.0; MAX_DIM];
+                    for k in 0..dim {
+                        x[k] = rng.range(-1.0, 1.0);
+                    }
+                    x
+                })
+                .collect();
+            q.add_triangle(&pts[0], &pts[1], &pts[2]);
+            q.add_point(&pts[0]);
+        }
+        let al = dim * (dim + 1) / 2;
+        let mut k = q.coeffs().to_vec();
+        let (a, rest) = k.split_at_mut(al);
+        let (l, c) = rest.split_at_mut(dim);
+        eliminate_attrs(dim, a, l, &mut c[0], 1e-9);
+        let e = Quadric::from_coeffs(dim, &k);
+        for _ in 0..5 {
+            let p = rng.vec3(-1.0, 1.0);
+            let x = attrs_at(dim, q.coeffs(), p, 1e-9);
+            assert_eq!(&x[..3], &p[..]);
+            let best = q.error(&x);
+            let mut px = [0.0; MAX_DIM];
+            px[..3].copy_from_slice(&p);
+            // Q'(p) (attributes ignored: their rows are zero) = min_s Q(p, s).
+            let reduced = e.error(&px);
+            assert!((reduced - best).abs() <= 1e-9 * (1.0 + best), "case {case}: {reduced} vs {best}");
+            // And it is a minimum: moving an attribute costs.
+            for d in 3..dim {
+                let mut y = x;
+                y[d] += 1e-3;
+                assert!(q.error(&y) >= best - 1e-12, "case {case}: attribute {d} not at its minimum");
+            }
+        }
+    }
+}
