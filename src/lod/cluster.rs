@@ -6,7 +6,7 @@
 //! (or none: its triangles' sum), which vertices are locked (shared with
 //! another node of the level), each vertex's position id where the caller
 //! welded them, the attribute set. Attribute seams are not locked: they
-//! simplify along themselves, each side keeping its attributes ([`Seams`]). Gives: the split sequence ([`Splits`]) evaluated at any prefix —
+//! simplify along themselves, each side keeping its attributes (`Seams`). Gives: the split sequence ([`Splits`]) evaluated at any prefix —
 //! by error threshold (the level builder) or by triangle target — and the
 //! simplified mesh with each output vertex's quadric ([`Splits::build`]).
 //!
