@@ -947,6 +947,12 @@ fn info(dir: &std::path::Path) -> Result<()> {
     let manifest = octolod::manifest::Manifest::read(dir).ok();
     if let Some(m) = &manifest {
         out!("simplifier: {}", m.params.simplifier.name());
+        for t in &m.textures {
+            match &t.file {
+                Some(f) => out!("texture: {} ({}, {} bytes)", t.name, f, t.bytes),
+                None => out!("texture: {} (not found beside the input)", t.name),
+            }
+        }
     }
     let ml = |level: u8| manifest.as_ref().and_then(|m| m.levels.iter().find(|l| l.level == level).cloned());
     out!(

@@ -33,6 +33,56 @@ pub struct Manifest {
     pub seconds: ManifestSeconds,
     pub disk_bytes: u64,
     pub levels: Vec<LevelReport>,
+    /// The textures the input names (a PLY's `comment TextureFile`), in
+    /// their order (a face's `texnumber`), and their copies in the store.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub textures: Vec<TextureRef>,
+}
+
+/// A texture the input names and its copy next to the store's payloads.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct TextureRef {
+    /// The name as the input gives it (relative to the input's folder).
+    pub name: String,
+    /// The copy in the store (`texture-K.EXT`), or none when the file was
+    /// not found beside the input.
+    pub file: Option<String>,
+    pub bytes: u64,
+}
+
+impl TextureRef {
+    /// The store's name for texture `k` named `name`: `texture-K.EXT`, the
+    /// extension kept when it is a short alphanumeric one.
+    pub fn store_name(k: usize, name: &str) -> String {
+        let ext = Path::new(name)
+            .extension()
+            .map(|e| e.to_string_lossy().to_ascii_lowercase())
+            .filter(|e| !e.is_empty() && e.len() <= 5 && e.bytes().all(|c| c.is_ascii_alphanumeric()));
+        match ext {
+            Some(e) => format!("texture-{k}.{e}"),
+            None => format!("texture-{k}"),
+        }
+    }
+
+    /// Copies the textures `names` (relative to `input`'s folder) into
+    /// `store`; a missing one is recorded without a copy and reported by
+    /// the caller.
+    pub fn copy_all(input: &Path, names: &[String], store: &Path) -> crate::error::Result<Vec<TextureRef>> {
+        use crate::error::IoContext;
+        let base = crate::io::parent_dir(input);
+        let mut out = Vec::new();
+        for (k, name) in names.iter().enumerate() {
+            let src = base.join(name);
+            if !src.is_file() {
+                out.push(TextureRef { name: name.clone(), file: None, bytes: 0 });
+                continue;
+            }
+            let file = Self::store_name(k, name);
+            let bytes = std::fs::copy(&src, store.join(&file)).ctx(&src, "copy texture")?;
+            out.push(TextureRef { name: name.clone(), file: Some(file), bytes });
+        }
+        Ok(out)
+    }
 }
 
 /// How each node (or the whole mesh) is reduced: recorded in the

@@ -127,6 +127,19 @@ impl VertexLayout {
         VertexLayout { attrs, size: off, normal_at, color_at, uv_at }
     }
 
+    /// Byte offset of the uv in an encoded vertex, when the layout has one.
+    pub fn uv_offset(&self) -> Option<usize> {
+        self.attrs.uv().then_some(self.uv_at)
+    }
+
+    /// Sets the uv of an encoded vertex (a layout with uvs).
+    #[inline]
+    pub fn set_uv(&self, rec: &mut [u8], uv: [f32; 2]) {
+        let o = self.uv_at;
+        rec[o..o + 4].copy_from_slice(&uv[0].to_le_bytes());
+        rec[o + 4..o + 8].copy_from_slice(&uv[1].to_le_bytes());
+    }
+
     /// Writes `v` into `out[..self.size]`. Positions are rounded to f32 when
     /// the layout is single precision.
     #[inline]

@@ -86,6 +86,21 @@ pub fn build_store(input: &Path, output: &Path, opts: &BuildOptions) -> Result<B
     let soup_s = (t1 - t0).as_secs_f64() - if soup.written { 0.0 } else { built.octree.seconds };
     let levels_s = (total - soup_s - built.octree.seconds).max(0.0);
     let seconds = [soup_s, built.octree.seconds, levels_s, total];
+    // Textures the input names, copied next to the payloads.
+    let names = match crate::input::read_header(input, &crate::progress::Progress::hidden()) {
+        Ok(h) => h.ply().map(|p| crate::ply::texture_files(&p.comments)).unwrap_or_default(),
+        Err(_) => Vec::new(),
+    };
+    let textures = crate::manifest::TextureRef::copy_all(input, &names, out.path())?;
+    for t in textures.iter().filter(|t| t.file.is_none()) {
+        if !opts.quiet {
+            eprintln!(
+                "warning: {}: texture '{}' (comment TextureFile) not found beside the input; the store keeps its uvs without it",
+                input.display(),
+                t.name
+            );
+        }
+    }
     let disk_bytes = dir_bytes(out.path());
     let report = BuildReport { soup, octree: built.octree, levels: built.levels, nodes: built.nodes.len() as u64, seconds, disk_bytes };
     let manifest = Manifest {
@@ -101,6 +116,7 @@ pub fn build_store(input: &Path, output: &Path, opts: &BuildOptions) -> Result<B
         seconds: ManifestSeconds { soup: seconds[0], partition: seconds[1], levels: seconds[2], total: seconds[3] },
         disk_bytes,
         levels: report.levels.clone(),
+        textures,
     };
     manifest.write(out.path())?;
     out.commit()?;
@@ -182,12 +198,13 @@ pub fn extract_as(store: &Store, spec: CutSpec, out: &Path, weld: bool, force: b
 /// [`extract`] to a PLY.
 fn extract_ply(store: &Store, spec: CutSpec, out: &Path, weld: bool, force: bool) -> Result<(u64, u64)> {
     let cut = spec.cut(store)?;
-    let opts = mesh_ply_options(store.header.attrs, &format!("octolod {} of {}", spec.describe(), store.dir.display()));
+    let mut opts = mesh_ply_options(store.header.attrs, &format!("octolod {} of {}", spec.describe(), store.dir.display()));
+    opts.comments.extend(texture_comments(store, out));
     if weld {
         let parts = store.cut_meshes(&cut).collect::<Result<Vec<_>>>()?;
         let m = weld_union(&store.layout, &parts);
         drop(parts);
-        write_mesh_ply(out, store.header.attrs, &opts.comments[0], &m, force)?;
+        write_mesh_ply_with(out, &opts, &m, force)?;
         return Ok((m.vertices.len() as u64, m.triangles.len() as u64));
     }
     let mut file = crate::io::AtomicFile::create(out, OutputKind::Ply, force)?;
@@ -229,9 +246,34 @@ pub fn mesh_ply_options(attrs: AttrSet, comment: &str) -> PlyWriteOptions {
 /// Writes one indexed mesh as a binary little-endian PLY with `attrs`,
 /// atomically (an existing PLY octolod wrote is replaced only with `force`).
 pub fn write_mesh_ply(out: &Path, attrs: AttrSet, comment: &str, m: &IndexedMesh, force: bool) -> Result<()> {
-    let opts = mesh_ply_options(attrs, comment);
+    write_mesh_ply_with(out, &mesh_ply_options(attrs, comment), m, force)
+}
+
+/// `comment TextureFile` lines for a PLY written at `out` from `store`:
+/// the store's copies of the input's textures (MeshLab's convention), as
+/// paths relative to `out`'s folder where the store lies inside it, else
+/// absolute. Nothing is copied next to `out`, so no file there is touched.
+pub fn texture_comments(store: &Store, out: &Path) -> Vec<String> {
+    let Ok(m) = crate::manifest::Manifest::read(&store.dir) else { return Vec::new() };
+    let base = crate::io::parent_dir(out).canonicalize().ok();
+    let dir = store.dir.canonicalize().unwrap_or_else(|_| store.dir.clone());
+    m.textures
+        .iter()
+        .map(|t| {
+            let path = match &t.file {
+                Some(f) => dir.join(f),
+                None => std::path::PathBuf::from(&t.name),
+            };
+            let shown = base.as_ref().and_then(|b| path.strip_prefix(b).ok()).map(Path::to_path_buf).unwrap_or(path);
+            format!("TextureFile {}", shown.display())
+        })
+        .collect()
+}
+
+/// [`write_mesh_ply`] with the PLY options given.
+pub fn write_mesh_ply_with(out: &Path, opts: &PlyWriteOptions, m: &IndexedMesh, force: bool) -> Result<()> {
     let mut file = crate::io::AtomicFile::create(out, OutputKind::Ply, force)?;
-    let mut w = PlyWriter::new(file.writer(), &opts, m.vertices.len() as u64, m.triangles.len() as u64).ctx(out, "write")?;
+    let mut w = PlyWriter::new(file.writer(), opts, m.vertices.len() as u64, m.triangles.len() as u64).ctx(out, "write")?;
     for v in &m.vertices {
         w.vertex(v).ctx(out, "write")?;
     }

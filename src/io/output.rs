@@ -196,7 +196,12 @@ impl OwnEntries {
                     Some((l, p)) => num(l).is_some_and(|l| l < *levels) && num(p).is_some_and(|p| p >= 1 && p <= *parts),
                     None => num(r).is_some_and(|l| l < *levels),
                 });
-                s == "nodes.bin" || s == "store.json" || pack == Some(true)
+                // Textures copied from the input (`texture-K[.EXT]`).
+                let texture = s.strip_prefix("texture-").is_some_and(|r| {
+                    let (k, ext) = r.split_once('.').unwrap_or((r, "x"));
+                    num(k).is_some_and(|k| k < 1 << 16) && !ext.is_empty() && ext.len() <= 5 && ext.bytes().all(|c| c.is_ascii_alphanumeric())
+                });
+                s == "nodes.bin" || s == "store.json" || pack == Some(true) || texture
             }
             OwnEntries::All => true,
             OwnEntries::RenderNames => {

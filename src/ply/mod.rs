@@ -433,6 +433,10 @@ pub fn parse_header(path: &Path, bytes: &[u8], body_offset: u64) -> Result<PlyHe
     }
     if let Some(fi) = face_elem {
         let f = &elements[fi];
+        // Per-wedge uvs (MeshLab's face `texcoord`) give the mesh uvs.
+        if wedge_uv_prop(f).is_some() {
+            attrs = attrs.with(AttrSet::UV, true);
+        }
         match face_index_prop(f) {
             Some(i) => {
                 if let PropType::List(c, s) = f.props[i].ty {
@@ -457,6 +461,18 @@ pub(crate) fn color_names(v: &ElementDef) -> Option<[&'static str; 3]> {
 pub(crate) fn uv_names(v: &ElementDef) -> Option<[&'static str; 2]> {
     const SETS: [[&str; 2]; 4] = [["u", "v"], ["s", "t"], ["texture_u", "texture_v"], ["texture_s", "texture_t"]];
     SETS.into_iter().find(|set| set.iter().all(|n| v.prop(n).is_some_and(|i| matches!(v.props[i].ty, PropType::Scalar(_)))))
+}
+
+/// Index of the face's per-wedge uv list (`texcoord`, MeshLab's
+/// convention: u and v per corner), when it is a list of numbers.
+pub(crate) fn wedge_uv_prop(f: &ElementDef) -> Option<usize> {
+    f.prop("texcoord").filter(|&i| matches!(f.props[i].ty, PropType::List(c, _) if !c.is_float()))
+}
+
+/// The textures a PLY names (`comment TextureFile NAME`, MeshLab's
+/// convention; their order is the faces' `texnumber`).
+pub fn texture_files(comments: &[String]) -> Vec<String> {
+    comments.iter().filter_map(|c| c.strip_prefix("TextureFile").map(|n| n.trim().to_string())).filter(|n| !n.is_empty()).collect()
 }
 
 /// Index of the face's vertex index list property.

@@ -27,6 +27,13 @@ pub trait BodySink {
     fn vertices(&mut self, first: u64, batch: &[Vertex]) -> Result<()>;
     /// Triangles in face order (polygons fan-triangulated, degenerate ones dropped).
     fn triangles(&mut self, batch: &[[u64; 3]]) -> Result<()>;
+    /// Per-wedge uvs of the next [`BodySink::triangles`] batch, one per
+    /// corner and triangle, when the faces carry them (MeshLab's face list
+    /// `texcoord`): they replace the corners' vertex uvs. Sinks that keep
+    /// no uvs ignore them.
+    fn wedge_uvs(&mut self, _batch: &[[[f32; 2]; 3]]) -> Result<()> {
+        Ok(())
+    }
 }
 
 /// What the body held.
@@ -126,7 +133,8 @@ impl VertexPlan {
             normal: attrs.normal().then(|| [p("nx"), p("ny"), p("nz")]),
             color: attrs.color().then(|| color_names(e).unwrap().map(p)),
             alpha: attrs.alpha().then(|| p("alpha")),
-            uv: attrs.uv().then(|| uv_names(e).unwrap().map(p)),
+            // (uvs may come from the faces' per-wedge `texcoord` instead)
+            uv: attrs.uv().then(|| uv_names(e)).flatten().map(|n| n.map(p)),
         }
     }
 }
@@ -140,6 +148,9 @@ pub fn read_body(path: &Path, header: &PlyHeader, sink: &mut dyn BodySink, progr
         progress,
         reported: header.body_offset,
         tris: Vec::with_capacity(BATCH),
+        wedges: Vec::new(),
+        face_idx: Vec::new(),
+        face_tc: Vec::new(),
         verts: Vec::with_capacity(BATCH),
     };
     for (ei, e) in header.elements.iter().enumerate() {
@@ -161,6 +172,11 @@ struct BodyReader<'a> {
     progress: &'a Progress,
     reported: u64,
     tris: Vec<[u64; 3]>,
+    /// Per-wedge uvs of `tris` (faces with a `texcoord` list), else empty.
+    wedges: Vec<[[f32; 2]; 3]>,
+    /// One face's corners and texcoords (faces with a `texcoord` list).
+    face_idx: Vec<i64>,
+    face_tc: Vec<f32>,
     verts: Vec<Vertex>,
 }
 
@@ -441,8 +457,32 @@ impl BodyReader<'_> {
         }
         let start = self.input.offset();
         let mut fan = Fan { first: 0, prev: 0, k: 0 };
+        let tc_prop = super::wedge_uv_prop(e);
+        if tc_prop.is_some() {
+            self.face_idx.clear();
+            self.face_tc.clear();
+        }
         for (pi, p) in e.props.iter().enumerate() {
             let want = pi == idx_prop;
+            if Some(pi) == tc_prop {
+                // Per-wedge uvs: 2 per corner, kept for the record's end.
+                let PropType::List(c, s) = p.ty else { unreachable!("checked by wedge_uv_prop") };
+                let n = if ascii { self.ascii_count(e, rec, c, &p.name)? } else { self.read_bin_count(e, rec, c, be)? };
+                for _ in 0..n {
+                    let x = if ascii {
+                        self.ascii_number(e, rec, s, &p.name)?
+                    } else {
+                        if !self.input.ensure(s.size())? {
+                            return Err(self.truncated(e, rec));
+                        }
+                        let x = bin_f64(&self.input.buf, self.input.pos, s, be);
+                        self.input.pos += s.size();
+                        x
+                    };
+                    self.face_tc.push(x as f32);
+                }
+                continue;
+            }
             match (p.ty, ascii) {
                 (PropType::Scalar(s), true) => {
                     self.ascii_number(e, rec, s, &p.name)?;
@@ -466,7 +506,22 @@ impl BodyReader<'_> {
                     if n > 3 {
                         self.stats.polygons += 1;
                     }
-                    if ascii {
+                    if tc_prop.is_some() {
+                        // Wedge faces are fanned once their texcoords are read.
+                        for _ in 0..n {
+                            let x = if ascii {
+                                self.ascii_number(e, rec, s, &p.name)? as i64
+                            } else {
+                                if !self.input.ensure(s.size())? {
+                                    return Err(self.truncated(e, rec));
+                                }
+                                let i = bin_i64(&self.input.buf, self.input.pos, s, be);
+                                self.input.pos += s.size();
+                                i
+                            };
+                            self.face_idx.push(x);
+                        }
+                    } else if ascii {
                         for _ in 0..n {
                             let x = self.ascii_number(e, rec, s, &p.name)?;
                             self.fan_push(&mut fan, x as i64, e, rec, start, sink)?;
@@ -491,7 +546,43 @@ impl BodyReader<'_> {
                 }
             }
         }
+        if tc_prop.is_some() {
+            self.fan_wedges(e, rec, start, sink)?;
+        }
         self.stats.faces += 1;
+        Ok(())
+    }
+
+    /// Fans the face just read (`face_idx`) with its per-wedge uvs
+    /// (`face_tc`, two per corner).
+    fn fan_wedges(&mut self, e: &ElementDef, rec: u64, start: u64, sink: &mut dyn BodySink) -> Result<()> {
+        let n = self.face_idx.len();
+        if self.face_tc.len() != 2 * n {
+            return Err(Error::input(
+                self.loc(&e.name, rec, start),
+                format!("face with {n} corners has {} texcoord values; expected {} (u and v per corner)", self.face_tc.len(), 2 * n),
+            ));
+        }
+        let nv = self.header.vertex_count();
+        for &i in &self.face_idx {
+            if i < 0 || i as u64 >= nv {
+                return Err(self.bad_index(e, rec, start, i, nv));
+            }
+        }
+        let uv = |k: usize, tc: &[f32]| [tc[2 * k], tc[2 * k + 1]];
+        for k in 2..n {
+            let c = [0, k - 1, k];
+            let t = c.map(|j| self.face_idx[j] as u64);
+            if t[0] == t[1] || t[1] == t[2] || t[0] == t[2] {
+                self.stats.degenerate += 1;
+                continue;
+            }
+            self.tris.push(t);
+            self.wedges.push(c.map(|j| uv(j, &self.face_tc)));
+            if self.tris.len() == BATCH {
+                self.flush_triangles(sink)?;
+            }
+        }
         Ok(())
     }
 
@@ -544,6 +635,11 @@ impl BodyReader<'_> {
 
     fn flush_triangles(&mut self, sink: &mut dyn BodySink) -> Result<()> {
         if !self.tris.is_empty() {
+            if !self.wedges.is_empty() {
+                debug_assert_eq!(self.wedges.len(), self.tris.len());
+                sink.wedge_uvs(&self.wedges)?;
+                self.wedges.clear();
+            }
             sink.triangles(&self.tris)?;
             self.stats.triangles += self.tris.len() as u64;
             self.tris.clear();

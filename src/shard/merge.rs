@@ -106,6 +106,7 @@ pub fn merge(plan: &Plan, shards: &[PathBuf], out: &Path, o: MergeOptions) -> Re
         seconds: ManifestSeconds { soup: 0.0, partition: 0.0, levels: seconds, total: seconds },
         disk_bytes,
         levels: built.levels.clone(),
+        textures: Vec::new(),
     };
     manifest.write(dir.path())?;
     dir.commit()?;

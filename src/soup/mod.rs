@@ -205,6 +205,9 @@ pub enum TapMode {
     Takes,
 }
 
+/// Triangles patched with their wedge uvs at a time in phase 3.
+const WEDGE_BATCH: usize = 1 << 14;
+
 /// First corners per batch shown to a [`SoupTap`] in phase 2.
 const CORNER_BATCH: usize = 1 << 16;
 
@@ -264,6 +267,8 @@ struct InMemorySink<'a> {
     layout: VertexLayout,
     soup: &'a mut SoupWriter,
     rec: Vec<u8>,
+    /// Per-wedge uvs of the next triangle batch.
+    wedges: Vec<[[f32; 2]; 3]>,
 }
 
 impl BodySink for InMemorySink<'_> {
@@ -279,13 +284,22 @@ impl BodySink for InMemorySink<'_> {
     }
     fn triangles(&mut self, batch: &[[u64; 3]]) -> Result<()> {
         let s = self.layout.size;
-        for t in batch {
+        let wedges = std::mem::take(&mut self.wedges);
+        for (k, t) in batch.iter().enumerate() {
             for (c, &v) in t.iter().enumerate() {
                 let i = v as usize * s;
                 self.rec[c * s..(c + 1) * s].copy_from_slice(&self.table[i..i + s]);
+                if let Some(w) = wedges.get(k) {
+                    self.layout.set_uv(&mut self.rec[c * s..], w[c]);
+                }
             }
             self.soup.push_encoded(&self.rec)?;
         }
+        Ok(())
+    }
+    fn wedge_uvs(&mut self, batch: &[[[f32; 2]; 3]]) -> Result<()> {
+        self.wedges.clear();
+        self.wedges.extend_from_slice(batch);
         Ok(())
     }
 }
@@ -293,8 +307,13 @@ impl BodySink for InMemorySink<'_> {
 fn build_in_memory(input: &Path, output: &Path, header: &InputHeader, opts: &SoupOptions, progress: &Progress) -> Result<SoupReport> {
     let layout = VertexLayout::new(header.attrs);
     let mut soup = SoupWriter::create(output, header.attrs, opts.replace, opts.scratch)?;
-    let mut sink =
-        InMemorySink { table: Vec::with_capacity(header.vertex_count() as usize * layout.size), layout, soup: &mut soup, rec: vec![0; 3 * layout.size] };
+    let mut sink = InMemorySink {
+        table: Vec::with_capacity(header.vertex_count() as usize * layout.size),
+        layout,
+        soup: &mut soup,
+        rec: vec![0; 3 * layout.size],
+        wedges: Vec::new(),
+    };
     // The vertex table takes up to ¾ of the budget (see `build_soup_tapped`); the reader holds the rest.
     let scratch = crate::io::parent_dir(output);
     let body = crate::input::read_body(input, header, opts.mem / 4, &scratch, &mut sink, progress)?;
@@ -345,9 +364,22 @@ struct ExternalSink<'a> {
     overflow: bool,
     /// The bounding box of every vertex (as encoded), for a tap.
     bbox: Aabb,
+    /// Per-wedge uvs in triangle order (faces with a `texcoord` list):
+    /// written in sequence, applied in sequence by phase 3.
+    wedges: Option<BufWriter<File>>,
+    wpath: PathBuf,
 }
 
 impl BodySink for ExternalSink<'_> {
+    fn wedge_uvs(&mut self, batch: &[[[f32; 2]; 3]]) -> Result<()> {
+        if self.wedges.is_none() {
+            let f = File::create(&self.wpath).ctx(&self.wpath, "create wedge uv file")?;
+            self.wedges = Some(BufWriter::with_capacity(SEQ_BUF, f));
+        }
+        let w = self.wedges.as_mut().expect("just made");
+        let bytes: Vec<u8> = batch.iter().flatten().flatten().flat_map(|x| x.to_le_bytes()).collect();
+        w.write_all(&bytes).ctx(&self.wpath, "write wedge uv file")
+    }
     fn vertices(&mut self, _first: u64, batch: &[Vertex]) -> Result<()> {
         let s = self.layout.size;
         self.vbuf.resize(batch.len() * s, 0);
@@ -402,7 +434,8 @@ fn build_external(
 
     let t2 = Instant::now();
     crate::mem::trim();
-    let written = write_slots(output, opts, plan.layout, &body, joined.buckets, joined.bbox, &mut tap)?;
+    let corner_bucket_bytes = joined.corner_bucket_bytes;
+    let written = write_slots(output, opts, plan.layout, &body, joined, &mut tap)?;
     let phase_seconds = [(t1 - t0).as_secs_f64(), (t2 - t1).as_secs_f64(), t2.elapsed().as_secs_f64()];
     Ok(SoupReport {
         header: written.header,
@@ -410,7 +443,7 @@ fn build_external(
         input_bytes: 0,
         external: true,
         vertex_slabs: plan.n_slabs as u64,
-        corner_bucket_bytes: joined.corner_bucket_bytes,
+        corner_bucket_bytes,
         slot_buckets: written.slot_buckets,
         slot_bucket_bytes: written.slot_bucket_bytes,
         phase_seconds,
@@ -461,6 +494,8 @@ struct SlabCorners {
     vertex_bbox: Aabb,
     /// Bytes of a corner record's slot (4 or 8).
     slot_bytes: usize,
+    /// The per-wedge uv file, when the faces carry uvs.
+    wedges: Option<PathBuf>,
 }
 
 /// Phase 1: one pass over the PLY; vertices to the vertex file, corners
@@ -484,6 +519,8 @@ fn distribute_by_slab(input: &Path, header: &InputHeader, opts: &SoupOptions, pr
             narrow_slots: opts.narrow_slots,
             overflow: false,
             bbox: Aabb::EMPTY,
+            wedges: None,
+            wpath: scratch.join("wedges.bin"),
         };
         // The reader holds what the corner buckets' and the vertex file's buffers leave.
         let reader_mem = opts.mem.saturating_sub(sink.corners.buffer_bytes() + SEQ_BUF as u64);
@@ -500,9 +537,16 @@ fn distribute_by_slab(input: &Path, header: &InputHeader, opts: &SoupOptions, pr
         if body.triangles == 0 {
             return Err(no_triangles_error(input, header, &body));
         }
-        let ExternalSink { vfile, corners, bbox, .. } = sink;
+        let ExternalSink { vfile, corners, bbox, wedges, wpath, .. } = sink;
         vfile.into_inner().map_err(|e| e.into_error()).ctx(&vpath, "write vertex file")?;
-        return Ok(SlabCorners { body, buckets: corners.finish()?, vpath, vertex_bbox: bbox, slot_bytes });
+        let wedges = match wedges {
+            Some(w) => {
+                w.into_inner().map_err(|e| e.into_error()).ctx(&wpath, "write wedge uv file")?;
+                Some(wpath)
+            }
+            None => None,
+        };
+        return Ok(SlabCorners { body, buckets: corners.finish()?, vpath, vertex_bbox: bbox, slot_bytes, wedges });
     }
 }
 
@@ -514,13 +558,15 @@ struct Joined {
     bbox: Aabb,
     /// Bytes read back from (and written to) the slabs' corner buckets.
     corner_bucket_bytes: u64,
+    /// The per-wedge uv file, when the faces carry uvs.
+    wedges: Option<PathBuf>,
 }
 
 /// Phase 2: slab by slab, the slab's vertices in memory (read in sequence
 /// from the vertex file), its corners dereferenced and distributed by slot;
 /// the tap sees each triangle's first corner.
 fn join_slabs(plan: &ExternalPlan, scratch: &Path, slabs: SlabCorners, quiet: bool, tap: &mut Option<&mut dyn SoupTap>) -> Result<Joined> {
-    let SlabCorners { body, vpath, buckets: corner_buckets, vertex_bbox, slot_bytes } = slabs;
+    let SlabCorners { body, vpath, buckets: corner_buckets, vertex_bbox, slot_bytes, wedges } = slabs;
     let (layout, s, per_slab, n_vertices) = (plan.layout, plan.layout.size, plan.per_slab, plan.n_vertices);
     let crec = corner_rec(slot_bytes);
     let n_corners = body.triangles * 3;
@@ -583,7 +629,7 @@ fn join_slabs(plan: &ExternalPlan, scratch: &Path, slabs: SlabCorners, quiet: bo
     drop((vfile, slab, chunk, firsts));
     let _ = std::fs::remove_file(&vpath);
     join_progress.finish();
-    Ok(Joined { buckets, bbox, corner_bucket_bytes })
+    Ok(Joined { buckets, bbox, corner_bucket_bytes, wedges })
 }
 
 /// What phase 3 wrote.
@@ -602,11 +648,18 @@ fn write_slots(
     opts: &SoupOptions,
     layout: VertexLayout,
     body: &BodyStats,
-    buckets: SlotBuckets,
-    bbox: Aabb,
+    joined: Joined,
     tap: &mut Option<&mut dyn SoupTap>,
 ) -> Result<Written> {
+    let Joined { buckets, bbox, wedges, .. } = joined;
     let s = layout.size;
+    // Per-wedge uvs, read in sequence beside the triangles in order.
+    let mut wedges = match &wedges {
+        Some(p) => Some((std::io::BufReader::with_capacity(SEQ_BUF, File::open(p).ctx(p, "open wedge uv file")?), p.clone())),
+        None => None,
+    };
+    let mut patched: Vec<u8> = Vec::new();
+    let mut uvs = [0u8; 24];
     let write_progress = Progress::items(body.triangles, "writing", opts.quiet);
     let mode = match tap.as_mut() {
         Some(t) => t.begin(&bbox, layout)?,
@@ -618,16 +671,35 @@ fn write_slots(
     };
     let mut written = 0u64;
     let slot_buckets = buckets.len();
-    let slot_bucket_bytes = buckets.finish(|tris| {
-        if let Some(soup) = soup.as_mut() {
-            for tri in tris.chunks_exact(3 * s) {
-                soup.push_encoded(tri)?;
+    let slot_bucket_bytes = buckets.finish(|all| {
+        // With wedge uvs, a few thousand triangles at a time are patched.
+        let step = if wedges.is_some() { WEDGE_BATCH * 3 * s } else { all.len().max(1) };
+        for tris in all.chunks(step) {
+            let tris = match wedges.as_mut() {
+                Some((r, p)) => {
+                    patched.clear();
+                    patched.extend_from_slice(tris);
+                    for tri in patched.chunks_exact_mut(3 * s) {
+                        r.read_exact(&mut uvs).ctx(&*p, "read wedge uv file")?;
+                        for c in 0..3 {
+                            let f = |k: usize| f32::from_le_bytes(uvs[4 * k..4 * k + 4].try_into().unwrap());
+                            layout.set_uv(&mut tri[c * s..], [f(2 * c), f(2 * c + 1)]);
+                        }
+                    }
+                    &patched[..]
+                }
+                None => tris,
+            };
+            if let Some(soup) = soup.as_mut() {
+                for tri in tris.chunks_exact(3 * s) {
+                    soup.push_encoded(tri)?;
+                }
             }
+            if let Some(t) = tap.as_mut() {
+                t.triangles(tris)?;
+            }
+            written += (tris.len() / (3 * s)) as u64;
         }
-        if let Some(t) = tap.as_mut() {
-            t.triangles(tris)?;
-        }
-        written += (tris.len() / (3 * s)) as u64;
         write_progress.set(written);
         crate::io::signal::check()
     })?;

@@ -257,3 +257,159 @@ fn position_only_soup_pays_nothing_for_attributes() {
     // 128-byte header + 14 triangles x 3 corners x 12 bytes.
     assert_eq!(std::fs::metadata(&out).unwrap().len(), 128 + 14 * 36);
 }
+
+/// A MeshLab-style textured PLY: an n×n grid whose faces carry per-wedge
+/// uvs (`property list uchar float texcoord`, after the indices, or before
+/// them with `tc_first`), each column of cells its own uv island (so a
+/// vertex between columns has two uvs), the last cell one quad; and a
+/// `comment TextureFile`. Gives each kept triangle's corner uvs in order.
+fn write_wedge_ply(path: &Path, n: u32, ascii: bool, tc_first: bool) -> Vec<[[f32; 2]; 3]> {
+    let nv = (n + 1) * (n + 1);
+    let id = |x: u32, y: u32| y * (n + 1) + x;
+    // Island per column: u offset by the column, v by the row.
+    let uv = |col: u32, x: u32, y: u32| [col as f32 * 2.0 + (x - col) as f32 * 0.5, y as f32 / n as f32];
+    let mut faces: Vec<(Vec<u32>, Vec<[f32; 2]>)> = Vec::new();
+    for y in 0..n {
+        for x in 0..n {
+            let c = [(x, y), (x + 1, y), (x + 1, y + 1), (x, y + 1)];
+            let idx: Vec<u32> = c.iter().map(|&(a, b)| id(a, b)).collect();
+            let tc: Vec<[f32; 2]> = c.iter().map(|&(a, b)| uv(x, a, b)).collect();
+            if x == n - 1 && y == n - 1 {
+                faces.push((idx, tc));
+            } else {
+                faces.push((vec![idx[0], idx[1], idx[2]], vec![tc[0], tc[1], tc[2]]));
+                faces.push((vec![idx[0], idx[2], idx[3]], vec![tc[0], tc[2], tc[3]]));
+            }
+        }
+    }
+    let mut f = std::fs::File::create(path).unwrap();
+    let enc = if ascii { "ascii" } else { "binary_little_endian" };
+    let (idx_p, tc_p) = ("property list uchar int vertex_indices\n", "property list uchar float texcoord\n");
+    let props = if tc_first { format!("{tc_p}{idx_p}") } else { format!("{idx_p}{tc_p}") };
+    write!(
+        f,
+        "ply\nformat {enc} 1.0\ncomment TextureFile atlas_0.png\ncomment TextureFile atlas 1.jpg\nelement vertex {nv}\nproperty float x\nproperty float y\nproperty float z\nelement face {}\n{props}end_header\n",
+        faces.len()
+    )
+    .unwrap();
+    for y in 0..=n {
+        for x in 0..=n {
+            let p = [x as f32, y as f32, ((x * y) % 3) as f32 * 0.25];
+            if ascii {
+                writeln!(f, "{} {} {}", p[0], p[1], p[2]).unwrap();
+            } else {
+                for c in p {
+                    f.write_all(&c.to_le_bytes()).unwrap();
+                }
+            }
+        }
+    }
+    for (idx, tc) in &faces {
+        let mut parts: Vec<String> = Vec::new();
+        let mut bytes: Vec<u8> = Vec::new();
+        let idx_part = |parts: &mut Vec<String>, bytes: &mut Vec<u8>| {
+            parts.push(format!("{} {}", idx.len(), idx.iter().map(|i| i.to_string()).collect::<Vec<_>>().join(" ")));
+            bytes.push(idx.len() as u8);
+            idx.iter().for_each(|i| bytes.extend((*i as i32).to_le_bytes()));
+        };
+        let tc_part = |parts: &mut Vec<String>, bytes: &mut Vec<u8>| {
+            parts.push(format!("{} {}", 2 * tc.len(), tc.iter().map(|t| format!("{} {}", t[0], t[1])).collect::<Vec<_>>().join(" ")));
+            bytes.push(2 * tc.len() as u8);
+            tc.iter().flatten().for_each(|x| bytes.extend(x.to_le_bytes()));
+        };
+        if tc_first {
+            tc_part(&mut parts, &mut bytes);
+            idx_part(&mut parts, &mut bytes);
+        } else {
+            idx_part(&mut parts, &mut bytes);
+            tc_part(&mut parts, &mut bytes);
+        }
+        if ascii {
+            writeln!(f, "{}", parts.join(" ")).unwrap();
+        } else {
+            f.write_all(&bytes).unwrap();
+        }
+    }
+    // Fan order: (0, k-1, k).
+    faces.iter().flat_map(|(_, tc)| (2..tc.len()).map(move |k| [tc[0], tc[k - 1], tc[k]])).collect()
+}
+
+/// Issue 32: per-wedge uvs (MeshLab's face `texcoord`) become the soup
+/// corners' uvs on both paths (the vertex table has none), the texture
+/// names are read from the comments, and a face whose texcoord count does
+/// not match its corners is refused naming the face.
+#[test]
+fn meshlab_wedge_texcoords_become_corner_uvs() {
+    let d = tempfile::tempdir().unwrap();
+    for (ascii, tc_first) in [(false, false), (true, false), (false, true)] {
+        let p = d.path().join(format!("wedges-{ascii}-{tc_first}.ply"));
+        let want = write_wedge_ply(&p, 12, ascii, tc_first);
+        let h = octolod::ply::read_header(&p).unwrap();
+        assert!(h.attrs.uv(), "wedge uvs make a mesh with uvs");
+        assert_eq!(octolod::ply::texture_files(&h.comments), ["atlas_0.png", "atlas 1.jpg"]);
+        let mut soups = Vec::new();
+        for opts in [SoupOptions::default(), SoupOptions { mem: 64 << 10, force_external: true, ..Default::default() }] {
+            let out = d.path().join("out.soup");
+            let rep = build_soup(&p, &out, &SoupOptions { replace: true, ..opts.clone() }).unwrap();
+            assert_eq!(rep.external, opts.force_external);
+            let (sh, tris) = SoupReader::read_all(&out).unwrap();
+            assert!(sh.attrs.uv());
+            let got: Vec<[[f32; 2]; 3]> = tris.iter().map(|t| t.map(|v| v.uv)).collect();
+            assert_eq!(got, want, "ascii {ascii}, texcoords first {tc_first}, external {}", opts.force_external);
+            soups.push(std::fs::read(&out).unwrap());
+        }
+        assert!(soups[0] == soups[1], "the paths' soups differ");
+    }
+    // A triangle with 4 texcoord values.
+    let bad = d.path().join("bad.ply");
+    std::fs::write(
+        &bad,
+        "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nelement face 2\nproperty list uchar int vertex_indices\nproperty list uchar float texcoord\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2 6 0 0 1 0 0 1\n3 0 1 2 4 0 0 1 0\n",
+    )
+    .unwrap();
+    let e = build_soup(&bad, &d.path().join("bad.soup"), &SoupOptions::default()).unwrap_err().to_string();
+    assert!(e.contains("bad.ply") && e.contains("face") && e.contains("texcoord") && e.contains("record 1"), "{e}");
+    assert!(!d.path().join("bad.soup").exists());
+}
+
+/// Issue 32: a build keeps the textures a PLY names: the one found beside
+/// the input is copied into the store (`texture-0.png`) and listed in the
+/// manifest with the missing one; `--force` replaces such a store (the
+/// copies are its own); an extracted PLY names the store's copy in its
+/// `comment TextureFile`, relative to its folder; level 0 keeps the wedge
+/// uvs (one vertex per side of each seam).
+#[test]
+fn a_build_keeps_the_named_textures() {
+    let d = tempfile::tempdir().unwrap();
+    let ply = d.path().join("textured.ply");
+    let want = write_wedge_ply(&ply, 16, false, false);
+    std::fs::write(d.path().join("atlas_0.png"), b"\x89PNG not really").unwrap();
+    let out = d.path().join("textured.octolod");
+    let opts = octolod::pipeline::BuildOptions::default();
+    octolod::pipeline::build_store(&ply, &out, &opts).unwrap();
+    let m = octolod::manifest::Manifest::read(&out).unwrap();
+    assert_eq!(m.textures.len(), 2);
+    assert_eq!((m.textures[0].name.as_str(), m.textures[0].file.as_deref(), m.textures[0].bytes), ("atlas_0.png", Some("texture-0.png"), 15));
+    assert_eq!((m.textures[1].name.as_str(), m.textures[1].file.as_deref()), ("atlas 1.jpg", None));
+    assert_eq!(std::fs::read(out.join("texture-0.png")).unwrap(), b"\x89PNG not really");
+    // Level 0 holds the wedge uvs: every input corner's uv is a vertex's.
+    let s = octolod::store::Store::open(&out).unwrap();
+    let mut uvs = std::collections::HashSet::new();
+    for i in s.level_nodes(0) {
+        for v in s.read_node(i).unwrap().mesh.vertices {
+            uvs.insert(v.uv.map(f32::to_bits));
+        }
+    }
+    assert!(want.iter().flatten().all(|uv| uvs.contains(&uv.map(f32::to_bits))), "a wedge uv is missing at level 0");
+    drop(s);
+    // Replaced with --force: the texture copy is the store's own.
+    octolod::pipeline::build_store(&ply, &out, &octolod::pipeline::BuildOptions { force: true, ..opts }).unwrap();
+    assert!(out.join("texture-0.png").is_file());
+    let s = octolod::store::Store::open(&out).unwrap();
+    let top = s.top_level();
+    let x = d.path().join("top.ply");
+    octolod::pipeline::extract(&s, octolod::pipeline::CutSpec::Level(top), &x, true, false).unwrap();
+    let h = octolod::ply::read_header(&x).unwrap();
+    assert_eq!(octolod::ply::texture_files(&h.comments), ["textured.octolod/texture-0.png", "atlas 1.jpg"]);
+    assert!(h.attrs.uv());
+}
