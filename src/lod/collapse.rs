@@ -119,6 +119,9 @@ pub fn collapse(mesh: &IndexedMesh, locked: &[bool], attrs: AttrSet, target_tris
             }
         }
     }
+    // Updated uvs can overshoot their island (a far or tiled atlas): each
+    // stays in the uv box of its chart (the input piece its index joins).
+    let chart_box = attrs.uv().then(|| chart_uv_boxes(mesh));
     let mut verts = mesh.vertices.clone();
     for (i, v) in verts.iter_mut().enumerate() {
         if locked.get(i).copied().unwrap_or(false) {
@@ -147,10 +150,47 @@ pub fn collapse(mesh: &IndexedMesh, locked: &[bool], attrs: AttrSet, target_tris
         }
         if attrs.uv() {
             v.uv = [a[k], a[k + 1]];
+            if let Some((chart, boxes)) = &chart_box {
+                let (lo, hi) = boxes[chart[i] as usize];
+                v.uv = [v.uv[0].clamp(lo[0], hi[0]), v.uv[1].clamp(lo[1], hi[1])];
+            }
         }
     }
     let triangles = idx.chunks_exact(3).map(|t| [t[0], t[1], t[2]]).collect();
     Collapsed { vertices: verts, triangles, error: result_error as f64 }
+}
+
+/// A uv box: low and high corners.
+type UvBox = ([f32; 2], [f32; 2]);
+
+/// Each vertex's chart (a connected piece of the index) and each chart's
+/// uv box (empty charts: unused vertices, a box of their own uv).
+fn chart_uv_boxes(mesh: &IndexedMesh) -> (Vec<u32>, Vec<UvBox>) {
+    let n = mesh.vertices.len();
+    let mut parent: Vec<u32> = (0..n as u32).collect();
+    fn root(p: &mut [u32], mut x: u32) -> u32 {
+        while p[x as usize] != x {
+            p[x as usize] = p[p[x as usize] as usize];
+            x = p[x as usize];
+        }
+        x
+    }
+    for t in &mesh.triangles {
+        for k in 0..2 {
+            let (a, b) = (root(&mut parent, t[k]), root(&mut parent, t[k + 1]));
+            if a != b {
+                parent[a.max(b) as usize] = a.min(b);
+            }
+        }
+    }
+    let chart: Vec<u32> = (0..n as u32).map(|v| root(&mut parent, v)).collect();
+    let mut boxes = vec![([f32::MAX; 2], [f32::MIN; 2]); n];
+    for (v, &c) in chart.iter().enumerate() {
+        let (uv, b) = (mesh.vertices[v].uv, &mut boxes[c as usize]);
+        b.0 = [b.0[0].min(uv[0]), b.0[1].min(uv[1])];
+        b.1 = [b.1[0].max(uv[0]), b.1[1].max(uv[1])];
+    }
+    (chart, boxes)
 }
 
 /// Error curve of one sampled node: its triangles, and (error, triangles)

@@ -590,3 +590,73 @@ fn atlas_seams_simplify_without_tears_or_bleeding() {
         assert_eq!(bleeding, 0, "{name}: {bleeding} stored triangles span two islands");
     }
 }
+
+/// Issue 32's hard cases stay stable with either simplifier: uvs far
+/// outside [0, 1], islands sharing (tiling) one tile's uvs, islands whose
+/// uvs are all one point (degenerate uv triangles), vertices on three or
+/// more islands. Every stored uv is finite and lies in the uv box of one
+/// island that its triangle's corners all fit (no bleeding), a degenerate
+/// island's uv stays its point exactly, and every cut is closed.
+#[test]
+fn hard_uv_cases_stay_stable() {
+    let base = common::gen_mesh(Shape::Sphere, 20_000, AttrSet::UV, 3);
+    let (mut input, tiles) = octolod::gen::atlas::atlas(&base, 4);
+    let island = |uv: [f32; 2]| octolod::gen::atlas::tile(uv, tiles);
+    // Vertices on three or more islands exist (cell corners).
+    let mut at: HashMap<[u64; 3], std::collections::HashSet<(i64, i64)>> = HashMap::new();
+    for v in &input.vertices {
+        at.entry(v.pos.map(f64::to_bits)).or_default().insert(island(v.uv));
+    }
+    assert!(at.values().any(|s| s.len() >= 3), "no vertex on three islands");
+    // Re-map islands: every third far outside [0, 1], every third one point,
+    // every fifth onto tile (0, 0) (tiling).
+    let mut boxes: HashMap<i64, ([f32; 2], [f32; 2])> = HashMap::new();
+    let key = |t: (i64, i64)| t.0 * 1000 + t.1;
+    let mut of_vertex = Vec::new();
+    for v in input.vertices.iter_mut() {
+        let t = island(v.uv);
+        let k = key(t);
+        let local = [v.uv[0] * tiles as f32 - t.0 as f32, v.uv[1] * tiles as f32 - t.1 as f32];
+        v.uv = match k % 3 {
+            0 => [local[0] + 7.0 + 3.0 * t.0 as f32, local[1] - 5.0 - 3.0 * t.1 as f32],
+            1 => [0.25 + t.0 as f32 * 0.01, 0.75 + t.1 as f32 * 0.01],
+            _ if k % 5 == 2 => local,
+            _ => [v.uv[0] + 20.0, v.uv[1]],
+        };
+        of_vertex.push(k);
+        let b = boxes.entry(k).or_insert(([f32::MAX; 2], [f32::MIN; 2]));
+        for d in 0..2 {
+            b.0[d] = b.0[d].min(v.uv[d]);
+            b.1[d] = b.1[d].max(v.uv[d]);
+        }
+    }
+    let points: std::collections::HashSet<[u32; 2]> = boxes.iter().filter(|(k, _)| *k % 3 == 1).map(|(_, b)| b.0.map(f32::to_bits)).collect();
+    let d = tempfile::tempdir().unwrap();
+    let ply = d.path().join("hard-uv.ply");
+    let opts = octolod::ply::write::PlyWriteOptions { attrs: AttrSet(AttrSet::UV), ..Default::default() };
+    octolod::ply::write::write_ply(&ply, &opts, &input.vertices, &input.triangles).unwrap();
+    for simp in SIMPLIFIERS {
+        let s = common::build_from_with(d.path(), &ply, 1000, simp);
+        let name = format!("hard uvs ({})", simp.name());
+        check_dag(&s, &name);
+        check_cuts(&s, &input, &name, true);
+        let inside = |uv: [f32; 2], b: &([f32; 2], [f32; 2])| (0..2).all(|k| uv[k] >= b.0[k] - 1e-6 && uv[k] <= b.1[k] + 1e-6);
+        let (mut bled, mut moved_points) = (0, 0);
+        for i in 1..s.nodes.len() {
+            let m = s.read_node(i).unwrap().mesh;
+            for t in &m.triangles {
+                let c = t.map(|v| m.vertices[v as usize].uv);
+                assert!(c.iter().flatten().all(|x| x.is_finite()), "{name}: a non-finite uv");
+                bled += !boxes.values().any(|b| c.iter().all(|&uv| inside(uv, b))) as usize;
+                // A corner inside a point island's box is that point.
+                for uv in c {
+                    let near_point = boxes.iter().any(|(k, b)| k % 3 == 1 && (0..2).all(|d| (uv[d] - b.0[d]).abs() < 0.004));
+                    moved_points += (near_point && !points.contains(&uv.map(f32::to_bits))) as usize;
+                }
+            }
+        }
+        let _ = &of_vertex;
+        assert_eq!(bled, 0, "{name}: {bled} stored triangles span islands");
+        assert_eq!(moved_points, 0, "{name}: {moved_points} corners near a one-point island's uv but not on it");
+    }
+}
