@@ -307,6 +307,10 @@ struct MetroArgs {
     /// Memory budget (default 512M): pages STORE@L operands' nodes in and out; given, PLYs (held whole) must fit it too.
     #[arg(long)]
     mem: Option<String>,
+    /// Also measure the uv and colour difference at the closest point
+    /// (both operands held whole with their attributes).
+    #[arg(long)]
+    attributes: bool,
 }
 
 #[derive(clap::Args)]
@@ -841,11 +845,11 @@ fn cmd_simplify(args: SimplifyArgs, quiet: bool, force: bool) -> Result<ExitCode
 
 fn cmd_metro(args: MetroArgs, quiet: bool) -> Result<ExitCode> {
     use octolod::metro::{Limits, MemOptions, Options, RunOptions, Source};
-    let MetroArgs { a, b, samples, seed, json, max_hausdorff, max_rms, max_mean, mem } = args;
+    let MetroArgs { a, b, samples, seed, json, max_hausdorff, max_rms, max_mean, mem, attributes } = args;
     let limits = Limits::parse(max_hausdorff.as_deref(), max_rms.as_deref(), max_mean.as_deref())?;
     let options = Options::checked(samples, seed, quiet)?;
     let mem = MemOptions::parse(mem.as_deref())?;
-    let run = RunOptions { a: Source::parse(&a)?, b: Source::parse(&b)?, options, mem, limits, json };
+    let run = RunOptions { a: Source::parse(&a)?, b: Source::parse(&b)?, options, mem, limits, json, attributes };
     if !octolod::metro::run(&run)? {
         return Ok(ExitCode::from(octolod::metro::EXIT_THRESHOLD));
     }

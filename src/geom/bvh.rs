@@ -213,6 +213,33 @@ impl Bvh {
         }
         (best != u32::MAX).then_some((best2, best, bq))
     }
+
+    /// Every triangle whose closest point to `p` is at squared distance at
+    /// most `r2`: `f(triangle, point, squared distance)`.
+    pub fn within(&self, p: P3, r2: f64, mut f: impl FnMut(u32, P3, f64)) {
+        if self.nodes.is_empty() {
+            return;
+        }
+        let mut stack = vec![0u32];
+        while let Some(node) = stack.pop() {
+            let n = &self.nodes[node as usize];
+            if !(n.dist2(p) <= r2) {
+                continue;
+            }
+            if n.count > 0 {
+                for s in n.start..n.start + n.count {
+                    let q = self.tri_closest(s, p);
+                    let d = dist2(p, q);
+                    if d <= r2 {
+                        f(self.ids[s as usize], q, d);
+                    }
+                }
+            } else {
+                stack.push(node + 1);
+                stack.push(n.start);
+            }
+        }
+    }
 }
 
 /// A hierarchy over boxes, one box a leaf: the top level of a paged mesh,

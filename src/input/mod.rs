@@ -194,6 +194,7 @@ pub fn read_all(path: &Path, mem: u64) -> Result<(InputHeader, CollectSink, Body
     let header = read_header(path, &Progress::hidden())?;
     let mut sink = CollectSink::default();
     let stats = read_body(path, &header, mem, &std::env::temp_dir(), &mut sink, &Progress::hidden())?;
+    sink.split_wedges();
     if header.format == Format::Stl {
         sink = weld(sink);
     }
@@ -206,5 +207,5 @@ fn weld(sink: CollectSink) -> CollectSink {
     let mut vertices = Vec::with_capacity(sink.vertices.len() / 2);
     let map: Vec<u64> = sink.vertices.iter().map(|v| w.id(v.pos, |_| vertices.push(*v)) as u64).collect();
     let triangles = sink.triangles.iter().map(|t| t.map(|i| map[i as usize])).collect();
-    CollectSink { vertices, triangles }
+    CollectSink { vertices, triangles, wedges: Vec::new() }
 }

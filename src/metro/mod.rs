@@ -28,6 +28,7 @@
 //! `measure.rs` (one direction), `paged.rs`, `cache.rs`, `report.rs`.
 //! Sampling, paging, complexity, rounding and figures: `docs/metro.md`.
 
+pub mod attributes;
 mod cache;
 mod measure;
 mod paged;
@@ -40,6 +41,7 @@ pub use report::{Check, JsonBox, JsonCheck, JsonDistances, JsonMesh, JsonParts, 
 
 use crate::error::{Error, Location, Result};
 use crate::geom::{mix64, Bvh};
+use crate::mesh::AttrSet;
 use crate::progress::Progress;
 use cache::Cache;
 use measure::{measure, Target};
@@ -96,6 +98,30 @@ impl Source {
         }
         Ok(Source::Ply(PathBuf::from(spec)))
     }
+    /// The operand whole with its attributes (a PLY's per-wedge uvs
+    /// split; a store level's nodes side by side), and its attribute set.
+    pub fn load_full(&self) -> Result<(crate::mesh::IndexedMesh, AttrSet)> {
+        match self {
+            Source::Ply(p) => {
+                let (h, sink, _) = crate::input::read_all(p, crate::mem::DEFAULT_BUDGET)?;
+                let triangles = sink.triangles.iter().map(|t| t.map(|i| i as u32)).collect();
+                Ok((crate::mesh::IndexedMesh { vertices: sink.vertices, triangles }, h.attrs))
+            }
+            Source::Store(d, l) => {
+                let s = crate::store::Store::open(d)?;
+                s.check_level(*l)?;
+                let mut m = crate::mesh::IndexedMesh::default();
+                for part in s.cut_meshes(&s.level_cut(*l)) {
+                    let part = part?;
+                    let base = m.vertices.len() as u32;
+                    m.vertices.extend_from_slice(&part.vertices);
+                    m.triangles.extend(part.triangles.iter().map(|t| t.map(|i| i + base)));
+                }
+                Ok((m, s.header.attrs))
+            }
+        }
+    }
+
     pub fn load(&self) -> Result<Mesh> {
         match self {
             Source::Ply(p) => load_ply(p),
@@ -444,6 +470,7 @@ fn compare_operands(a: &Operand, b: &Operand, opts: &Options, batch: usize, pagi
         b_to_a: ba,
         seconds: Timings { load: 0.0, bvh: bvh_s, a_to_b: t_ab, b_to_a: t_ba },
         paging,
+        attributes: None,
     })
 }
 
@@ -489,13 +516,24 @@ pub struct RunOptions {
     pub limits: Limits,
     /// Print one JSON object ([`JsonReport`]) instead of the table.
     pub json: bool,
+    /// Also measure attributes ([`attributes`]).
+    pub attributes: bool,
 }
 
 /// Compares, prints the table (or JSON) on stdout and each exceeded
 /// threshold on stderr. Ok(false) when a threshold is exceeded (the binary
 /// then exits with [`EXIT_THRESHOLD`]).
 pub fn run(o: &RunOptions) -> Result<bool> {
-    let r = compare_sources(&o.a, &o.b, &o.options, &o.mem)?;
+    let mut r = compare_sources(&o.a, &o.b, &o.options, &o.mem)?;
+    if o.attributes {
+        let (a, aa) = o.a.load_full()?;
+        let (b, ba) = o.b.load_full()?;
+        let common = AttrSet(aa.0 & ba.0 & (AttrSet::UV | AttrSet::COLOR));
+        r.attributes = attributes::attribute_errors(&a, &b, common, r.samples_target, o.options.seed);
+        if r.attributes.is_none() && !o.options.quiet {
+            eprintln!("octolod: metro: --attributes: {} and {} share no uv or colour", o.a, o.b);
+        }
+    }
     let mut out = std::io::stdout().lock();
     let text = if o.json { r.to_json(&o.limits) } else { r.table() };
     let _ = writeln!(out, "{text}");

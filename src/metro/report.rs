@@ -65,6 +65,8 @@ pub struct Report {
     pub seconds: Timings,
     /// Present when an operand was a paged store level.
     pub paging: Option<PagingReport>,
+    /// Attribute differences (`--attributes`).
+    pub attributes: Option<super::attributes::AttrReport>,
 }
 
 /// What paging did (present when an operand is a store level; the JSON
@@ -246,6 +248,7 @@ impl Report {
                 })
                 .collect(),
             paging: self.paging.clone(),
+            attributes: self.attributes,
         }
     }
 
@@ -338,6 +341,16 @@ impl Report {
             self.combined.samples as f64 / 1e6 / q.max(1e-9),
             crate::progress::peak_rss().map_or("n/a".to_string(), crate::progress::mib)
         );
+        if let Some(a) = &self.attributes {
+            for (name, d) in [("A -> B", &a.a_to_b), ("B -> A", &a.b_to_a), ("both", &a.combined)] {
+                for (what, f) in [("uv", d.uv), ("colour", d.color)] {
+                    if let Some(f) = f {
+                        let _ =
+                            write!(s, "\nattributes {name}: {what} difference max {:.6e} mean {:.6e} RMS {:.6e} ({} samples)", f.max, f.mean, f.rms, d.samples);
+                    }
+                }
+            }
+        }
         s
     }
 }
@@ -391,6 +404,10 @@ pub struct JsonReport {
     /// over an explicit `--mem`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub paging: Option<PagingReport>,
+    /// Present with `--attributes`: uv and colour differences at the
+    /// closest point, per direction and combined ([`super::attributes`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub attributes: Option<super::attributes::AttrReport>,
 }
 
 /// One operand in [`JsonReport`].
@@ -573,6 +590,7 @@ mod tests {
             combined: d,
             seconds: Timings::default(),
             paging: Some(PagingReport { budget: 1 << 20, parts: JsonParts { a: Some(4), b: None }, ..Default::default() }),
+            attributes: None,
         };
         let limits = Limits::parse(Some("0.1%"), None, None).unwrap();
         let text = r.to_json(&limits);

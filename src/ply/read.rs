@@ -816,6 +816,32 @@ impl AsciiTok<'_> {
 pub struct CollectSink {
     pub vertices: Vec<Vertex>,
     pub triangles: Vec<[u64; 3]>,
+    /// Per-wedge uvs of `triangles` (faces with a `texcoord` list) until
+    /// [`CollectSink::split_wedges`] makes them vertices.
+    pub wedges: Vec<[[f32; 2]; 3]>,
+}
+
+impl CollectSink {
+    /// Per-wedge uvs made vertices: one per distinct (vertex, uv) corner.
+    pub fn split_wedges(&mut self) {
+        if self.wedges.is_empty() {
+            return;
+        }
+        let mut ids: std::collections::HashMap<(u64, [u32; 2]), u64> = std::collections::HashMap::new();
+        let mut vertices = Vec::with_capacity(self.vertices.len());
+        for (t, w) in self.triangles.iter_mut().zip(&self.wedges) {
+            for c in 0..3 {
+                let key = (t[c], w[c].map(f32::to_bits));
+                let src = &self.vertices[t[c] as usize];
+                t[c] = *ids.entry(key).or_insert_with(|| {
+                    vertices.push(Vertex { uv: w[c], ..*src });
+                    vertices.len() as u64 - 1
+                });
+            }
+        }
+        self.vertices = vertices;
+        self.wedges = Vec::new();
+    }
 }
 
 impl BodySink for CollectSink {
@@ -828,6 +854,10 @@ impl BodySink for CollectSink {
         self.triangles.extend_from_slice(batch);
         Ok(())
     }
+    fn wedge_uvs(&mut self, batch: &[[[f32; 2]; 3]]) -> Result<()> {
+        self.wedges.extend_from_slice(batch);
+        Ok(())
+    }
 }
 
 /// Reads a whole PLY into memory. For small meshes only.
@@ -835,5 +865,6 @@ pub fn read_all(path: &Path) -> Result<(PlyHeader, CollectSink, BodyStats)> {
     let header = super::read_header(path)?;
     let mut sink = CollectSink::default();
     let stats = read_body(path, &header, &mut sink, &Progress::hidden())?;
+    sink.split_wedges();
     Ok((header, sink, stats))
 }

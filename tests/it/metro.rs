@@ -447,3 +447,36 @@ fn paged_cli_reports_the_cache_streams_big_plys_and_rejects_budgets_it_cannot_ke
     assert!(o.status.success());
     assert!(!text_out(&o).contains("paging"));
 }
+
+/// Issue 32 item 4: `--attributes` measures the uv difference at the
+/// closest point: 0 for a textured atlas against itself, small for a
+/// fine level (both directions sampled), larger for a coarse one, and
+/// absent from the JSON without the flag; the table prints it.
+#[test]
+fn attributes_are_measured_at_the_closest_point() {
+    let d = tempfile::tempdir().unwrap();
+    let (input, _) = octolod::gen::atlas::atlas(&gen_mesh(Shape::Sphere, 20_000, AttrSet::UV, 3), 4);
+    let ply = d.path().join("atlas.ply");
+    write_ply(&ply, &PlyWriteOptions { attrs: AttrSet(AttrSet::UV), ..Default::default() }, &input.vertices, &input.triangles).unwrap();
+    let store = build_store_at(d.path(), &ply, &build_options(BuildParams { leaf_tris: 2000, ..Default::default() }));
+    let uv = |b: &str, extra: &[&str]| -> Value {
+        let mut args = vec!["--quiet", "metro", ply.to_str().unwrap(), b, "--json", "--samples", "200000"];
+        args.extend_from_slice(extra);
+        let o = octolod(&args);
+        assert!(o.status.success(), "{}", text_err(&o));
+        json(&o.stdout)
+    };
+    let same = uv(ply.to_str().unwrap(), &["--attributes"]);
+    let a = &same["attributes"];
+    assert_eq!(a["combined"]["uv"]["max"].as_f64(), Some(0.0), "{a}");
+    assert!(a["combined"]["color"].is_null(), "no colours to compare: {a}");
+    let level = |l: u8| uv(&format!("{}@{l}", store.display()), &["--attributes"])["attributes"]["combined"].clone();
+    let (l1, l3) = (level(1), level(3));
+    assert!(l1["samples"].as_u64().unwrap() >= 2 * 200_000 - 10, "{l1}");
+    let (m1, m3) = (l1["uv"]["mean"].as_f64().unwrap(), l3["uv"]["mean"].as_f64().unwrap());
+    assert!(m1 > 0.0 && m1 < 1e-3, "level 1: mean uv difference {m1}");
+    assert!(m3 > m1, "level 3 ({m3}) no worse than level 1 ({m1})");
+    assert!(uv(&format!("{}@1", store.display()), &[]).get("attributes").is_none());
+    let o = octolod(&["--quiet", "metro", ply.to_str().unwrap(), &format!("{}@2", store.display()), "--attributes", "--samples", "50000"]);
+    assert!(text_out(&o).contains("attributes both: uv difference max"), "{}", text_out(&o));
+}

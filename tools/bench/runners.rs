@@ -169,7 +169,7 @@ fn run_peer(a: &RunOne, m: Method) -> Result<RunOut> {
         bail!("--target is required for {}", m.name());
     }
     let t = Instant::now();
-    let (_h, CollectSink { vertices, triangles }, _stats) = read_all(&a.input)?;
+    let (_h, CollectSink { vertices, triangles, .. }, _stats) = read_all(&a.input)?;
     let n_in = triangles.len() as u64;
     let mut bbox = Aabb::EMPTY;
     for v in &vertices {
