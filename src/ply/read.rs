@@ -29,7 +29,8 @@ pub trait BodySink {
     fn triangles(&mut self, batch: &[[u64; 3]]) -> Result<()>;
     /// Per-wedge uvs of the next [`BodySink::triangles`] batch, one per
     /// corner and triangle, when the faces carry them (MeshLab's face list
-    /// `texcoord`): they replace the corners' vertex uvs. Sinks that keep
+    /// `texcoord`): they replace the corners' vertex uvs, but for NaN ones
+    /// (a face whose list is not two values per corner). Sinks that keep
     /// no uvs ignore them.
     fn wedge_uvs(&mut self, _batch: &[[[f32; 2]; 3]]) -> Result<()> {
         Ok(())
@@ -558,10 +559,10 @@ impl BodyReader<'_> {
     fn fan_wedges(&mut self, e: &ElementDef, rec: u64, start: u64, sink: &mut dyn BodySink) -> Result<()> {
         let n = self.face_idx.len();
         if self.face_tc.len() != 2 * n {
-            return Err(Error::input(
-                self.loc(&e.name, rec, start),
-                format!("face with {n} corners has {} texcoord values; expected {} (u and v per corner)", self.face_tc.len(), 2 * n),
-            ));
+            // Not MeshLab's u and v per corner (a list of another use):
+            // the corners keep their vertices' uvs (NaN marks it).
+            self.face_tc.clear();
+            self.face_tc.resize(2 * n, f32::NAN);
         }
         let nv = self.header.vertex_count();
         for &i in &self.face_idx {
@@ -822,24 +823,46 @@ pub struct CollectSink {
 }
 
 impl CollectSink {
-    /// Per-wedge uvs made vertices: one per distinct (vertex, uv) corner.
+    /// Per-wedge uvs made vertices: one per distinct (vertex, uv) corner,
+    /// the first uv met at a vertex taking the vertex itself (numbers kept
+    /// where every corner agrees); NaN wedges keep the vertex's uv.
     pub fn split_wedges(&mut self) {
         if self.wedges.is_empty() {
             return;
         }
         let mut ids: std::collections::HashMap<(u64, [u32; 2]), u64> = std::collections::HashMap::new();
-        let mut vertices = Vec::with_capacity(self.vertices.len());
-        for (t, w) in self.triangles.iter_mut().zip(&self.wedges) {
+        // A vertex a NaN corner uses keeps its own uv.
+        let mut taken = vec![false; self.vertices.len()];
+        for (t, w) in self.triangles.iter().zip(&self.wedges) {
             for c in 0..3 {
-                let key = (t[c], w[c].map(f32::to_bits));
-                let src = &self.vertices[t[c] as usize];
-                t[c] = *ids.entry(key).or_insert_with(|| {
-                    vertices.push(Vertex { uv: w[c], ..*src });
-                    vertices.len() as u64 - 1
-                });
+                taken[t[c] as usize] |= w[c].iter().any(|x| x.is_nan());
             }
         }
-        self.vertices = vertices;
+        for (t, w) in self.triangles.iter_mut().zip(&self.wedges) {
+            for c in 0..3 {
+                if w[c].iter().any(|x| x.is_nan()) {
+                    continue;
+                }
+                let v = t[c] as usize;
+                let key = (t[c], w[c].map(f32::to_bits));
+                t[c] = match ids.get(&key) {
+                    Some(&id) => id,
+                    None if !taken[v] => {
+                        taken[v] = true;
+                        self.vertices[v].uv = w[c];
+                        ids.insert(key, v as u64);
+                        v as u64
+                    }
+                    None => {
+                        let nv = Vertex { uv: w[c], ..self.vertices[v] };
+                        self.vertices.push(nv);
+                        let id = self.vertices.len() as u64 - 1;
+                        ids.insert(key, id);
+                        id
+                    }
+                };
+            }
+        }
         self.wedges = Vec::new();
     }
 }

@@ -289,7 +289,7 @@ impl BodySink for InMemorySink<'_> {
             for (c, &v) in t.iter().enumerate() {
                 let i = v as usize * s;
                 self.rec[c * s..(c + 1) * s].copy_from_slice(&self.table[i..i + s]);
-                if let Some(w) = wedges.get(k) {
+                if let Some(w) = wedges.get(k).filter(|w| !w[c][0].is_nan()) {
                     self.layout.set_uv(&mut self.rec[c * s..], w[c]);
                 }
             }
@@ -683,7 +683,9 @@ fn write_slots(
                         r.read_exact(&mut uvs).ctx(&*p, "read wedge uv file")?;
                         for c in 0..3 {
                             let f = |k: usize| f32::from_le_bytes(uvs[4 * k..4 * k + 4].try_into().unwrap());
-                            layout.set_uv(&mut tri[c * s..], [f(2 * c), f(2 * c + 1)]);
+                            if !f(2 * c).is_nan() {
+                                layout.set_uv(&mut tri[c * s..], [f(2 * c), f(2 * c + 1)]);
+                            }
                         }
                     }
                     &patched[..]

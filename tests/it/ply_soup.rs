@@ -28,7 +28,8 @@ const FIXTURES: [(&str, u32); 6] = [
     ("cube_ascii.ply", 0),
     ("cube_le_attrs.ply", AttrSet::NORMAL | AttrSet::COLOR | AttrSet::UV),
     ("cube_be_double.ply", AttrSet::POS_F64 | AttrSet::NORMAL | AttrSet::COLOR | AttrSet::ALPHA | AttrSet::UV),
-    ("cube_all_types_le.ply", AttrSet::POS_F64),
+    // Its faces carry per-wedge uvs (MeshLab's `texcoord`), all 0.25.
+    ("cube_all_types_le.ply", AttrSet::POS_F64 | AttrSet::UV),
     ("cube_extras_ascii.ply", AttrSet::NORMAL | AttrSet::COLOR | AttrSet::UV),
     ("cube_faces_first_be.ply", 0),
 ];
@@ -51,7 +52,8 @@ fn every_fixture_flavor_decodes_exactly() {
                 assert_eq!(v.color[3], alpha, "{name}: vertex {i} alpha");
             }
             if h.attrs.uv() {
-                assert_eq!(v.uv, e.uv, "{name}: vertex {i} uv");
+                let want = if name == "cube_all_types_le.ply" { [0.25, 0.25] } else { e.uv };
+                assert_eq!(v.uv, want, "{name}: vertex {i} uv");
             }
         }
         assert_eq!(mesh.triangles, EXPECTED_TRIS.to_vec(), "{name}: triangles");
@@ -336,8 +338,8 @@ fn write_wedge_ply(path: &Path, n: u32, ascii: bool, tc_first: bool) -> Vec<[[f3
 
 /// Issue 32: per-wedge uvs (MeshLab's face `texcoord`) become the soup
 /// corners' uvs on both paths (the vertex table has none), the texture
-/// names are read from the comments, and a face whose texcoord count does
-/// not match its corners is refused naming the face.
+/// names are read from the comments, and a face whose texcoord list is not
+/// two values per corner (a list of another use) keeps its vertices' uvs.
 #[test]
 fn meshlab_wedge_texcoords_become_corner_uvs() {
     let d = tempfile::tempdir().unwrap();
@@ -360,16 +362,22 @@ fn meshlab_wedge_texcoords_become_corner_uvs() {
         }
         assert!(soups[0] == soups[1], "the paths' soups differ");
     }
-    // A triangle with 4 texcoord values.
-    let bad = d.path().join("bad.ply");
+    // A triangle with 4 texcoord values keeps its vertices' uvs (u v).
+    let odd = d.path().join("odd.ply");
     std::fs::write(
-        &bad,
-        "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nelement face 2\nproperty list uchar int vertex_indices\nproperty list uchar float texcoord\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2 6 0 0 1 0 0 1\n3 0 1 2 4 0 0 1 0\n",
+        &odd,
+        "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nproperty float u\nproperty float v\nelement face 2\nproperty list uchar int vertex_indices\nproperty list uchar float texcoord\nend_header\n0 0 0 0.1 0.2\n1 0 0 0.3 0.4\n0 1 0 0.5 0.6\n3 0 1 2 6 0 0 1 0 0 1\n3 0 2 1 4 0 0 1 0\n",
     )
     .unwrap();
-    let e = build_soup(&bad, &d.path().join("bad.soup"), &SoupOptions::default()).unwrap_err().to_string();
-    assert!(e.contains("bad.ply") && e.contains("face") && e.contains("texcoord") && e.contains("record 1"), "{e}");
-    assert!(!d.path().join("bad.soup").exists());
+    for opts in [SoupOptions::default(), SoupOptions { mem: 64 << 10, force_external: true, ..Default::default() }] {
+        let out = d.path().join("odd.soup");
+        build_soup(&odd, &out, &SoupOptions { replace: true, ..opts }).unwrap();
+        let (_, tris) = SoupReader::read_all(&out).unwrap();
+        assert_eq!(tris.iter().map(|t| t.map(|v| v.uv)).collect::<Vec<_>>(), [[[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]], [[0.1, 0.2], [0.5, 0.6], [0.3, 0.4]]]);
+    }
+    let (_, all, _) = octolod::ply::read::read_all(&odd).unwrap();
+    // The vertices keep their uvs (a face uses them as they are); the wedges are new.
+    assert_eq!(all.vertices.len(), 6, "one vertex per distinct uv at a vertex: {:?}", all.vertices);
 }
 
 /// Issue 32: a build keeps the textures a PLY names: the one found beside
