@@ -166,7 +166,7 @@ fn run(args: Args) -> anyhow::Result<()> {
     attrs = attrs.with(AttrSet::ALPHA, args.alpha);
     attrs = attrs.with(AttrSet::UV, args.uvs || args.atlas.is_some());
     let opts = GenOptions { shape, tris: args.tris, seed: args.seed, attrs };
-    let (nv, nf) = {
+    let (mut nv, nf) = {
         let g = Generator::new(&opts);
         (g.vertex_count(), g.face_count())
     };
@@ -212,6 +212,8 @@ fn run(args: Args) -> anyhow::Result<()> {
             }
             let (vertices, triangles) = Generator::new(&opts).mesh();
             let (m, tiles) = octolod::gen::atlas::atlas(&octolod::mesh::IndexedMesh { vertices, triangles }, cells);
+            // Seam vertices split, one per island.
+            nv = m.vertices.len() as u64;
             let wopts = PlyWriteOptions {
                 comments: vec![format!("octolod-gen shape {} tris {} seed {} atlas {cells} ({tiles}x{tiles} tiles)", shape.name(), args.tris, args.seed)],
                 ..wopts

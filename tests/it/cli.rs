@@ -118,3 +118,23 @@ fn failed_build_leaves_no_store() {
     assert!(err(&o).contains("vertex index 7 out of range"), "{}", err(&o));
     assert_eq!(std::fs::read_dir(d.path()).unwrap().count(), 1, "a failed build left files behind");
 }
+
+/// `octolod-gen --atlas CELLS` writes a many-island atlas: uvs, seam
+/// vertices split (more vertices than the shape's, same triangles), the
+/// summary counting what it wrote; OBJ/STL output is refused.
+#[test]
+fn gen_atlas_writes_split_seams() {
+    let d = tempfile::tempdir().unwrap();
+    let p = d.path().join("atlas.ply");
+    let o = crate::common::cli::octolod_gen(&["--shape", "sphere", "--tris", "5000", "--atlas", "3", "-q", "-o", s(&p)]);
+    assert!(o.status.success(), "{}", err(&o));
+    let (h, m, _) = octolod::ply::read::read_all(&p).unwrap();
+    let plain = Generator::new(&GenOptions { shape: Shape::Sphere, tris: 5000, ..Default::default() });
+    assert!(h.attrs.uv());
+    assert_eq!(m.triangles.len() as u64, plain.face_count());
+    assert!(m.vertices.len() as u64 > plain.vertex_count() + 100, "{} vertices", m.vertices.len());
+    assert!(out(&o).contains(&format!("{} vertices", m.vertices.len())), "{}", out(&o));
+    let obj =
+        crate::common::cli::octolod_gen(&["--shape", "sphere", "--tris", "500", "--atlas", "3", "--format", "obj", "-q", "-o", s(&d.path().join("a.obj"))]);
+    assert!(!obj.status.success() && err(&obj).contains("--atlas writes PLY only"), "{}", err(&obj));
+}
