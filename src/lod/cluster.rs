@@ -186,6 +186,17 @@ fn union(parent: &mut [u32], a: u32, b: u32) {
     }
 }
 
+/// Each vertex's chart: the smallest vertex of its connected piece of the
+/// index (an unused vertex is its own).
+pub(super) fn charts(mesh: &IndexedMesh) -> Vec<u32> {
+    let mut parent: Vec<u32> = (0..mesh.vertices.len() as u32).collect();
+    for t in &mesh.triangles {
+        union(&mut parent, t[0], t[1]);
+        union(&mut parent, t[1], t[2]);
+    }
+    (0..mesh.vertices.len() as u32).map(|v| find_root(&mut parent, v)).collect()
+}
+
 impl<'a> Splits<'a> {
     /// Runs the greedy splits until every cluster is exact (zero quadric
     /// error), a single point, or `max_clusters` clusters exist.
@@ -304,14 +315,8 @@ impl<'a> Splits<'a> {
     /// members' box.
     fn class_roots(&self, rows: Rows) -> (Rows, Vec<Root>, Vec<u32>) {
         let sm = self.seams.as_ref().expect("seams");
-        let mesh = self.mesh;
-        let nv = mesh.vertices.len();
-        // Charts: connected pieces of the index.
-        let mut parent: Vec<u32> = (0..nv as u32).collect();
-        for t in &mesh.triangles {
-            union(&mut parent, t[0], t[1]);
-            union(&mut parent, t[1], t[2]);
-        }
+        let nv = self.mesh.vertices.len();
+        let chart = charts(self.mesh);
         let mut class_of_root = vec![u32::MAX; nv];
         let mut classes = 1u32;
         let class: Vec<u32> = self
@@ -321,7 +326,7 @@ impl<'a> Splits<'a> {
                 if sm.seam[v as usize] {
                     return 0;
                 }
-                let r = find_root(&mut parent, v) as usize;
+                let r = chart[v as usize] as usize;
                 if class_of_root[r] == u32::MAX {
                     class_of_root[r] = classes;
                     classes += 1;

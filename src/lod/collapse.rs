@@ -167,23 +167,7 @@ type UvBox = ([f32; 2], [f32; 2]);
 /// uv box (empty charts: unused vertices, a box of their own uv).
 fn chart_uv_boxes(mesh: &IndexedMesh) -> (Vec<u32>, Vec<UvBox>) {
     let n = mesh.vertices.len();
-    let mut parent: Vec<u32> = (0..n as u32).collect();
-    fn root(p: &mut [u32], mut x: u32) -> u32 {
-        while p[x as usize] != x {
-            p[x as usize] = p[p[x as usize] as usize];
-            x = p[x as usize];
-        }
-        x
-    }
-    for t in &mesh.triangles {
-        for k in 0..2 {
-            let (a, b) = (root(&mut parent, t[k]), root(&mut parent, t[k + 1]));
-            if a != b {
-                parent[a.max(b) as usize] = a.min(b);
-            }
-        }
-    }
-    let chart: Vec<u32> = (0..n as u32).map(|v| root(&mut parent, v)).collect();
+    let chart = super::cluster::charts(mesh);
     let mut boxes = vec![([f32::MAX; 2], [f32::MIN; 2]); n];
     for (v, &c) in chart.iter().enumerate() {
         let (uv, b) = (mesh.vertices[v].uv, &mut boxes[c as usize]);
