@@ -273,7 +273,8 @@ fn packed_index(n: usize, i: usize, j: usize) -> usize {
 }
 
 /// Eliminates the attribute coordinates (3..`dim`) of a quadric
-/// `Q(x) = xᵀAx + 2 lᵀx + c` (A packed in `a`, `l` in `lin`, `c` in `cst`):
+/// `Q(x) = xᵀAx + 2 lᵀx + c` stored as A packed, then `l`, then `c` (the
+/// leading values of stored coefficients and of carried values alike):
 /// afterwards `Q'(p) = min_s Q(p, s)` over the attributes s (the Schur
 /// complement `A_pp − A_ps A_ss⁺ A_sp`, eigenvalues of `A_ss` below
 /// `rel_tol` × its largest dropped), and the attribute rows, columns and
@@ -281,10 +282,13 @@ fn packed_index(n: usize, i: usize, j: usize) -> usize {
 /// attributes may take any value: a wedge of an attribute seam, whose sides
 /// keep their own attributes while they share one position. Works on the
 /// carried form as well (x the offset from the vertex, `l` the half-gradient).
-pub fn eliminate_attrs(dim: usize, a: &mut [f64], lin: &mut [f64], cst: &mut f64, rel_tol: f64) {
+pub fn eliminate_attrs(dim: usize, k: &mut [f64], rel_tol: f64) {
     if dim <= 3 {
         return;
     }
+    let (a, rest) = k.split_at_mut(a_len(dim));
+    let (lin, rest) = rest.split_at_mut(dim);
+    let cst = &mut rest[0];
     let k = dim - 3;
     let mut s: Mat = [[0.0; MAX_DIM]; MAX_DIM];
     for i in 0..k {

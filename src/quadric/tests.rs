@@ -980,11 +980,8 @@ fn eliminated_attributes_are_their_minimum_at_every_position() {
             q.add_triangle(&pts[0], &pts[1], &pts[2]);
             q.add_point(&pts[0]);
         }
-        let al = dim * (dim + 1) / 2;
         let mut k = q.coeffs().to_vec();
-        let (a, rest) = k.split_at_mut(al);
-        let (l, c) = rest.split_at_mut(dim);
-        eliminate_attrs(dim, a, l, &mut c[0], 1e-9);
+        eliminate_attrs(dim, &mut k, 1e-9);
         let e = Quadric::from_coeffs(dim, &k);
         for _ in 0..5 {
             let p = rng.vec3(-1.0, 1.0);
