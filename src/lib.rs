@@ -8,12 +8,13 @@
 //! error asked, from a store) and `metro`; `shard` runs the same build as
 //! shards on many machines and merges them.
 //! Shared plumbing: [`mesh`] (attribute model), [`geom`] (closest points,
-//! BVH), [`error`], [`io`], [`progress`], [`extsort`], [`mem`].
+//! BVH), [`color`] (sRGB), [`error`], [`io`], [`progress`], [`extsort`], [`mem`].
 
 // `!(x > 0.0)`, `!(v <= limit)`: negated comparisons are the crate's way to
 // reject NaN along with the out-of-range values (`x <= 0.0` lets NaN pass).
 #![allow(clippy::neg_cmp_op_on_partial_ord, reason = "negated float comparisons deliberately reject NaN")]
 
+pub mod color;
 pub mod error;
 pub mod extsort;
 pub mod gen;

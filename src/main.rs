@@ -161,7 +161,7 @@ enum Cmd {
     ///
     /// Examine (1): drag orbits, right/shift-drag pans, wheel dollies. Fly (2), walk (3):
     /// WASD, Q/E down/up, drag looks, shift faster. Tab cycles modes; R reset, F frame all,
-    /// Z wireframe, +/- field of view, F1/H overlay, V vsync, U up axis, Esc quit.
+    /// Z wireframe, T texture, +/- field of view, F1/H overlay, V vsync, U up axis, Esc quit.
     #[cfg_attr(not(feature = "view"), command(about = "Open an interactive window on a store (not in this build: it has no `view` feature)", long_about = None))]
     View {
         store: PathBuf,
@@ -375,6 +375,11 @@ struct ViewArgs {
     /// Simulate a slow disk: sleep this many milliseconds per node read.
     #[arg(long, default_value_t = 0)]
     io_delay_ms: u64,
+    /// Do not load or draw the store's texture: the shaded view, and the
+    /// texture's share of --ram stays free for nodes (T toggles the
+    /// texture in the window when it is loaded).
+    #[arg(long)]
+    no_texture: bool,
 }
 
 #[cfg(feature = "view")]
@@ -439,7 +444,7 @@ struct WindowArgs {
 
 #[cfg(feature = "view")]
 impl WindowArgs {
-    fn options(&self, store: PathBuf, view: ViewOptions, quiet: bool) -> Result<WindowOptions> {
+    fn options(&self, store: PathBuf, view: ViewOptions, texture: bool, quiet: bool) -> Result<WindowOptions> {
         check_size(self.width, self.height)?;
         if !(self.fov > 1.0 && self.fov < 170.0) {
             return Err(octolod::Error::Usage("--fov must be between 1 and 170 degrees".into()));
@@ -454,6 +459,7 @@ impl WindowArgs {
             up: Up::parse(&self.up)?,
             fov_deg: self.fov,
             wireframe: self.wireframe,
+            texture,
             overlay: !self.no_overlay,
             max_frames: self.frames,
         })
@@ -630,7 +636,9 @@ fn run(cli: Cli) -> Result<ExitCode> {
         #[cfg(feature = "view")]
         Cmd::Render(args) => cmd_render(args, quiet, force),
         #[cfg(feature = "view")]
-        Cmd::View { store, view, window } => octolod::view::window::run_window(window.options(store, view.options()?, quiet)?).map(|()| ExitCode::SUCCESS),
+        Cmd::View { store, view, window } => {
+            octolod::view::window::run_window(window.options(store, view.options()?, !view.no_texture, quiet)?).map(|()| ExitCode::SUCCESS)
+        }
         Cmd::PlyInfo { input, header_only } => ply_info(&input, header_only, quiet).map(|()| ExitCode::SUCCESS),
         Cmd::Serve { input, port, bind, open } => cmd_serve(&input, port, bind, open, quiet),
     }
@@ -778,7 +786,7 @@ fn cmd_extract(args: ExtractArgs, force: bool) -> Result<ExitCode> {
         }
         None => octolod::pipeline::CutSpec::Level(level.unwrap_or(0)),
     };
-    let gltf = octolod::gltf::GltfOptions { quantize, compress };
+    let gltf = octolod::gltf::GltfOptions { quantize, compress, texture: None };
     let (nv, nf) = octolod::pipeline::extract_as(&s, spec, &output, !no_weld, force, &gltf)?;
     out!("extract: {}: {nv} vertices, {nf} triangles -> {}", spec.describe(), output.display());
     Ok(ExitCode::SUCCESS)
@@ -871,6 +879,7 @@ fn cmd_render(args: RenderArgs, quiet: bool, force: bool) -> Result<ExitCode> {
         out,
         width,
         height,
+        texture: !view.no_texture,
         view: view.options()?,
         full_res,
         brute_force,
@@ -890,8 +899,12 @@ fn cmd_render(args: RenderArgs, quiet: bool, force: bool) -> Result<ExitCode> {
         (Some(p), Some(d)) => format!(", last frame vs full-res: PSNR {p:.1} dB, {:.3}% pixels differ", 100.0 * d),
         _ => String::new(),
     };
+    let tex = match last.stats.texture_bytes {
+        0 => String::new(),
+        b => format!(" (texture {})", octolod::progress::mib(b)),
+    };
     out!(
-        "render: {} frames -> {}; peak resident {} of {}; select <= {max_sel:.2} ms; last frame {} triangles{}{cmp}",
+        "render: {} frames -> {}; peak resident {}{tex} of {}; select <= {max_sel:.2} ms; last frame {} triangles{}{cmp}",
         r.frames.len(),
         r.out.display(),
         octolod::progress::mib(max_res),
@@ -1047,6 +1060,17 @@ fn ply_info(input: &std::path::Path, header_only: bool, quiet: bool) -> Result<(
         Details::Gltf(i) => {
             out!("format: glTF");
             out!("primitives: {}", i.primitives);
+            for im in &i.images {
+                match im {
+                    octolod::input::gltf::GltfImage::File(u) => {
+                        let found = input.parent().unwrap_or(std::path::Path::new(".")).join(u).is_file();
+                        out!("base colour image: {u} ({})", if found { "found" } else { "missing" });
+                    }
+                    octolod::input::gltf::GltfImage::Embedded { index, mime, name } => {
+                        out!("base colour image: images[{index}] {}({mime}, in a buffer)", name.as_deref().map(|n| format!("{n} ")).unwrap_or_default());
+                    }
+                }
+            }
         }
     }
     out!("vertices: {}", h.vertex_count());

@@ -39,6 +39,14 @@ pub struct Manifest {
     pub textures: Vec<TextureRef>,
 }
 
+/// A texture an input names: a file beside it, or an image inside it (a
+/// glTF's, in a buffer), with the extension its type gives.
+#[derive(Clone, Debug, PartialEq)]
+pub enum TextureSource {
+    File(String),
+    Embedded { name: String, ext: &'static str, bytes: Vec<u8> },
+}
+
 /// A texture the input names and its copy next to the store's payloads.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct TextureRef {
@@ -48,6 +56,16 @@ pub struct TextureRef {
     /// not found beside the input.
     pub file: Option<String>,
     pub bytes: u64,
+}
+
+/// The first texture a store holds (what `view`, `render`, `tiles` and
+/// glTF extracts show: `texnumber` is not read yet): its file name in the
+/// store and path; none when the store names none it holds.
+pub fn store_texture(store: &Path) -> Option<(String, std::path::PathBuf)> {
+    let m = Manifest::read(store).ok()?;
+    let file = m.textures.iter().find_map(|t| t.file.clone())?;
+    let path = store.join(&file);
+    Some((file, path))
 }
 
 impl TextureRef {
@@ -64,22 +82,32 @@ impl TextureRef {
         }
     }
 
-    /// Copies the textures `names` (relative to `input`'s folder) into
-    /// `store`; a missing one is recorded without a copy and reported by
-    /// the caller.
-    pub fn copy_all(input: &Path, names: &[String], store: &Path) -> crate::error::Result<Vec<TextureRef>> {
+    /// Copies the textures `sources` (files relative to `input`'s folder,
+    /// or bytes from inside it) into `store`; a missing file is recorded
+    /// without a copy and reported by the caller.
+    pub fn copy_all(input: &Path, sources: &[TextureSource], store: &Path) -> crate::error::Result<Vec<TextureRef>> {
         use crate::error::IoContext;
         let base = crate::io::parent_dir(input);
         let mut out = Vec::new();
-        for (k, name) in names.iter().enumerate() {
-            let src = base.join(name);
-            if !src.is_file() {
-                out.push(TextureRef { name: name.clone(), file: None, bytes: 0 });
-                continue;
+        for (k, source) in sources.iter().enumerate() {
+            match source {
+                TextureSource::File(name) => {
+                    let src = base.join(name);
+                    if !src.is_file() {
+                        out.push(TextureRef { name: name.clone(), file: None, bytes: 0 });
+                        continue;
+                    }
+                    let file = Self::store_name(k, name);
+                    let bytes = std::fs::copy(&src, store.join(&file)).ctx(&src, "copy texture")?;
+                    out.push(TextureRef { name: name.clone(), file: Some(file), bytes });
+                }
+                TextureSource::Embedded { name, ext, bytes } => {
+                    let file = format!("texture-{k}.{ext}");
+                    let dest = store.join(&file);
+                    std::fs::write(&dest, bytes).ctx(&dest, "write texture")?;
+                    out.push(TextureRef { name: name.clone(), file: Some(file), bytes: bytes.len() as u64 });
+                }
             }
-            let file = Self::store_name(k, name);
-            let bytes = std::fs::copy(&src, store.join(&file)).ctx(&src, "copy texture")?;
-            out.push(TextureRef { name: name.clone(), file: Some(file), bytes });
         }
         Ok(out)
     }

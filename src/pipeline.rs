@@ -88,18 +88,22 @@ pub fn build_store(input: &Path, output: &Path, opts: &BuildOptions) -> Result<B
     let seconds = [soup_s, built.octree.seconds, levels_s, total];
     // Textures the input names, copied next to the payloads.
     let names = match crate::input::read_header(input, &crate::progress::Progress::hidden()) {
-        Ok(h) => h.ply().map(|p| crate::ply::texture_files(&p.comments)).unwrap_or_default(),
+        Ok(h) => h.texture_sources(input, opts.quiet),
         Err(_) => Vec::new(),
     };
     let textures = crate::manifest::TextureRef::copy_all(input, &names, out.path())?;
     for t in textures.iter().filter(|t| t.file.is_none()) {
         if !opts.quiet {
-            eprintln!(
-                "warning: {}: texture '{}' (comment TextureFile) not found beside the input; the store keeps its uvs without it",
-                input.display(),
-                t.name
-            );
+            eprintln!("warning: {}: texture '{}' not found beside the input; the store keeps its uvs without it", input.display(), t.name);
         }
+    }
+    if textures.len() > 1 && !opts.quiet {
+        eprintln!(
+            "warning: {}: {} textures named; which face uses which (texnumber, usemtl) is not carried yet: view, glTF and tiles draw '{}' on every face",
+            input.display(),
+            textures.len(),
+            textures.iter().find(|t| t.file.is_some()).map_or(textures[0].name.as_str(), |t| t.name.as_str())
+        );
     }
     let disk_bytes = dir_bytes(out.path());
     let report = BuildReport { soup, octree: built.octree, levels: built.levels, nodes: built.nodes.len() as u64, seconds, disk_bytes };
@@ -168,7 +172,10 @@ pub fn extract(store: &Store, spec: CutSpec, out: &Path, weld: bool, force: bool
 }
 
 /// [`extract`] with the glTF options (`--quantize`, `--compress`), which
-/// are refused for a PLY output. A glTF is written from the welded cut in
+/// are refused for a PLY output. A store with a PNG or JPEG texture (and
+/// uvs) gets it embedded in the glTF's buffer unless `gltf.texture` names
+/// another (an image of another kind is left out, with a warning: glTF
+/// core takes only those two). A glTF is written from the welded cut in
 /// memory as one primitive, or, with `weld` false, streamed in two passes
 /// over the nodes with one primitive per run of whole nodes of at most
 /// [`crate::gltf::STREAM_GROUP_VERTICES`] vertices (only that run in memory).
@@ -186,6 +193,21 @@ pub fn extract_as(store: &Store, spec: CutSpec, out: &Path, weld: bool, force: b
     let cut = spec.cut(store)?;
     let name = format!("octolod {} of {}", spec.describe(), store.dir.display());
     let attrs = store.header.attrs;
+    // The store's texture goes inside the glTF: one self-contained output.
+    let embedded;
+    let gltf = match (&gltf.texture, crate::manifest::store_texture(&store.dir)) {
+        (None, Some((file, path))) if attrs.uv() => match crate::gltf::GltfTexture::embed_file(&path, file.rsplit_once('.').map_or(&file[..], |p| p.0)) {
+            Ok(t) => {
+                embedded = GltfOptions { texture: Some(t), ..gltf.clone() };
+                &embedded
+            }
+            Err(e) => {
+                eprintln!("warning: {e}; {} is written without its texture", out.display());
+                gltf
+            }
+        },
+        _ => gltf,
+    };
     if weld {
         let parts = store.cut_meshes(&cut).collect::<Result<Vec<_>>>()?;
         let m = weld_union(&store.layout, &parts);
@@ -254,13 +276,32 @@ pub fn write_mesh_ply(out: &Path, attrs: AttrSet, comment: &str, m: &IndexedMesh
 /// paths relative to `out`'s folder where the store lies inside it, else
 /// absolute. Nothing is copied next to `out`, so no file there is touched.
 pub fn texture_comments(store: &Store, out: &Path) -> Vec<String> {
+    texture_lines(store, out, false)
+}
+
+/// `comment TextureFile` lines for a PLY written at `out` from a mesh
+/// made of `store`'s (`simplify`): the input's own texture files where
+/// they still are beside it (a `simplify` store is scratch, dropped with
+/// its copies), else the store's copies; paths as [`texture_comments`]
+/// writes them.
+pub fn source_texture_comments(store: &Store, out: &Path) -> Vec<String> {
+    texture_lines(store, out, true)
+}
+
+/// [`texture_comments`] (`originals` false) and
+/// [`source_texture_comments`] (true): one line per texture the manifest
+/// lists, its path shown relative to `out`'s folder when inside it.
+fn texture_lines(store: &Store, out: &Path, originals: bool) -> Vec<String> {
     let Ok(m) = crate::manifest::Manifest::read(&store.dir) else { return Vec::new() };
+    let input_dir = crate::io::parent_dir(Path::new(&m.input));
     let base = crate::io::parent_dir(out).canonicalize().ok();
     let dir = store.dir.canonicalize().unwrap_or_else(|_| store.dir.clone());
     m.textures
         .iter()
         .map(|t| {
+            let original = input_dir.join(&t.name);
             let path = match &t.file {
+                _ if originals && original.is_file() => original.canonicalize().unwrap_or(original),
                 Some(f) => dir.join(f),
                 None => std::path::PathBuf::from(&t.name),
             };
@@ -373,10 +414,10 @@ impl SpooledPly {
 
     /// Writes the header (with `comment`) and the records into the output
     /// and moves it into place.
-    pub fn finish(self, comment: &str) -> Result<()> {
+    pub fn finish(self, comments: &[String]) -> Result<()> {
         let SpooledPly { mut file, attrs, enc, vertices, faces, _scratch, .. } = self;
         let out = file.dest().to_path_buf();
-        let opts = mesh_ply_options(attrs, comment);
+        let opts = PlyWriteOptions { comments: comments.to_vec(), ..mesh_ply_options(attrs, "") };
         let mut w = PlyWriter::new(file.writer(), &opts, vertices.count, faces.count).ctx(&out, "write")?;
         vertices.copy_out(enc.vertex_record_size().expect("binary"), |b, n| w.raw_vertices(b, n))?;
         faces.copy_out(enc.face_record_size(3).expect("binary"), |b, n| w.raw_faces(b, n))?;
@@ -494,7 +535,7 @@ mod tests {
                 ts.iter().try_for_each(|t| p.face(t)).unwrap();
             }
             assert_eq!(p.counts(), (whole.vertices.len() as u64, whole.triangles.len() as u64));
-            p.finish("octolod test").unwrap();
+            p.finish(&["octolod test".to_string()]).unwrap();
             assert_eq!(std::fs::read(&a).unwrap(), std::fs::read(&b).unwrap(), "{attrs:?}");
             // Scratch files gone, only the two outputs left.
             assert_eq!(std::fs::read_dir(d.path()).unwrap().count(), 2);

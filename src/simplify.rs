@@ -218,10 +218,19 @@ pub fn simplify_store(store: &Store, out: &Path, o: &SimplifyOptions) -> Result<
             rep.note = Some(format!("{} of {n} triangles: the {:?} simplifier could not go further without breaking the surface", rep.triangles, o.simplifier));
         }
     }
-    let comment = format!("octolod simplify ({:?}, {}) of {}", o.simplifier, rep.start, store.dir.display());
+    // The input's textures are named (MeshLab's convention) when uvs are kept.
+    let mut comments = vec![format!("octolod simplify ({:?}, {}) of {}", o.simplifier, rep.start, store.dir.display())];
+    if store.header.attrs.uv() {
+        comments.extend(crate::pipeline::source_texture_comments(store, out));
+    }
     match result {
-        Reduced::Mesh(m) => write_mesh_ply(out, store.header.attrs, &comment, &m, o.force),
-        Reduced::Spooled(p) => p.finish(&comment),
+        Reduced::Mesh(m) => crate::pipeline::write_mesh_ply_with(
+            out,
+            &crate::ply::write::PlyWriteOptions { comments, ..crate::pipeline::mesh_ply_options(store.header.attrs, "") },
+            &m,
+            o.force,
+        ),
+        Reduced::Spooled(p) => p.finish(&comments),
     }?;
     Ok(rep)
 }

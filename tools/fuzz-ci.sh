@@ -17,6 +17,10 @@ fi
 export RUSTC_BOOTSTRAP=1
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
+# The targets' scratch files (one per fuzzing process, named by its pid)
+# go inside $work and leave with it, not into the machine's /tmp.
+mkdir -p "$work/tmp"
+export TMPDIR="$work/tmp"
 mkdir -p "$work/store_open" "$work/ply_parse" "$work/stl_parse" "$work/obj_parse" "$work/gltf_parse"
 cp seeds/store/* "$work/store_open/"
 cp seeds/*.ply "$work/ply_parse/"

@@ -83,6 +83,12 @@ struct Args {
     /// (implies --uvs; PLY only; built in memory, up to 5e7 triangles).
     #[arg(long, value_name = "CELLS")]
     atlas: Option<u32>,
+    /// With --atlas: also bake a SIZE×SIZE texture of the surface (a
+    /// colour field and a fine grid, a function of position: seams are
+    /// invisible on the input) as OUTPUT's name with `.png`, named by a
+    /// `comment TextureFile` line (MeshLab's convention).
+    #[arg(long, value_name = "SIZE", requires = "atlas", value_parser = clap::value_parser!(u32).range(1..=16384))]
+    texture: Option<u32>,
     /// Output file (PLY, or OBJ/STL with --format).
     #[arg(short, long)]
     output: PathBuf,
@@ -214,10 +220,14 @@ fn run(args: Args) -> anyhow::Result<()> {
             let (m, tiles) = octolod::gen::atlas::atlas(&octolod::mesh::IndexedMesh { vertices, triangles }, cells);
             // Seam vertices split, one per island.
             nv = m.vertices.len() as u64;
-            let wopts = PlyWriteOptions {
-                comments: vec![format!("octolod-gen shape {} tris {} seed {} atlas {cells} ({tiles}x{tiles} tiles)", shape.name(), args.tris, args.seed)],
-                ..wopts
-            };
+            let mut comments = vec![format!("octolod-gen shape {} tris {} seed {} atlas {cells} ({tiles}x{tiles} tiles)", shape.name(), args.tris, args.seed)];
+            if let Some(size) = args.texture {
+                let name = format!("{}.png", args.output.file_stem().unwrap_or_default().to_string_lossy());
+                let path = octolod::io::parent_dir(&args.output).join(&name);
+                octolod::gen::atlas::write_texture(&path, size, &octolod::gen::atlas::paint(&m, size), args.force).map_err(|e| anyhow!("{e}"))?;
+                comments.push(format!("TextureFile {name}"));
+            }
+            let wopts = PlyWriteOptions { comments, ..wopts };
             octolod::ply::write::write_ply(&args.output, &wopts, &m.vertices, &m.triangles)
                 .map(|_| std::fs::metadata(&args.output).map(|m| m.len()).unwrap_or(0))
         }

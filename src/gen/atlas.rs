@@ -10,6 +10,16 @@
 //! uv's tile is `floor(uv × tiles)`, so a triangle whose corners lie in
 //! different tiles bleeds across islands). Built in memory: test and bench
 //! inputs, not billions of triangles.
+//!
+//! [`paint`] bakes a texture for such a mesh as a photogrammetry tool
+//! would from its photos: every texel an island covers gets the colour of
+//! the surface point it maps to (a smooth colour field with a fine dark
+//! grid, a function of position alone), so a render of the input shows no
+//! seam, and a simplified mesh whose uvs slide, tear or bleed into the
+//! neighbouring island shows it. The gutters between islands are filled
+//! by pull-push (each empty texel takes its nearest coarser covered
+//! average) so mipmaps and bilinear filtering do not pull in a background
+//! colour. Images follow MeshLab's convention: v = 0 is the bottom row.
 
 use crate::mesh::{IndexedMesh, Vertex};
 use std::collections::HashMap;
@@ -79,6 +89,156 @@ pub fn atlas(mesh: &IndexedMesh, cells: u32) -> (IndexedMesh, u32) {
     (out, tiles)
 }
 
+/// The colour of surface point `q` (position relative to the box's
+/// minimum, divided by its largest side): a smooth field of a few periods
+/// per box, darkened on a grid of 24 lines per box side.
+pub fn surface_colour(q: [f64; 3]) -> [f64; 3] {
+    use std::f64::consts::TAU;
+    let w = |a: f64, b: f64, c: f64| 0.5 + 0.4 * (TAU * (a * q[0] + b * q[1] + c * q[2])).sin();
+    let rgb = [w(2.1, 0.7, 1.3), w(-0.9, 2.4, 0.6), w(1.1, -1.2, 2.7)];
+    let line = q.iter().any(|&x| {
+        let f = (x * 24.0).rem_euclid(1.0);
+        !(0.07..=0.93).contains(&f)
+    });
+    if line {
+        rgb.map(|c| c * 0.3)
+    } else {
+        rgb
+    }
+}
+
+/// Bakes a `size`×`size` RGBA8 texture (sRGB bytes, top row first) for a
+/// mesh with uvs (see the module doc): each triangle is rasterised in uv
+/// space (texel centres inside it or on its edges) with the colour of the
+/// surface point under each texel, then the gutters are filled.
+pub fn paint(mesh: &IndexedMesh, size: u32) -> Vec<u8> {
+    let n = size.max(1) as usize;
+    let mut bb = crate::mesh::Aabb::EMPTY;
+    for v in &mesh.vertices {
+        bb.add(v.pos);
+    }
+    let scale = (0..3).map(|k| bb.max[k] - bb.min[k]).fold(0.0f64, f64::max).max(f64::MIN_POSITIVE);
+    // Linear colour and coverage per texel.
+    let mut img = vec![[0f32; 4]; n * n];
+    for t in &mesh.triangles {
+        let v = t.map(|i| &mesh.vertices[i as usize]);
+        let px = v.map(|v| [v.uv[0] as f64 * n as f64, (1.0 - v.uv[1] as f64) * n as f64]);
+        let area = (px[1][0] - px[0][0]) * (px[2][1] - px[0][1]) - (px[2][0] - px[0][0]) * (px[1][1] - px[0][1]);
+        if !area.is_finite() || area.abs() < 1e-12 {
+            continue;
+        }
+        let lo = |k: usize| (px.iter().map(|p| p[k]).fold(f64::INFINITY, f64::min) - 0.5).floor().max(0.0) as usize;
+        let hi = |k: usize| ((px.iter().map(|p| p[k]).fold(f64::NEG_INFINITY, f64::max) - 0.5).ceil().max(0.0) as usize).min(n - 1);
+        for y in lo(1)..=hi(1) {
+            for x in lo(0)..=hi(0) {
+                let c = [x as f64 + 0.5, y as f64 + 0.5];
+                let edge = |a: [f64; 2], b: [f64; 2]| ((b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1])) / area;
+                let w = [edge(px[1], px[2]), edge(px[2], px[0]), edge(px[0], px[1])];
+                if w.iter().any(|&w| w < -1e-9) {
+                    continue;
+                }
+                let p = [0, 1, 2].map(|k| (w[0] * v[0].pos[k] + w[1] * v[1].pos[k] + w[2] * v[2].pos[k] - bb.min[k]) / scale);
+                let rgb = surface_colour(p).map(|c| crate::color::srgb_to_linear(c) as f32);
+                img[y * n + x] = [rgb[0], rgb[1], rgb[2], 1.0];
+            }
+        }
+    }
+    fill_gutters(&mut img, n);
+    img.iter().flat_map(|p| [p[0], p[1], p[2]].map(|c| (crate::color::linear_to_srgb(c as f64) * 255.0).round() as u8).into_iter().chain([255])).collect()
+}
+
+/// Pull-push: texels with coverage 0 take the covered average of the
+/// nearest coarser level that has one (an `n`×`n` image of linear colour
+/// and coverage in `[3]`, coverage 1 where painted).
+pub fn fill_gutters(img: &mut [[f32; 4]], n: usize) {
+    // Pull: averages of covered texels, level by level (odd sides clamp).
+    let mut levels: Vec<(usize, Vec<[f32; 4]>)> = Vec::new();
+    let (mut side, mut cur) = (n, img.to_vec());
+    while side > 1 {
+        let half = side.div_ceil(2);
+        let mut next = vec![[0f32; 4]; half * half];
+        for y in 0..half {
+            for x in 0..half {
+                let mut acc = [0f32; 4];
+                for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                    let (sx, sy) = ((2 * x + dx).min(side - 1), (2 * y + dy).min(side - 1));
+                    let p = cur[sy * side + sx];
+                    if p[3] > 0.0 {
+                        for k in 0..3 {
+                            acc[k] += p[k] * p[3];
+                        }
+                        acc[3] += p[3];
+                    }
+                }
+                if acc[3] > 0.0 {
+                    next[y * half + x] = [acc[0] / acc[3], acc[1] / acc[3], acc[2] / acc[3], 1.0];
+                }
+            }
+        }
+        levels.push((side, std::mem::replace(&mut cur, next)));
+        side = half;
+    }
+    levels.push((side, cur));
+    // Push: from the coarsest down, empty texels take their parent.
+    for l in (0..levels.len() - 1).rev() {
+        let (upper, lower) = levels.split_at_mut(l + 1);
+        let (side, fine) = &mut upper[l];
+        let (half, coarse) = &lower[0];
+        for y in 0..*side {
+            for x in 0..*side {
+                if fine[y * *side + x][3] == 0.0 {
+                    fine[y * *side + x] = coarse[(y / 2).min(half - 1) * half + (x / 2).min(half - 1)];
+                }
+            }
+        }
+    }
+    img.copy_from_slice(&levels[0].1);
+}
+
+/// The text chunk every texture octolod-gen writes carries (`Software`).
+pub const TEXTURE_MARK: &str = "octolod-gen";
+
+/// Whether `path` is a PNG octolod-gen wrote (its `Software` text chunk).
+pub fn is_generated_texture(path: &std::path::Path) -> bool {
+    let mut head = vec![0u8; 4096];
+    let Ok(n) = std::fs::File::open(path).and_then(|mut f| std::io::Read::read(&mut f, &mut head)) else { return false };
+    let needle = format!("tEXtSoftware\0{TEXTURE_MARK}");
+    head[..n].windows(needle.len()).any(|w| w == needle.as_bytes())
+}
+
+/// Writes an RGBA8 `size`×`size` texture as PNG at `path` (through a
+/// temporary file renamed into place), marked as octolod-gen's. An
+/// existing file is replaced only when octolod-gen wrote it and `force`.
+pub fn write_texture(path: &std::path::Path, size: u32, rgba: &[u8], force: bool) -> crate::error::Result<()> {
+    use crate::error::{Error, IoContext};
+    if std::fs::symlink_metadata(path).is_ok() {
+        if !is_generated_texture(path) {
+            return Err(Error::Usage(format!("{} exists and is not a texture octolod-gen wrote; refusing to replace it", path.display())));
+        }
+        if !force {
+            return Err(Error::Usage(format!("{} exists (--force replaces a texture octolod-gen wrote)", path.display())));
+        }
+    }
+    let dir = crate::io::parent_dir(path);
+    let tmp = tempfile::Builder::new().prefix(".octolod-gen-texture").tempfile_in(&dir).ctx(&dir, "create temporary file")?;
+    {
+        let mut w = std::io::BufWriter::new(tmp.as_file());
+        let mut enc = png::Encoder::new(&mut w, size, size);
+        enc.set_color(png::ColorType::Rgba);
+        enc.set_depth(png::BitDepth::Eight);
+        let bad = |e: png::EncodingError| Error::Usage(format!("{}: cannot encode PNG: {e}", path.display()));
+        enc.add_text_chunk("Software".into(), TEXTURE_MARK.into()).map_err(bad)?;
+        let mut pw = enc.write_header().map_err(bad)?;
+        pw.write_image_data(rgba).map_err(bad)?;
+        pw.finish().map_err(bad)?;
+        std::io::Write::flush(&mut w).ctx(path, "write PNG")?;
+    }
+    // A temporary file is private; the texture is an ordinary file.
+    tmp.as_file().set_permissions(<std::fs::Permissions as std::os::unix::fs::PermissionsExt>::from_mode(0o644)).ctx(path, "set permissions")?;
+    tmp.persist(path).map_err(|e| Error::io(path, "rename texture into place", e.error))?;
+    Ok(())
+}
+
 /// The atlas tile a uv lies in.
 pub fn tile(uv: [f32; 2], tiles: u32) -> (i64, i64) {
     ((uv[0] as f64 * tiles as f64).floor() as i64, (uv[1] as f64 * tiles as f64).floor() as i64)
@@ -106,5 +266,68 @@ mod tests {
             let c = t.map(|v| tile(a.vertices[v as usize].uv, tiles));
             assert!(c[0] == c[1] && c[1] == c[2], "a triangle across tiles {c:?}");
         }
+    }
+
+    #[test]
+    fn painted_texels_show_the_surface_under_them_and_gutters_are_filled() {
+        let (vertices, triangles) = Generator::new(&GenOptions { shape: Shape::Sphere, tris: 4000, attrs: AttrSet(AttrSet::UV), ..Default::default() }).mesh();
+        let (a, _) = atlas(&IndexedMesh { vertices, triangles }, 3);
+        // About 180 texels per box side: the field changes by < 0.05 a texel.
+        let n = 512u32;
+        let img = paint(&a, n);
+        assert_eq!(img.len(), (n * n * 4) as usize);
+        assert!(img.chunks_exact(4).all(|p| p[3] == 255));
+        // At a triangle's centroid, the texel holds the centroid's colour.
+        let mut bb = crate::mesh::Aabb::EMPTY;
+        for v in &a.vertices {
+            bb.add(v.pos);
+        }
+        let scale = (0..3).map(|k| bb.max[k] - bb.min[k]).fold(0.0f64, f64::max);
+        let (mut checked, mut close) = (0, 0);
+        for t in a.triangles.iter().step_by(17) {
+            let v = t.map(|i| &a.vertices[i as usize]);
+            let uv = [0, 1].map(|k| (v[0].uv[k] + v[1].uv[k] + v[2].uv[k]) as f64 / 3.0);
+            let (x, y) = ((uv[0] * n as f64) as usize, ((1.0 - uv[1]) * n as f64) as usize);
+            let q = [0, 1, 2].map(|k| ((v[0].pos[k] + v[1].pos[k] + v[2].pos[k]) / 3.0 - bb.min[k]) / scale);
+            let want = surface_colour(q);
+            let got = &img[(y * n as usize + x) * 4..][..3];
+            // A texel spans a little surface: the field changes slowly
+            // except near grid lines, which are skipped. Where an island's
+            // planar projection folds (near its silhouette), another
+            // triangle may own the texel: most, not all, match.
+            let near_line = q.iter().any(|&x| {
+                let f = (x * 24.0).rem_euclid(1.0);
+                !(0.12..=0.88).contains(&f)
+            });
+            if near_line {
+                continue;
+            }
+            checked += 1;
+            close += (0..3).all(|k| (got[k] as f64 / 255.0 - want[k]).abs() < 0.1) as u32;
+        }
+        assert!(checked > 40, "{checked}");
+        assert!(close as f64 >= 0.9 * checked as f64, "{close} of {checked} texels show their surface's colour");
+        // Gutter filling: an image with one painted texel is that colour everywhere.
+        let mut one = vec![[0f32; 4]; 9 * 9];
+        one[40] = [0.25, 0.5, 0.75, 1.0];
+        fill_gutters(&mut one, 9);
+        assert!(one.iter().all(|p| *p == [0.25, 0.5, 0.75, 1.0]));
+    }
+
+    #[test]
+    fn textures_are_marked_and_only_ours_are_replaced() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("t.png");
+        write_texture(&p, 4, &[7u8; 64], false).unwrap();
+        assert!(is_generated_texture(&p));
+        assert!(write_texture(&p, 4, &[9u8; 64], false).is_err());
+        write_texture(&p, 4, &[9u8; 64], true).unwrap();
+        let user = dir.path().join("u.png");
+        std::fs::write(&user, b"mine").unwrap();
+        let e = write_texture(&user, 4, &[9u8; 64], true).unwrap_err().to_string();
+        assert!(e.contains("not a texture octolod-gen wrote"), "{e}");
+        assert_eq!(std::fs::read(&user).unwrap(), b"mine");
+        let names: Vec<_> = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+        assert_eq!(names.len(), 2, "{names:?}");
     }
 }

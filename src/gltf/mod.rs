@@ -16,7 +16,13 @@
 //! * Colours: octolod's sRGB-encoded [`Vertex::color`] bytes become linear
 //!   COLOR_0 through the exact transfer function, as normalized `u16`, which
 //!   keeps every sRGB byte apart and converts back to the same byte.
-//! * One material for every primitive: not metallic, fully rough, double-sided.
+//! * One material for every primitive: not metallic, fully rough, double-sided;
+//!   with [`GltfOptions::texture`] (and uvs), its base colour is that
+//!   image, referenced by URI or embedded in the buffer, sampled with
+//!   mipmaps and repeat.
+//! * uvs: octolod's are MeshLab's and OpenGL's (v = 0 at the image's bottom
+//!   row), glTF's have v = 0 at the top: TEXCOORD_0 is (u, 1 − v), and the
+//!   glTF reader turns it back.
 //! * A whole mesh is one primitive ([`encode_glb`], [`write_mesh`]); a cut
 //!   streamed ([`write_parts`]) is one primitive per run of whole nodes of at
 //!   most [`STREAM_GROUP_VERTICES`] vertices, only one run in memory.
@@ -42,12 +48,66 @@ use std::path::{Path, PathBuf};
 /// Whether `path` is a glTF octolod wrote (recognised in [`crate::io`]).
 pub use crate::io::is_octolod_gltf;
 
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct GltfOptions {
     /// KHR_mesh_quantization: integer positions, normals and (in \[0,1\]) uvs.
     pub quantize: bool,
     /// EXT_meshopt_compression on every vertex and index bufferView.
     pub compress: bool,
+    /// The material's base colour texture (used when the mesh has uvs).
+    pub texture: Option<GltfTexture>,
+}
+
+/// A base colour texture: its image and name (the glTF image's `name`,
+/// which clients such as three.js give the texture).
+#[derive(Clone, Debug, PartialEq)]
+pub struct GltfTexture {
+    pub name: String,
+    pub image: TextureImage,
+}
+
+/// Where a texture's image is.
+#[derive(Clone, Debug, PartialEq)]
+pub enum TextureImage {
+    /// A file the client fetches: a URI reference relative to the glTF.
+    Uri(String),
+    /// In the glTF's own buffer (self-contained outputs).
+    Embedded { bytes: std::sync::Arc<Vec<u8>>, mime: &'static str },
+}
+
+impl GltfTexture {
+    /// The image's bytes to append to the buffer, when embedded.
+    fn embedded(&self) -> Option<&[u8]> {
+        match &self.image {
+            TextureImage::Embedded { bytes, .. } => Some(bytes),
+            TextureImage::Uri(_) => None,
+        }
+    }
+
+    /// A texture embedding the image file at `path` (PNG or JPEG, by its
+    /// first bytes), named `name`.
+    pub fn embed_file(path: &Path, name: &str) -> Result<GltfTexture> {
+        let bytes = fs::read(path).ctx(path, "read texture")?;
+        let mime = image_mime(&bytes).ok_or_else(|| {
+            Error::input(
+                crate::error::Location { file: path.to_path_buf(), offset: Some(0), ..Default::default() },
+                "a texture to embed in glTF must be PNG or JPEG",
+            )
+        })?;
+        Ok(GltfTexture { name: name.to_string(), image: TextureImage::Embedded { bytes: std::sync::Arc::new(bytes), mime } })
+    }
+}
+
+/// `image/png` or `image/jpeg` by the file's signature; the two glTF 2.0
+/// core image types.
+pub fn image_mime(bytes: &[u8]) -> Option<&'static str> {
+    if bytes.starts_with(b"\x89PNG\r\n\x1a\n") {
+        Some("image/png")
+    } else if bytes.starts_with(&[0xFF, 0xD8, 0xFF]) {
+        Some("image/jpeg")
+    } else {
+        None
+    }
 }
 
 /// The two containers, chosen by the output's extension.
@@ -266,12 +326,14 @@ impl Layout {
             }
         }
         if let Some((o, unorm)) = self.uv_at {
+            // glTF's v runs down the image (see the module doc).
+            let uv = [v.uv[0], 1.0 - v.uv[1]];
             for a in 0..2 {
                 if unorm {
-                    let q = (v.uv[a] as f64 * 65535.0).round().clamp(0.0, 65535.0) as u16;
+                    let q = (uv[a] as f64 * 65535.0).round().clamp(0.0, 65535.0) as u16;
                     out[o + 2 * a..o + 2 * a + 2].copy_from_slice(&q.to_le_bytes());
                 } else {
-                    out[o + 4 * a..o + 4 * a + 4].copy_from_slice(&v.uv[a].to_le_bytes());
+                    out[o + 4 * a..o + 4 * a + 4].copy_from_slice(&uv[a].to_le_bytes());
                 }
             }
         }
@@ -293,15 +355,7 @@ impl Layout {
     }
 }
 
-/// The sRGB transfer function's inverse: an sRGB-encoded value (0 to 1)
-/// to linear.
-pub fn srgb_to_linear(c: f64) -> f64 {
-    if c <= 0.04045 {
-        c / 12.92
-    } else {
-        ((c + 0.055) / 1.055).powf(2.4)
-    }
-}
+pub use crate::color::srgb_to_linear;
 
 /// Each sRGB byte's linear value as normalized `u16`.
 fn srgb_table() -> &'static [u16; 256] {
@@ -489,7 +543,19 @@ fn write_bin<W: Write, M: Borrow<IndexedMesh>>(
 /// The glTF document. `placed`: where the primitives' views are in buffer
 /// 0 (for `compress`, the compressed streams; the uncompressed layout then
 /// goes to the fallback buffer 1). `uri`: buffer 0's, for `.gltf`.
-fn document(s: &Survey, l: &Layout, opts: &GltfOptions, name: Option<&str>, placed: &[Placed], bin_len: u64, uri: Option<&str>) -> Value {
+/// `image_at`: where an embedded texture image starts in buffer 0 (it
+/// ends the buffer).
+#[allow(clippy::too_many_arguments)]
+fn document(
+    s: &Survey,
+    l: &Layout,
+    opts: &GltfOptions,
+    name: Option<&str>,
+    placed: &[Placed],
+    bin_len: u64,
+    uri: Option<&str>,
+    image_at: Option<u64>,
+) -> Value {
     let (raw, raw_len) = raw_layout(s, l);
     let mut views = Vec::new();
     let mut accessors = Vec::new();
@@ -584,7 +650,29 @@ fn document(s: &Survey, l: &Layout, opts: &GltfOptions, name: Option<&str>, plac
     doc.insert("scenes".into(), json!([{"nodes": [0]}]));
     doc.insert("nodes".into(), json!([node]));
     doc.insert("meshes".into(), json!([mesh]));
-    doc.insert("materials".into(), json!([material(l.attrs.color())]));
+    let mut material = material(l.attrs.color());
+    if let Some(t) = opts.texture.as_ref().filter(|_| l.uv_at.is_some()) {
+        let mut image = Map::new();
+        image.insert("name".into(), json!(t.name));
+        match (&t.image, image_at) {
+            (TextureImage::Uri(u), _) => {
+                image.insert("uri".into(), json!(u));
+            }
+            (TextureImage::Embedded { bytes, mime }, Some(at)) => {
+                image.insert("bufferView".into(), json!(views.len()));
+                image.insert("mimeType".into(), json!(mime));
+                views.push(json!({"buffer": 0, "byteOffset": at, "byteLength": bytes.len()}));
+            }
+            (TextureImage::Embedded { .. }, None) => unreachable!("an embedded image is placed in the buffer"),
+        }
+        doc.insert("images".into(), json!([image]));
+        // Linear filtering with trilinear mipmaps, repeating (uvs may tile).
+        doc.insert("samplers".into(), json!([{"magFilter": 9729, "minFilter": 9987, "wrapS": 10497, "wrapT": 10497}]));
+        doc.insert("textures".into(), json!([{"source": 0, "sampler": 0, "name": t.name}]));
+        material["pbrMetallicRoughness"]["baseColorFactor"] = json!([1.0, 1.0, 1.0, 1.0]);
+        material["pbrMetallicRoughness"]["baseColorTexture"] = json!({"index": 0});
+    }
+    doc.insert("materials".into(), json!([material]));
     doc.insert("accessors".into(), Value::Array(accessors));
     doc.insert("bufferViews".into(), Value::Array(views));
     doc.insert("buffers".into(), Value::Array(buffers));
@@ -646,12 +734,29 @@ pub fn encode_glb(mesh: &IndexedMesh, attrs: AttrSet, opts: &GltfOptions, out: &
     let l = Layout::new(attrs, opts, &s);
     let mut bin = Counted { w: Vec::new(), at: 0 };
     let placed = write_bin(&mut bin, Path::new("glb"), &s, &l, opts.compress, std::iter::once(Ok(mesh)))?;
-    let doc = document(&s, &l, opts, None, &placed, bin.at, None);
+    let image_at = put_image(&mut bin, Path::new("glb"), opts, &l)?;
+    let doc = document(&s, &l, opts, None, &placed, bin.at, None, image_at);
     let head = glb_head(&json_bytes(&doc), bin.at, "the mesh")?;
     out.reserve(head.len() + bin.w.len());
     out.extend_from_slice(&head);
     out.extend_from_slice(&bin.w);
     Ok(())
+}
+
+/// The embedded texture image to write, when the mesh has uvs.
+fn image_bytes<'a>(opts: &'a GltfOptions, l: &Layout) -> Option<&'a [u8]> {
+    opts.texture.as_ref().filter(|_| l.uv_at.is_some()).and_then(|t| t.embedded())
+}
+
+/// Appends the embedded image (if any) behind the geometry, both ends
+/// 4-aligned (a GLB's BIN chunk is); gives where it starts.
+fn put_image<W: Write>(bin: &mut Counted<W>, path: &Path, opts: &GltfOptions, l: &Layout) -> Result<Option<u64>> {
+    let Some(img) = image_bytes(opts, l) else { return Ok(None) };
+    bin.pad4().ctx(path, "write")?;
+    let at = bin.at;
+    bin.put(img).ctx(path, "write")?;
+    bin.pad4().ctx(path, "write")?;
+    Ok(Some(at))
 }
 
 fn empty(what: &str) -> Error {
@@ -696,14 +801,18 @@ where
             // Every length is known from the counts: the JSON first, then
             // the buffer streamed straight behind it.
             let mut file = AtomicFile::create(out, OutputKind::Gltf, force)?;
-            let (raw, len) = raw_layout(&s, &l);
-            let head = glb_head(&json_bytes(&document(&s, &l, opts, Some(name), &raw, len, None)), len, &what)?;
+            let (raw, geometry) = raw_layout(&s, &l);
+            let image_at = image_bytes(opts, &l).map(|img| (align4(geometry), img.len() as u64));
+            let len = image_at.map_or(geometry, |(at, n)| at + n);
+            let image_at = image_at.map(|(at, _)| at);
+            let head = glb_head(&json_bytes(&document(&s, &l, opts, Some(name), &raw, len, None, image_at)), len, &what)?;
             file.writer().write_all(&head).ctx(out, "write")?;
             let mut bin = Counted { w: file.writer(), at: 0 };
             let placed = write_bin(&mut bin, out, &s, &l, false, parts())?;
-            if bin.at != len || placed.iter().zip(&raw).any(|(a, b)| a.vertex.1 != b.vertex.1 || a.index.1 != b.index.1) {
+            if bin.at != geometry || placed.iter().zip(&raw).any(|(a, b)| a.vertex.1 != b.vertex.1 || a.index.1 != b.index.1) {
                 return Err(Error::Usage(format!("{what}: the buffer's size changed while it was written")));
             }
+            put_image(&mut bin, out, opts, &l)?;
             file.commit()?;
         }
         Container::Glb => {
@@ -715,9 +824,10 @@ where
             let f = File::create(&spool).ctx(&spool, "create")?;
             let mut bin = Counted { w: BufWriter::with_capacity(crate::io::SEQ_BUF, f), at: 0 };
             let placed = write_bin(&mut bin, &spool, &s, &l, true, parts())?;
+            let image_at = put_image(&mut bin, &spool, opts, &l)?;
             let len = bin.at;
             drop(bin.w.into_inner().map_err(|e| e.into_error()).ctx(&spool, "write")?);
-            let head = glb_head(&json_bytes(&document(&s, &l, opts, Some(name), &placed, len, None)), len, &what)?;
+            let head = glb_head(&json_bytes(&document(&s, &l, opts, Some(name), &placed, len, None, image_at)), len, &what)?;
             let w = file.writer();
             w.write_all(&head).ctx(out, "write")?;
             let mut f = File::open(&spool).ctx(&spool, "open")?;
@@ -735,9 +845,10 @@ where
             let bin_path = pair.bin_dest().to_path_buf();
             let mut bin = Counted { w: pair.bin(), at: 0 };
             let placed = write_bin(&mut bin, &bin_path, &s, &l, opts.compress, parts())?;
+            let image_at = put_image(&mut bin, &bin_path, opts, &l)?;
             let len = bin.at;
             let uri = uri_of(&bin_path);
-            let doc = document(&s, &l, opts, Some(name), &placed, len, Some(&uri));
+            let doc = document(&s, &l, opts, Some(name), &placed, len, Some(&uri), image_at);
             let mut text = serde_json::to_vec_pretty(&doc).expect("JSON of plain values");
             text.push(b'\n');
             pair.json().write_all(&text).ctx(out, "write")?;
@@ -793,7 +904,7 @@ mod tests {
         for bits in 0..32 {
             let Some(attrs) = AttrSet::from_bits(bits) else { continue };
             for quantize in [false, true] {
-                let l = Layout::new(attrs, &GltfOptions { quantize, compress: false }, &s);
+                let l = Layout::new(attrs, &GltfOptions { quantize, ..Default::default() }, &s);
                 assert_eq!(l.stride % 4, 0);
                 assert!(l.stride <= 48);
                 assert!(l.attributes().iter().all(|a| a.1 % 4 == 0));

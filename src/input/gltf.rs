@@ -13,8 +13,10 @@
 //! decoded); modes 4 (triangles), 5 (strip) and 6 (fan), points and lines
 //! skipped; indices `u8`/`u16`/`u32` or none; POSITION as `f32` or, under
 //! KHR_mesh_quantization, (normalized) 8/16-bit integers; NORMAL, COLOR_0
-//! (linear, stored as sRGB bytes) and TEXCOORD_0 when every primitive has
-//! them; byte strides honoured; node `matrix` or T·R·S; a negative
+//! (linear, stored as sRGB bytes) and TEXCOORD_0 (v turned to octolod's
+//! v-up convention, MeshLab's) when every primitive has them; the base
+//! colour images the primitives' materials use ([`GltfInfo::images`], by
+//! URI or in a buffer: [`image_bytes`]), which a build keeps; byte strides honoured; node `matrix` or T·R·S; a negative
 //! determinant flips the winding; EXT_meshopt_compression bufferViews
 //! (modes ATTRIBUTES, TRIANGLES, INDICES; filters OCTAHEDRAL, QUATERNION,
 //! EXPONENTIAL, COLOR) decoded with the `meshopt` crate, fallback buffers
@@ -51,6 +53,18 @@ pub struct GltfInfo {
     pub attrs: AttrSet,
     /// File size (the `.gltf`/`.glb`, not its buffers).
     pub bytes: u64,
+    /// The base colour images of the materials the primitives use, in
+    /// order of first use, each once.
+    pub images: Vec<GltfImage>,
+}
+
+/// Where a base colour image is.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum GltfImage {
+    /// A file, its URI relative to the glTF (%-escapes decoded).
+    File(String),
+    /// In a buffer: `images[index]`, with its MIME type and name.
+    Embedded { index: usize, mime: String, name: Option<String> },
 }
 
 const GLB_MAGIC: &[u8; 4] = b"glTF";
@@ -82,6 +96,9 @@ struct Doc {
     accessors: Vec<Accessor>,
     buffer_views: Vec<BufferView>,
     buffers: Vec<Buffer>,
+    materials: Vec<MaterialDef>,
+    textures: Vec<TextureDef>,
+    images: Vec<ImageDef>,
     extensions_used: Vec<String>,
     extensions_required: Vec<String>,
 }
@@ -115,6 +132,40 @@ struct Primitive {
     attributes: BTreeMap<String, usize>,
     indices: Option<usize>,
     mode: Option<u32>,
+    material: Option<usize>,
+}
+
+#[derive(Deserialize, Default)]
+#[serde(default, rename_all = "camelCase")]
+struct MaterialDef {
+    pbr_metallic_roughness: Option<PbrDef>,
+}
+
+#[derive(Deserialize, Default)]
+#[serde(default, rename_all = "camelCase")]
+struct PbrDef {
+    base_color_texture: Option<TextureRefDef>,
+}
+
+#[derive(Deserialize, Default)]
+#[serde(default)]
+struct TextureRefDef {
+    index: usize,
+}
+
+#[derive(Deserialize, Default)]
+#[serde(default)]
+struct TextureDef {
+    source: Option<usize>,
+}
+
+#[derive(Deserialize, Default)]
+#[serde(default, rename_all = "camelCase")]
+struct ImageDef {
+    uri: Option<String>,
+    buffer_view: Option<usize>,
+    mime_type: Option<String>,
+    name: Option<String>,
 }
 
 #[derive(Deserialize, Default)]
@@ -171,6 +222,7 @@ struct Prim {
     color: Option<usize>,
     uv: Option<usize>,
     indices: Option<usize>,
+    material: Option<usize>,
     /// Vertices (the POSITION count) and index count (or the vertex count).
     verts: u64,
     corners: u64,
@@ -223,7 +275,26 @@ pub fn read_info(path: &Path) -> Result<GltfInfo> {
     let g = Gltf::open(path)?;
     let vertices = g.prims.iter().map(|p| p.verts).sum();
     let triangles = g.prims.iter().map(|p| tri_count(p.mode, p.corners)).sum();
-    Ok(GltfInfo { vertices, triangles, primitives: g.prims.len() as u64, attrs: g.attrs, bytes: g.bytes })
+    Ok(GltfInfo { vertices, triangles, primitives: g.prims.len() as u64, attrs: g.attrs, bytes: g.bytes, images: g.base_color_images() })
+}
+
+/// The bytes of `images[index]` of the glTF `path` when stored in a buffer
+/// (a GLB's BIN chunk or a `.bin`), as [`GltfInfo::images`] names it.
+pub fn image_bytes(path: &Path, index: usize) -> Result<Vec<u8>> {
+    let g = Gltf::open(path)?;
+    let what = format!("images[{index}]");
+    let bvi = g.doc.images.get(index).and_then(|i| i.buffer_view).ok_or_else(|| err(path, format!("{what}: no bufferView")))?;
+    let bv = g.doc.buffer_views.get(bvi).ok_or_else(|| err(path, format!("{what}.bufferView: {bvi} of {}", g.doc.buffer_views.len())))?;
+    let Some(Some(buf)) = g.bufs.get(bv.buffer) else {
+        return Err(err(path, format!("{what}: bufferViews[{bvi}].buffer {} has no data", bv.buffer)));
+    };
+    let end = bv.byte_offset.saturating_add(bv.byte_length);
+    if end > buf.len || bv.byte_length > MAX_JSON {
+        return Err(err(path, format!("{what}: bufferViews[{bvi}] reads bytes {}..{end} of a {}-byte buffer", bv.byte_offset, buf.len)));
+    }
+    let mut out = vec![0u8; bv.byte_length as usize];
+    read_exact_at(&buf.file, &buf.path, &mut out, buf.base + bv.byte_offset)?;
+    Ok(out)
 }
 
 /// Reads the primitives of the glTF `path` that [`read_info`] described,
@@ -237,6 +308,7 @@ pub fn read_body(path: &Path, info: &GltfInfo, sink: &mut dyn BodySink, progress
         primitives: g.prims.len() as u64,
         attrs: g.attrs,
         bytes: g.bytes,
+        images: g.base_color_images(),
     };
     if &now != info {
         return Err(err(path, "the file changed since it was first read"));
@@ -425,15 +497,6 @@ fn normal_matrix(m: &[f64; 16]) -> [[f64; 3]; 3] {
     co.map(|row| row.map(|v| v * s))
 }
 
-fn linear_to_srgb(c: f64) -> f64 {
-    let c = c.clamp(0.0, 1.0);
-    if c <= 0.003_130_8 {
-        12.92 * c
-    } else {
-        1.055 * c.powf(1.0 / 2.4) - 0.055
-    }
-}
-
 fn percent_decode(s: &str) -> String {
     let b = s.as_bytes();
     let mut out = Vec::with_capacity(b.len());
@@ -582,6 +645,31 @@ impl Gltf {
     }
 
     /// Finds the triangle primitives of the default scene with their world matrices.
+    /// See [`GltfInfo::images`]; references that lead nowhere are skipped
+    /// (a texture is not geometry).
+    fn base_color_images(&self) -> Vec<GltfImage> {
+        let d = &self.doc;
+        let mut seen = std::collections::HashSet::new();
+        let mut out = Vec::new();
+        for p in &self.prims {
+            let image = p
+                .material
+                .and_then(|m| d.materials.get(m))
+                .and_then(|m| m.pbr_metallic_roughness.as_ref())
+                .and_then(|pbr| pbr.base_color_texture.as_ref())
+                .and_then(|t| d.textures.get(t.index))
+                .and_then(|t| t.source);
+            let Some(i) = image.filter(|&i| seen.insert(i)) else { continue };
+            let Some(def) = d.images.get(i) else { continue };
+            match (&def.uri, def.buffer_view) {
+                (Some(u), _) if !u.starts_with("data:") => out.push(GltfImage::File(percent_decode(u))),
+                (None, Some(_)) => out.push(GltfImage::Embedded { index: i, mime: def.mime_type.clone().unwrap_or_default(), name: def.name.clone() }),
+                _ => {}
+            }
+        }
+        out
+    }
+
     fn collect(&mut self) -> Result<()> {
         let d = &self.doc;
         let roots: Vec<usize> = match d.scene.or(if d.scenes.is_empty() { None } else { Some(0) }) {
@@ -647,6 +735,7 @@ impl Gltf {
                         color: p.attributes.get("COLOR_0").copied(),
                         uv: p.attributes.get("TEXCOORD_0").copied(),
                         indices: p.indices,
+                        material: p.material,
                         verts,
                         corners,
                     });
@@ -865,13 +954,14 @@ impl Gltf {
                 r.each(k, |i, c| {
                     let v = &mut vs[i];
                     for (out, &x) in v.color.iter_mut().zip(&c[..3]) {
-                        *out = (linear_to_srgb(x) * 255.0).round() as u8;
+                        *out = (crate::color::linear_to_srgb(x) * 255.0).round() as u8;
                     }
                     v.color[3] = if nc == 4 { (c[3].clamp(0.0, 1.0) * 255.0).round() as u8 } else { 255 };
                 })?;
             }
             if let Some(r) = tex.as_mut() {
-                r.each(k, |i, [u, v, _, _]| vs[i].uv = [u as f32, v as f32])?;
+                // glTF's v runs down the image, octolod's up (MeshLab's).
+                r.each(k, |i, [u, v, _, _]| vs[i].uv = [u as f32, (1.0 - v) as f32])?;
             }
             sink.vertices(first + done as u64, vs)?;
             progress.inc(k as u64);
@@ -1095,7 +1185,17 @@ mod tests {
 
     fn check_sample(path: &Path) {
         let info = read_info(path).unwrap();
-        assert_eq!(info, GltfInfo { vertices: 10, triangles: 4, primitives: 3, attrs: AttrSet::POSITION_ONLY, bytes: std::fs::metadata(path).unwrap().len() });
+        assert_eq!(
+            info,
+            GltfInfo {
+                vertices: 10,
+                triangles: 4,
+                primitives: 3,
+                attrs: AttrSet::POSITION_ONLY,
+                images: Vec::new(),
+                bytes: std::fs::metadata(path).unwrap().len()
+            }
+        );
         let mut sink = CollectSink::default();
         let stats = read_body(path, &info, &mut sink, &Progress::hidden()).unwrap();
         assert_eq!((stats.vertices, stats.triangles, stats.degenerate), (10, 4, 0));
@@ -1224,7 +1324,7 @@ mod tests {
         let cases = [("a.glb", false, false), ("b.gltf", false, false), ("c.glb", true, false), ("d.glb", false, true), ("e.gltf", true, true)];
         for (name, quantize, compress) in cases {
             let p = dir.path().join(name);
-            let opts = crate::gltf::GltfOptions { quantize, compress };
+            let opts = crate::gltf::GltfOptions { quantize, compress, texture: None };
             crate::gltf::write_mesh(&p, &mesh, attrs, &opts, false, "m").unwrap();
             let (h, sink, stats) = super::super::read_all(&p, 1 << 30).unwrap();
             assert_eq!(h.format, super::super::Format::Gltf);
@@ -1250,7 +1350,7 @@ mod tests {
         }
         // A corrupt meshopt stream is an error naming the extension.
         let p = dir.path().join("f.glb");
-        crate::gltf::write_mesh(&p, &mesh, attrs, &crate::gltf::GltfOptions { quantize: false, compress: true }, false, "m").unwrap();
+        crate::gltf::write_mesh(&p, &mesh, attrs, &crate::gltf::GltfOptions { quantize: false, compress: true, texture: None }, false, "m").unwrap();
         let mut bytes = std::fs::read(&p).unwrap();
         let jlen = u32::from_le_bytes(bytes[12..16].try_into().unwrap()) as usize;
         let bin = 20 + jlen + 8;

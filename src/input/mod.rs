@@ -115,6 +115,64 @@ impl InputHeader {
             _ => None,
         }
     }
+
+    /// The texture images the input names, in order, each once: files
+    /// relative to its folder (a PLY's `comment TextureFile` lines,
+    /// MeshLab's convention; an OBJ's materials' `map_Kd` through its
+    /// `mtllib` files, an MTL that cannot be read naming none; a glTF's
+    /// base colour images by URI) or images inside it (a glTF's in a
+    /// buffer: PNG or JPEG; one that cannot be read is left out, with a
+    /// warning unless `quiet`). Which face uses which (MeshLab's
+    /// `texnumber`, OBJ's `usemtl`, glTF's materials) is not carried yet:
+    /// stores draw the first on every face.
+    pub fn texture_sources(&self, input: &Path, quiet: bool) -> Vec<crate::manifest::TextureSource> {
+        use crate::manifest::TextureSource;
+        let files = |names: Vec<String>| names.into_iter().map(TextureSource::File).collect::<Vec<_>>();
+        let mut out = match &self.details {
+            Details::Ply(h) => files(crate::ply::texture_files(&h.comments)),
+            Details::Obj(i) => {
+                let base = crate::io::parent_dir(input);
+                let mut names = Vec::new();
+                for lib in &i.mtllibs {
+                    let Ok(mats) = obj::read_mtl(&base.join(lib)) else { continue };
+                    let dir = Path::new(lib).parent().unwrap_or(Path::new(""));
+                    names.extend(mats.into_iter().filter_map(|m| m.map_kd).map(|t| dir.join(t).to_string_lossy().into_owned()));
+                }
+                files(names)
+            }
+            Details::Gltf(g) => g
+                .images
+                .iter()
+                .filter_map(|im| match im {
+                    gltf::GltfImage::File(u) => Some(TextureSource::File(u.clone())),
+                    gltf::GltfImage::Embedded { index, name, .. } => {
+                        let got = gltf::image_bytes(input, *index).and_then(|b| match crate::gltf::image_mime(&b) {
+                            Some(m) => Ok((b, if m == "image/png" { "png" } else { "jpg" })),
+                            None => Err(crate::Error::Usage(format!("{}: images[{index}] is neither PNG nor JPEG", input.display()))),
+                        });
+                        match got {
+                            Ok((bytes, ext)) => Some(TextureSource::Embedded { name: name.clone().unwrap_or_else(|| format!("images[{index}]")), ext, bytes }),
+                            Err(e) => {
+                                if !quiet {
+                                    eprintln!("warning: {e}; the store keeps its uvs without that texture");
+                                }
+                                None
+                            }
+                        }
+                    }
+                })
+                .collect(),
+            Details::Stl(_) => Vec::new(),
+        };
+        let mut seen = std::collections::HashSet::new();
+        out.retain(|s| {
+            seen.insert(match s {
+                TextureSource::File(n) => n.clone(),
+                TextureSource::Embedded { name, .. } => format!("embedded {name}"),
+            })
+        });
+        out
+    }
 }
 
 /// Reads what the input says of itself: a PLY's header, an STL's header

@@ -27,7 +27,14 @@
 //! * Out of core: one counting and one writing pass over each level, a few
 //!   nodes per thread in memory whatever the store's size.
 //!
-//! Why a tree of cells, the skirts, frames and costs: `docs/web.md`.
+//! * Textures: a store with a texture (and uvs) gets copies of it in `t/`
+//!   at the resolution each level needs ([`level_texture_side`]: the
+//!   full image at levels 0 and 1, halved every two levels, as a level's
+//!   triangles halve, down to 64 texels), each GLB's material naming its
+//!   level's copy by URI, so a far view fetches a small image and tiles
+//!   of a level share one (browsers cache it; CesiumJS shares it).
+//!
+//! Why a tree of cells, the skirts, frames, textures and costs: `docs/web.md`.
 
 use crate::error::{Error, Result};
 use crate::gltf::{encode_glb, GltfOptions};
@@ -83,7 +90,10 @@ pub struct TilesReport {
     pub skirt_triangles: u64,
     /// Store triangles over all levels (what the tiles hold, skirts aside).
     pub store_triangles: u64,
+    /// Everything written: GLBs, texture copies and `tileset.json`.
     pub tileset_bytes: u64,
+    /// The texture copies (each level's; see [`level_texture_side`]).
+    pub texture_bytes: u64,
     pub store_bytes: u64,
     /// Deepest tile (the root is 0).
     pub depth: u32,
@@ -472,8 +482,11 @@ pub fn export(store: &Store, out: &Path, o: &TilesOptions) -> Result<TilesReport
     std::fs::create_dir(dir.path().join("t")).map_err(|e| Error::io(dir.path().join("t"), "create directory", e))?;
     let top = store.top_level();
     let attrs = store.payload_layout.attrs;
-    let gopts = GltfOptions { quantize: o.quantize, compress: o.compress };
-    let mut rep = TilesReport { store_triangles: (0..=top).map(|l| store.level_triangles(l)).sum(), ..Default::default() };
+    let mut rep_texture_bytes = 0u64;
+    let textures = level_textures(store, dir.path(), top, &mut rep_texture_bytes)?;
+    let gopts = GltfOptions { quantize: o.quantize, compress: o.compress, texture: None };
+    let mut rep = TilesReport { store_triangles: (0..=top).map(|l| store.level_triangles(l)).sum(), texture_bytes: rep_texture_bytes, ..Default::default() };
+    rep.tileset_bytes += rep.texture_bytes;
     let n = plan.tiles.len();
     let mut contents: Vec<Option<(String, Aabb)>> = vec![None; n];
     let mut reads = 0u64;
@@ -499,7 +512,9 @@ pub fn export(store: &Store, out: &Path, o: &TilesOptions) -> Result<TilesReport
                     v.normal = to_gltf(v.normal.map(|x| x as f64)).map(|x| x as f32);
                 }
                 let mut glb = Vec::new();
-                encode_glb(&g, attrs, &gopts, &mut glb)?;
+                let level = plan.tiles[t].level as usize;
+                let opts = GltfOptions { texture: textures.as_ref().map(|v| v[level.min(v.len() - 1)].clone()), ..gopts.clone() };
+                encode_glb(&g, attrs, &opts, &mut glb)?;
                 Ok((t, Some((glb, tm))))
             })
             .collect();
@@ -555,6 +570,82 @@ pub fn export(store: &Store, out: &Path, o: &TilesOptions) -> Result<TilesReport
     rep.read_amplification = reads as f64 / store.nodes.len().max(1) as f64;
     dir.commit()?;
     Ok(rep)
+}
+
+/// The side of level `level`'s copy of a `side`-texel texture: the whole
+/// image at levels 0 and 1, then halved every two levels (a level has
+/// half the triangles of the one below, so each triangle covers twice the
+/// area: the texels it needs per side shrink by √2 a level), never below
+/// 64 texels (nor above the image).
+pub fn level_texture_side(side: u32, level: u8) -> u32 {
+    let shrunk = side >> (level / 2).min(31);
+    shrunk.max(64).min(side)
+}
+
+/// Writes each level's copy of the store's first texture into `dir/t/`
+/// (`texture-0-SIDE.EXT`; levels of one size share a file; the full size
+/// is the store's own file, unchanged) and gives each level's glTF
+/// texture; none when the store has no texture or no uvs, or (with a
+/// warning) when the image does not decode. Copies of a PNG are PNG, of
+/// anything else JPEG (quality 90).
+fn level_textures(store: &Store, dir: &Path, top: u8, bytes_written: &mut u64) -> Result<Option<Vec<crate::gltf::GltfTexture>>> {
+    use crate::gltf::{GltfTexture, TextureImage};
+    if !store.payload_layout.attrs.uv() {
+        return Ok(None);
+    }
+    let Some((file, src)) = crate::manifest::store_texture(&store.dir) else { return Ok(None) };
+    let bytes = std::fs::read(&src).map_err(|e| Error::io(&src, "read texture", e))?;
+    let bad = |what: String| Error::input(crate::error::Location { file: src.clone(), ..Default::default() }, what);
+    let mime = crate::gltf::image_mime(&bytes);
+    let png = mime == Some("image/png");
+    let img = match ::image::load_from_memory(&bytes) {
+        Ok(i) => i.into_rgba8(),
+        Err(e) => {
+            // The geometry is the tileset; a texture it cannot carry is left out.
+            eprintln!("warning: {}; the tiles are written without it", bad(format!("cannot decode the texture: {e}")));
+            return Ok(None);
+        }
+    };
+    let (w, h) = img.dimensions();
+    let chain = crate::view::texture::MipChain::new(&file, w, h, img.into_raw());
+    let ext = if png { "png" } else { "jpg" };
+    // Mip levels already written (levels of one size share a file).
+    let mut written: Vec<usize> = Vec::new();
+    let mut out = Vec::new();
+    for level in 0..=top {
+        let side = level_texture_side(w.max(h), level);
+        let mip = chain.levels.iter().position(|l| l.width.max(l.height) <= side).unwrap_or(chain.levels.len() - 1);
+        let l = &chain.levels[mip];
+        let stem = format!("texture-0-{}", l.width.max(l.height));
+        let name = format!("{stem}.{ext}");
+        if !written.contains(&mip) {
+            let path = dir.join("t").join(&name);
+            if mip == 0 && mime.is_some() {
+                std::fs::write(&path, &bytes).map_err(|e| Error::io(&path, "write", e))?;
+            } else {
+                encode_image(&path, l, png)?;
+            }
+            *bytes_written += std::fs::metadata(&path).map_err(|e| Error::io(&path, "stat", e))?.len();
+            written.push(mip);
+        }
+        out.push(GltfTexture { name: stem, image: TextureImage::Uri(name) });
+    }
+    Ok(Some(out))
+}
+
+/// Writes one mip level as PNG or JPEG (quality 90, alpha dropped).
+fn encode_image(path: &Path, l: &crate::view::texture::MipLevel, png: bool) -> Result<()> {
+    use ::image::ImageEncoder;
+    let f = std::fs::File::create(path).map_err(|e| Error::io(path, "create", e))?;
+    let mut w = std::io::BufWriter::new(f);
+    let r = if png {
+        ::image::codecs::png::PngEncoder::new(&mut w).write_image(&l.rgba, l.width, l.height, ::image::ExtendedColorType::Rgba8)
+    } else {
+        let rgb: Vec<u8> = l.rgba.chunks_exact(4).flat_map(|p| [p[0], p[1], p[2]]).collect();
+        ::image::codecs::jpeg::JpegEncoder::new_with_quality(&mut w, 90).write_image(&rgb, l.width, l.height, ::image::ExtendedColorType::Rgb8)
+    };
+    r.map_err(|e| Error::Usage(format!("{}: cannot encode the texture copy: {e}", path.display())))?;
+    std::io::Write::flush(&mut w).map_err(|e| Error::io(path, "write", e))
 }
 
 /// Turns the few triangles that face against their vertex normals (the

@@ -22,6 +22,11 @@
 //!   bytes and read back unchanged where fully lit; [`DrawParams::clear`] is
 //!   linear like `wgpu::Color` and reads back sRGB-encoded ([`clear_rgba8`]).
 //!   Lighting is computed in linear space.
+//! * Texture ([`Renderer::set_texture`], drawn when
+//!   [`DrawParams::textured`]): one RGBA8 sRGB texture with its mip chain,
+//!   sampled trilinearly (anisotropic where the device can), repeating,
+//!   at (u, 1 − v); lit like the shaded view. Meshes carry uvs in a second
+//!   vertex buffer, so untextured meshes keep 28 bytes per vertex.
 //! * Wireframe: `PolygonMode::Line` when the device has
 //!   `Features::POLYGON_MODE_LINE` (Vulkan incl. lavapipe, Metal, DX12).
 //!   Otherwise (GL, or [`RendererOptions::line_list_wireframe`]) every
@@ -55,6 +60,8 @@ pub struct DrawParams {
     /// Direction towards a fixed light; zero for a headlight.
     pub light_dir: Vec3,
     pub wireframe: bool,
+    /// Draw meshes that have uvs with the texture (when one is set).
+    pub textured: bool,
     /// Background, linear RGBA in 0..=1 (as `wgpu::Color`; the sRGB target
     /// encodes it: see [`clear_rgba8`]).
     pub clear: [f64; 4],
@@ -62,7 +69,7 @@ pub struct DrawParams {
 
 impl Default for DrawParams {
     fn default() -> Self {
-        DrawParams { view_proj: Mat4::IDENTITY, eye: Vec3::ZERO, light_dir: Vec3::ZERO, wireframe: false, clear: [0.0, 0.0, 0.0, 1.0] }
+        DrawParams { view_proj: Mat4::IDENTITY, eye: Vec3::ZERO, light_dir: Vec3::ZERO, wireframe: false, textured: false, clear: [0.0, 0.0, 0.0, 1.0] }
     }
 }
 
@@ -73,25 +80,7 @@ pub fn clear_rgba8(clear: [f64; 4]) -> [u8; 4] {
     [b(linear_to_srgb(clear[0])), b(linear_to_srgb(clear[1])), b(linear_to_srgb(clear[2])), b(clear[3])]
 }
 
-/// sRGB transfer function, linear to encoded (0..=1).
-pub fn linear_to_srgb(c: f64) -> f64 {
-    let c = c.clamp(0.0, 1.0);
-    if c <= 0.0031308 {
-        12.92 * c
-    } else {
-        1.055 * c.powf(1.0 / 2.4) - 0.055
-    }
-}
-
-/// sRGB transfer function, encoded to linear (0..=1).
-pub fn srgb_to_linear(c: f64) -> f64 {
-    let c = c.clamp(0.0, 1.0);
-    if c <= 0.04045 {
-        c / 12.92
-    } else {
-        ((c + 0.055) / 1.055).powf(2.4)
-    }
-}
+pub use crate::color::{linear_to_srgb, srgb_to_linear};
 
 /// Construction options.
 #[derive(Clone, Copy, Debug, Default)]
@@ -119,6 +108,7 @@ pub enum WireframeMode {
 /// One mesh resident on the GPU.
 pub struct GpuMesh {
     vertices: Option<wgpu::Buffer>,
+    uvs: Option<wgpu::Buffer>,
     indices: Option<wgpu::Buffer>,
     lines: Option<wgpu::Buffer>,
     index_count: u32,
@@ -203,6 +193,12 @@ pub struct Renderer {
     fill: wgpu::RenderPipeline,
     wire: wgpu::RenderPipeline,
     wire_mode: WireframeMode,
+    /// The textured fill pipeline, its texture's bind group layout and sampler.
+    textured: wgpu::RenderPipeline,
+    texture_layout: wgpu::BindGroupLayout,
+    sampler: wgpu::Sampler,
+    /// The texture set, its bind group, and whether vertex colours tint it.
+    texture: Option<(wgpu::Texture, wgpu::BindGroup, bool)>,
     overlay: OverlayGpu,
     readback: Option<(wgpu::Buffer, u64)>,
 }
@@ -356,21 +352,53 @@ impl Renderer {
             bind_group_layouts: &[&globals_layout],
             push_constant_ranges: &[],
         });
+        let texture_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("texture"),
+            entries: &[
+                texture_entry(0, true),
+                wgpu::BindGroupLayoutEntry {
+                    binding: 1,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
+                    count: None,
+                },
+            ],
+        });
+        let textured_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("textured mesh"),
+            bind_group_layouts: &[&globals_layout, &texture_layout],
+            push_constant_ranges: &[],
+        });
+        let anisotropic = adapter.get_downlevel_capabilities().flags.contains(wgpu::DownlevelFlags::ANISOTROPIC_FILTERING);
+        let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
+            label: Some("texture"),
+            address_mode_u: wgpu::AddressMode::Repeat,
+            address_mode_v: wgpu::AddressMode::Repeat,
+            mag_filter: wgpu::FilterMode::Linear,
+            min_filter: wgpu::FilterMode::Linear,
+            mipmap_filter: wgpu::FilterMode::Linear,
+            anisotropy_clamp: if anisotropic { 16 } else { 1 },
+            ..Default::default()
+        });
         let attributes = wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x3, 2 => Unorm8x4];
         let vertex_layout = wgpu::VertexBufferLayout {
             array_stride: std::mem::size_of::<GpuVertex>() as u64,
             step_mode: wgpu::VertexStepMode::Vertex,
             attributes: &attributes,
         };
+        let uv_attributes = wgpu::vertex_attr_array![3 => Float32x2];
+        let uv_layout = wgpu::VertexBufferLayout { array_stride: 8, step_mode: wgpu::VertexStepMode::Vertex, attributes: &uv_attributes };
+        let both_layouts = [vertex_layout.clone(), uv_layout];
         let mesh_pipeline = |label: &str, topology: wgpu::PrimitiveTopology, polygon_mode: wgpu::PolygonMode| {
+            let textured = label == "textured";
             device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
                 label: Some(label),
-                layout: Some(&layout),
+                layout: Some(if textured { &textured_layout } else { &layout }),
                 vertex: wgpu::VertexState {
                     module: &shader,
-                    entry_point: Some("vs_main"),
+                    entry_point: Some(if textured { "vs_tex" } else { "vs_main" }),
                     compilation_options: Default::default(),
-                    buffers: std::slice::from_ref(&vertex_layout),
+                    buffers: if textured { &both_layouts } else { std::slice::from_ref(&vertex_layout) },
                 },
                 primitive: wgpu::PrimitiveState {
                     topology,
@@ -391,7 +419,7 @@ impl Renderer {
                 multisample: wgpu::MultisampleState::default(),
                 fragment: Some(wgpu::FragmentState {
                     module: &shader,
-                    entry_point: Some("fs_main"),
+                    entry_point: Some(if textured { "fs_tex" } else { "fs_main" }),
                     compilation_options: Default::default(),
                     targets: &[Some(wgpu::ColorTargetState { format, blend: None, write_mask: wgpu::ColorWrites::ALL })],
                 }),
@@ -400,6 +428,7 @@ impl Renderer {
             })
         };
         let fill = mesh_pipeline("fill", wgpu::PrimitiveTopology::TriangleList, wgpu::PolygonMode::Fill);
+        let textured = mesh_pipeline("textured", wgpu::PrimitiveTopology::TriangleList, wgpu::PolygonMode::Fill);
         let wire = match wire_mode {
             WireframeMode::PolygonLine => mesh_pipeline("wire", wgpu::PrimitiveTopology::TriangleList, wgpu::PolygonMode::Line),
             WireframeMode::LineList => mesh_pipeline("wire-lines", wgpu::PrimitiveTopology::LineList, wgpu::PolygonMode::Fill),
@@ -426,6 +455,10 @@ impl Renderer {
             fill,
             wire,
             wire_mode,
+            textured,
+            texture_layout,
+            sampler,
+            texture: None,
             overlay,
             readback: None,
         })
@@ -489,10 +522,57 @@ impl Renderer {
         self.vsync
     }
 
+    /// Sets the texture meshes with uvs are drawn with (see the module
+    /// doc): every level of `chain` whose sides the device allows (finer
+    /// ones are skipped). `tint`: vertex colours multiply it. Gives the
+    /// bytes the GPU holds for it.
+    pub fn set_texture(&mut self, chain: &crate::view::texture::MipChain, tint: bool) -> Result<u64> {
+        let max = self.device.limits().max_texture_dimension_2d;
+        let levels: Vec<&crate::view::texture::MipLevel> = chain.levels.iter().skip_while(|l| l.width > max || l.height > max).collect();
+        let Some(first) = levels.first() else {
+            return Err(Error::Usage(format!("texture {}: no level fits the device ({max} texels a side)", chain.name)));
+        };
+        let texture = self.device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("texture"),
+            size: wgpu::Extent3d { width: first.width, height: first.height, depth_or_array_layers: 1 },
+            mip_level_count: levels.len() as u32,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: wgpu::TextureFormat::Rgba8UnormSrgb,
+            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+            view_formats: &[],
+        });
+        for (k, l) in levels.iter().enumerate() {
+            self.queue.write_texture(
+                wgpu::TexelCopyTextureInfo { texture: &texture, mip_level: k as u32, origin: wgpu::Origin3d::ZERO, aspect: wgpu::TextureAspect::All },
+                &l.rgba,
+                wgpu::TexelCopyBufferLayout { offset: 0, bytes_per_row: Some(l.width * 4), rows_per_image: Some(l.height) },
+                wgpu::Extent3d { width: l.width, height: l.height, depth_or_array_layers: 1 },
+            );
+        }
+        let view = texture.create_view(&Default::default());
+        let bind = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("texture"),
+            layout: &self.texture_layout,
+            entries: &[
+                wgpu::BindGroupEntry { binding: 0, resource: wgpu::BindingResource::TextureView(&view) },
+                wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::Sampler(&self.sampler) },
+            ],
+        });
+        let bytes = levels.iter().map(|l| l.rgba.len() as u64).sum();
+        self.texture = Some((texture, bind, tint));
+        Ok(bytes)
+    }
+
+    /// Whether a texture is set.
+    pub fn has_texture(&self) -> bool {
+        self.texture.is_some()
+    }
+
     /// Uploads a mesh. Empty meshes own no buffers and draw nothing.
     pub fn upload(&self, m: &DrawMesh) -> GpuMesh {
         if m.indices.is_empty() || m.vertices.is_empty() {
-            return GpuMesh { vertices: None, indices: None, lines: None, index_count: 0, line_index_count: 0, bytes: 0 };
+            return GpuMesh { vertices: None, uvs: None, indices: None, lines: None, index_count: 0, line_index_count: 0, bytes: 0 };
         }
         let vertices = self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("vertices"),
@@ -517,8 +597,15 @@ impl Renderer {
                 (Some(buf), lines.len() as u32)
             }
         };
-        let bytes = vertices.size() + indices.size() + lines.as_ref().map_or(0, |b| b.size());
-        GpuMesh { vertices: Some(vertices), indices: Some(indices), lines, index_count, line_index_count, bytes }
+        let uvs = (m.uvs.len() == m.vertices.len()).then(|| {
+            self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("uvs"),
+                contents: bytemuck::cast_slice(&m.uvs),
+                usage: wgpu::BufferUsages::VERTEX,
+            })
+        });
+        let bytes = vertices.size() + indices.size() + lines.as_ref().map_or(0, |b| b.size()) + uvs.as_ref().map_or(0, |b| b.size());
+        GpuMesh { vertices: Some(vertices), uvs, indices: Some(indices), lines, index_count, line_index_count, bytes }
     }
 
     fn write_globals(&self, p: &DrawParams) {
@@ -527,7 +614,7 @@ impl Renderer {
             view_proj: p.view_proj.to_cols_array_2d(),
             eye: p.eye.extend(1.0).to_array(),
             light: light.to_array(),
-            params: [AMBIENT, if self.format.is_srgb() { 0.0 } else { 1.0 }, 0.0, 0.0],
+            params: [AMBIENT, if self.format.is_srgb() { 0.0 } else { 1.0 }, if self.texture.as_ref().is_some_and(|t| t.2) { 1.0 } else { 0.0 }, 0.0],
         };
         self.queue.write_buffer(&self.globals, 0, bytemuck::bytes_of(&g));
     }
@@ -564,11 +651,28 @@ impl Renderer {
             timestamp_writes: None,
             occlusion_query_set: None,
         });
-        pass.set_pipeline(if p.wireframe { &self.wire } else { &self.fill });
         pass.set_bind_group(0, &self.globals_bind, &[]);
+        let texture = self.texture.as_ref().filter(|_| p.textured && !p.wireframe);
+        if let Some((_, bind, _)) = texture {
+            pass.set_bind_group(1, bind, &[]);
+        }
+        // The pipeline set: textured or not.
+        let mut current: Option<bool> = None;
         for item in meshes {
             let m = item.mesh;
             let (Some(vb), Some(ib)) = (&m.vertices, &m.indices) else { continue };
+            let uvs = m.uvs.as_ref().filter(|_| texture.is_some());
+            if current != Some(uvs.is_some()) {
+                pass.set_pipeline(match (uvs.is_some(), p.wireframe) {
+                    (true, _) => &self.textured,
+                    (false, true) => &self.wire,
+                    (false, false) => &self.fill,
+                });
+                current = Some(uvs.is_some());
+            }
+            if let Some(ub) = uvs {
+                pass.set_vertex_buffer(1, ub.slice(..));
+            }
             // Indices per triangle: 3, or 6 in a line list (three edges).
             let (ib, count, per) = match (p.wireframe, self.wire_mode, &m.lines) {
                 (true, WireframeMode::LineList, Some(lb)) => (lb, m.line_index_count, 6),
@@ -830,24 +934,24 @@ fn uniform_entry(binding: u32) -> wgpu::BindGroupLayoutEntry {
     }
 }
 
+/// A 2D float texture read by the fragment stage.
+fn texture_entry(binding: u32, filterable: bool) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::FRAGMENT,
+        ty: wgpu::BindingType::Texture {
+            sample_type: wgpu::TextureSampleType::Float { filterable },
+            view_dimension: wgpu::TextureViewDimension::D2,
+            multisampled: false,
+        },
+        count: None,
+    }
+}
+
 impl OverlayGpu {
     fn new(device: &wgpu::Device, format: wgpu::TextureFormat) -> OverlayGpu {
-        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("overlay"),
-            entries: &[
-                uniform_entry(0),
-                wgpu::BindGroupLayoutEntry {
-                    binding: 1,
-                    visibility: wgpu::ShaderStages::FRAGMENT,
-                    ty: wgpu::BindingType::Texture {
-                        sample_type: wgpu::TextureSampleType::Float { filterable: false },
-                        view_dimension: wgpu::TextureViewDimension::D2,
-                        multisampled: false,
-                    },
-                    count: None,
-                },
-            ],
-        });
+        let layout =
+            device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor { label: Some("overlay"), entries: &[uniform_entry(0), texture_entry(1, false)] });
         let shader = device.create_shader_module(wgpu::include_wgsl!("overlay.wgsl"));
         let pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("overlay"),

@@ -49,6 +49,9 @@ pub struct RenderOptions {
     /// Extra frames at the last pose, at most, until loading settles.
     pub settle: usize,
     pub wireframe: bool,
+    /// Draw the store's texture, when it has one (off: `--no-texture`,
+    /// the shaded view; the texture is then not loaded).
+    pub texture: bool,
     /// Pixels whose channels differ by more than this count as different.
     pub diff_tolerance: u8,
     pub quiet: bool,
@@ -96,7 +99,20 @@ struct StatsFile<'a> {
     final_psnr_db: Option<f64>,
     final_diff_fraction: Option<f64>,
     load_failures: u64,
+    /// The texture drawn (none: the store has none, or `--no-texture`).
+    texture: Option<TextureSummary>,
     frames: &'a [FrameRecord],
+}
+
+/// The texture a render drew: the store's file, the finest level kept
+/// and how many finer ones `--ram` dropped, and the bytes it held.
+#[derive(serde::Serialize)]
+struct TextureSummary {
+    file: String,
+    width: u32,
+    height: u32,
+    levels_dropped: u32,
+    bytes: u64,
 }
 
 /// What a run produced.
@@ -111,15 +127,7 @@ pub const CLEAR: [f64; 4] = [0.05, 0.06, 0.08, 1.0];
 /// The clear colour as the RGBA8 value it renders to.
 pub fn clear_rgba8(srgb_target: bool) -> [u8; 4] {
     let enc = |c: f64| {
-        let v = if srgb_target {
-            if c <= 0.0031308 {
-                12.92 * c
-            } else {
-                1.055 * c.powf(1.0 / 2.4) - 0.055
-            }
-        } else {
-            c
-        };
+        let v = if srgb_target { crate::color::linear_to_srgb(c) } else { c };
         (v.clamp(0.0, 1.0) * 255.0).round() as u8
     };
     [enc(CLEAR[0]), enc(CLEAR[1]), enc(CLEAR[2]), 255]
@@ -132,6 +140,7 @@ pub fn draw_params(cam: &Camera, origin: glam::DVec3, w: u32, h: u32, wireframe:
         // Towards the light: over the viewer's right shoulder.
         light_dir: (-cam.forward() * 0.8 + cam.cam_up() * 0.5 + cam.right() * 0.35).normalize().as_vec3(),
         wireframe,
+        textured: false,
         clear: CLEAR,
     }
 }
@@ -166,7 +175,12 @@ pub fn render(o: &RenderOptions) -> Result<RenderReport> {
     let _inputs = [Some(&o.store), o.camera_path.as_ref()].map(|p| p.map(|p| crate::io::protect(p)));
     let out = AtomicDir::create(&o.out, crate::io::OutputKind::Frames, o.force)?;
     let mut renderer = Renderer::headless(o.width, o.height)?;
-    let mut viewer: Viewer<GpuMesh> = Viewer::open(&o.store, o.view.clone())?;
+    let mut view = o.view.clone();
+    let texture = super::texture::prepare(&o.store, &mut view, o.texture)?;
+    let mut viewer: Viewer<GpuMesh> = Viewer::open(&o.store, view)?;
+    if let Some(t) = &texture {
+        renderer.set_texture(t, viewer.store.payload_layout.attrs.color())?;
+    }
     let bounds = viewer.bounds();
     let origin = viewer.origin();
     let path = match &o.camera_path {
@@ -206,6 +220,7 @@ pub fn render(o: &RenderOptions) -> Result<RenderReport> {
                 resident_bytes: bytes,
                 peak_resident_bytes: bytes,
                 budget_bytes: o.view.ram,
+                texture_bytes: viewer.opts.texture_bytes,
                 hit_rate: 1.0,
                 settled: true,
                 ..FrameStats::default()
@@ -215,7 +230,8 @@ pub fn render(o: &RenderOptions) -> Result<RenderReport> {
             let s = viewer.frame(&cam, (o.width, o.height), &mut |m| renderer.upload(m));
             (s, viewer.draw_list())
         };
-        let p = draw_params(&cam, origin, o.width, o.height, o.wireframe);
+        let mut p = draw_params(&cam, origin, o.width, o.height, o.wireframe);
+        p.textured = texture.is_some();
         let t = Instant::now();
         let img = renderer.render_offscreen(&p, &meshes)?;
         stats.draw_ms = t.elapsed().as_secs_f64() * 1e3;
@@ -244,7 +260,7 @@ pub fn render(o: &RenderOptions) -> Result<RenderReport> {
     if frames.is_empty() {
         return Err(crate::error::Error::Usage("render: no frame was rendered; nothing is kept".into()));
     }
-    write_stats(out.path(), &frames, o)?;
+    write_stats(out.path(), &frames, o, texture.as_ref())?;
     // Frames drawn while nodes failed to load are not what was asked:
     // nothing is kept and the run fails, naming the first failures.
     let (failed, msgs) = viewer.load_failures();
@@ -302,7 +318,7 @@ fn csv_cell(v: &serde_json::Value) -> String {
     }
 }
 
-fn write_stats(dir: &Path, frames: &[FrameRecord], o: &RenderOptions) -> Result<()> {
+fn write_stats(dir: &Path, frames: &[FrameRecord], o: &RenderOptions, texture: Option<&super::texture::MipChain>) -> Result<()> {
     let csv = dir.join("stats.csv");
     let mut f = std::io::BufWriter::new(std::fs::File::create(&csv).ctx(&csv, "create")?);
     for (i, r) in frames.iter().enumerate() {
@@ -330,6 +346,7 @@ fn write_stats(dir: &Path, frames: &[FrameRecord], o: &RenderOptions) -> Result<
         final_psnr_db: last.and_then(|r| r.psnr_db),
         final_diff_fraction: last.and_then(|r| r.diff_fraction),
         load_failures: last.map_or(0, |r| r.stats.load_failures),
+        texture: texture.map(|t| TextureSummary { file: t.name.clone(), width: t.size().0, height: t.size().1, levels_dropped: t.dropped, bytes: t.bytes() }),
         frames,
     };
     let text = serde_json::to_string_pretty(&file).expect("the stats serialize");

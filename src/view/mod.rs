@@ -12,13 +12,15 @@
 //! * [`viewer`] — one frame's CPU work (poll, upload, select, request) and statistics;
 //! * [`gpu`] — the wgpu renderer (offscreen and window surface);
 //! * [`image`] — PNG output and image comparison (PSNR, differing pixels);
+//! * [`texture`] — the store's texture, mipmapped and fitted to the budget
+//!   (CPU only: `tiles` makes its per-level copies with it too);
 //! * [`headless`] — `octolod render`: camera paths, statistics, reference renders;
 //! * [`window`] — `octolod view`: the interactive window;
 //! * [`quiet`] — keeps libwayland's "no desktop session" line out of successful runs.
 //!
 //! The `view` cargo feature (on by default) holds the parts that need wgpu,
-//! winit and PNG output: `gpu`, `overlay`, `image`, `headless`, `window` and
-//! `quiet`. The rest (camera maths and paths, [`camera::Up`] and
+//! winit and PNG output: `gpu`, `overlay`, `image`, `headless`, `window`
+//! and `quiet`. The rest (camera maths and paths, [`camera::Up`] and
 //! [`camera::guess_up`], selection, cache, the frame loop, [`DrawMesh`],
 //! [`DEFAULT_COLOR`]) is plain CPU code, always built: `tiles` and `gltf`
 //! use it, and a `--no-default-features` build is the headless tool.
@@ -36,6 +38,7 @@ pub mod overlay;
 #[cfg(feature = "view")]
 pub mod quiet;
 pub mod select;
+pub mod texture;
 pub mod viewer;
 #[cfg(feature = "view")]
 pub mod window;
@@ -62,6 +65,9 @@ pub struct DrawMesh {
     pub indices: Vec<u32>,
     /// The node's patches (triangle ranges by child), in index order.
     pub patches: Vec<crate::store::Patch>,
+    /// Texture coordinates per vertex, when a texture is shown (else
+    /// empty): a second vertex buffer, so untextured stores pay nothing.
+    pub uvs: Vec<[f32; 2]>,
 }
 
 /// One mesh to draw and the triangle ranges of it to draw.
@@ -84,7 +90,7 @@ pub const DEFAULT_COLOR: [u8; 4] = [200, 200, 205, 255];
 impl DrawMesh {
     /// Bytes this mesh occupies (CPU copy, or its GPU buffers once uploaded).
     pub fn bytes(&self) -> u64 {
-        (self.vertices.len() * std::mem::size_of::<GpuVertex>() + self.indices.len() * 4) as u64
+        (self.vertices.len() * std::mem::size_of::<GpuVertex>() + self.indices.len() * 4 + self.uvs.len() * 8) as u64
     }
     pub fn triangles(&self) -> usize {
         self.indices.len() / 3
@@ -97,7 +103,8 @@ impl DrawMesh {
 /// Normals are the payload's when it has them (the input's, or computed at
 /// build time from each vertex's whole neighbourhood, so both sides of a
 /// node seam shade alike), else area-weighted vertex normals of this mesh;
-/// colors the input's, else [`DEFAULT_COLOR`].
+/// colors the input's, else [`DEFAULT_COLOR`]; uvs when `attrs` has them
+/// (the viewer drops them from `attrs` unless it shows a texture).
 pub fn draw_mesh(m: &IndexedMesh, attrs: AttrSet, origin: [f64; 3]) -> DrawMesh {
     let mut vertices: Vec<GpuVertex> = m
         .vertices
@@ -142,7 +149,8 @@ pub fn draw_mesh(m: &IndexedMesh, attrs: AttrSet, origin: [f64; 3]) -> DrawMesh 
         }
     }
     let indices = m.triangles.iter().flat_map(|t| t.iter().copied()).collect();
-    DrawMesh { vertices, indices, patches: Vec::new() }
+    let uvs = if attrs.uv() { m.vertices.iter().map(|v| v.uv).collect() } else { Vec::new() };
+    DrawMesh { vertices, indices, patches: Vec::new(), uvs }
 }
 
 /// [`draw_mesh`] of a decoded node payload, keeping its patches.

@@ -70,6 +70,9 @@ pub struct Hierarchy {
     /// The top level's nodes (one unless the build stopped early).
     pub roots: Vec<Unit>,
     pub bounds: Aabb,
+    /// Bytes per vertex of a GPU-ready mesh: [`super::GpuVertex`], plus
+    /// 8 when uvs are loaded for a texture.
+    pub vertex_bytes: u64,
 }
 
 impl Hierarchy {
@@ -105,6 +108,7 @@ impl Hierarchy {
             parent_at: store.nodes.iter().map(|n| (n.first_parent, n.parent_count)).collect(),
             roots,
             bounds,
+            vertex_bytes: std::mem::size_of::<super::GpuVertex>() as u64,
         }
     }
 
@@ -130,7 +134,7 @@ impl Hierarchy {
     /// Estimated bytes of a node's GPU-ready mesh (see `DrawMesh::bytes`).
     pub fn draw_bytes(&self, u: Unit) -> u64 {
         let s = self.info(u);
-        s.verts as u64 * std::mem::size_of::<super::GpuVertex>() as u64 + s.tris as u64 * 12
+        s.verts as u64 * self.vertex_bytes + s.tris as u64 * 12
     }
 
     /// Bytes the index takes in memory (charged against the budget).

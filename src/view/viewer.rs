@@ -29,11 +29,23 @@ pub struct ViewOptions {
     pub upload_per_frame: u64,
     /// Pin (load at start, never evict) top levels up to this share of the budget.
     pub pin_share: f64,
+    /// Bytes of the texture shown (its mip chain on the GPU), counted
+    /// against `ram` like the node index; 0 when none is shown, and then
+    /// uvs are not loaded either.
+    pub texture_bytes: u64,
 }
 
 impl Default for ViewOptions {
     fn default() -> Self {
-        ViewOptions { ram: 512 << 20, select: SelectOptions::default(), io_threads: 2, io_delay: Duration::ZERO, upload_per_frame: 64 << 20, pin_share: 0.125 }
+        ViewOptions {
+            ram: 512 << 20,
+            select: SelectOptions::default(),
+            io_threads: 2,
+            io_delay: Duration::ZERO,
+            upload_per_frame: 64 << 20,
+            pin_share: 0.125,
+            texture_bytes: 0,
+        }
     }
 }
 
@@ -55,6 +67,8 @@ pub struct FrameStats {
     pub resident_bytes: u64,
     pub peak_resident_bytes: u64,
     pub budget_bytes: u64,
+    /// Bytes of the texture shown (included in `resident_bytes`).
+    pub texture_bytes: u64,
     /// Loads in flight plus wanted loads not issued yet.
     pub pending_loads: u32,
     pub loads_done: u64,
@@ -79,7 +93,13 @@ impl FrameStats {
         let mut lines = vec![
             format!("{fps:6.1} fps  select {:.2} ms  upload {:.2} ms  draw {:.2} ms", self.select_ms, self.upload_ms, self.draw_ms),
             format!("{} triangles in {} nodes  [{}]", group(self.triangles), self.nodes, lv.join(" ")),
-            format!("resident {:.1} / {:.1} MB  peak {:.1} MB", mb(self.resident_bytes), mb(self.budget_bytes), mb(self.peak_resident_bytes)),
+            format!(
+                "resident {:.1} / {:.1} MB  peak {:.1} MB{}",
+                mb(self.resident_bytes),
+                mb(self.budget_bytes),
+                mb(self.peak_resident_bytes),
+                if self.texture_bytes > 0 { format!("  (texture {:.1} MB)", mb(self.texture_bytes)) } else { String::new() }
+            ),
             format!(
                 "pending {}  loaded {}  evicted {}  hit rate {:.1}%  max error {:.2} px{}",
                 self.pending_loads,
@@ -122,7 +142,8 @@ pub struct Viewer<M> {
     pub opts: ViewOptions,
     /// Vertices are uploaded relative to this point (the input's bbox centre).
     pub origin: [f64; 3],
-    /// Bytes of the in-memory index counted against the budget.
+    /// Bytes of the in-memory index (and the texture, when one is shown)
+    /// counted against the budget.
     pub index_bytes: u64,
     frame: u64,
     last: Selection,
@@ -136,18 +157,24 @@ impl<M: GpuBytes> Viewer<M> {
         if store.level_triangles(0) == 0 {
             return Err(Error::Usage(format!("{}: the store holds no triangles", dir.display())));
         }
-        let hierarchy = Hierarchy::new(&store);
+        let mut hierarchy = Hierarchy::new(&store);
+        let mut ctx = load_ctx(&store);
+        if opts.texture_bytes > 0 && ctx.attrs.uv() {
+            hierarchy.vertex_bytes += 8;
+        } else {
+            ctx.attrs = ctx.attrs.with(crate::mesh::AttrSet::UV, false);
+        }
         let origin = store.header.bbox.center();
-        let index_bytes = (store.nodes.len() * std::mem::size_of::<crate::store::NodeRec>()) as u64 + hierarchy.bytes();
+        // The texture is held for the whole session, as the index is.
+        let index_bytes = (store.nodes.len() * std::mem::size_of::<crate::store::NodeRec>()) as u64 + hierarchy.bytes() + opts.texture_bytes;
         if opts.ram <= index_bytes {
             return Err(Error::Usage(format!(
-                "--ram {} does not even hold the node index ({}): raise it",
+                "--ram {} does not even hold the node index and texture ({}): raise it",
                 crate::progress::bytes(opts.ram),
                 crate::progress::bytes(index_bytes)
             )));
         }
         let budget = opts.ram - index_bytes;
-        let ctx = load_ctx(&store);
         let mut cache = Cache::new(dir, ctx, budget, opts.io_threads, opts.io_delay);
         // Pin whole top levels of the hierarchy while they fit the share.
         let mut pinned: Vec<Unit> = hierarchy.roots.clone();
@@ -223,6 +250,7 @@ impl<M: GpuBytes> Viewer<M> {
             resident_bytes: self.cache.resident() + self.index_bytes,
             peak_resident_bytes: self.cache.peak() + self.index_bytes,
             budget_bytes: self.opts.ram,
+            texture_bytes: self.opts.texture_bytes,
             pending_loads: (self.cache.in_flight() + left) as u32,
             loads_done: c.loads_done,
             evictions: c.evictions,
@@ -297,4 +325,17 @@ pub fn load_all_originals<M>(store: &Store, upload: &mut dyn FnMut(&DrawMesh) ->
         out.push((upload(&d), d.triangles() as u32));
     }
     Ok((out, tris))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_overlay_shows_the_textures_share_of_the_budget() {
+        let s = FrameStats { resident_bytes: 5 << 20, budget_bytes: 64 << 20, texture_bytes: 3 << 20, ..FrameStats::default() };
+        assert!(s.overlay_lines(60.0)[2].ends_with("(texture 3.0 MB)"), "{:?}", s.overlay_lines(60.0));
+        let s = FrameStats { texture_bytes: 0, ..s };
+        assert!(!s.overlay_lines(60.0)[2].contains("texture"));
+    }
 }

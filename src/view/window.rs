@@ -14,7 +14,8 @@
 //! * walk (3): fly with forward/sideways motion kept perpendicular to the up
 //!   axis (Q/E still change height explicitly);
 //! * Tab cycles the modes; R resets the view, F frames everything from the
-//!   current direction; Z toggles wireframe; + / - or ] / [ change the field
+//!   current direction; Z toggles wireframe; T toggles the texture (when
+//!   the store has one) and the shaded view; + / - or ] / [ change the field
 //!   of view; F1 or H toggles the overlay; V toggles vsync; U cycles the up
 //!   axis (+Z, +Y, +X; the start is `--up`, by default guessed: Y up, or
 //!   the thin axis of a height field, see [`super::camera::guess_up`]);
@@ -56,6 +57,9 @@ pub struct WindowOptions {
     pub up: Up,
     pub fov_deg: f64,
     pub wireframe: bool,
+    /// Show the store's texture (if it has one; T toggles). Off: the
+    /// texture is not even loaded, and its bytes stay free for nodes.
+    pub texture: bool,
     /// Show the statistics overlay at start.
     pub overlay: bool,
     /// Quit after this many frames (scripted runs).
@@ -89,11 +93,14 @@ impl Mode {
 
 /// Opens the store and runs the window until it is closed (or Esc).
 pub fn run_window(opts: WindowOptions) -> Result<()> {
-    let viewer: Viewer<GpuMesh> = Viewer::open(&opts.store, opts.view.clone())?;
+    let mut view = opts.view.clone();
+    let texture = super::texture::prepare(&opts.store, &mut view, opts.texture)?;
+    let viewer: Viewer<GpuMesh> = Viewer::open(&opts.store, view)?;
     let event_loop =
         EventLoop::new().map_err(|e| Error::Usage(format!("cannot open a window ({e}); without a display use `octolod render` to render offscreen")))?;
     event_loop.set_control_flow(ControlFlow::Poll);
     let mut app = App::new(opts, viewer);
+    app.texture = texture;
     event_loop.run_app(&mut app).map_err(|e| Error::Usage(format!("window event loop failed: {e}")))?;
     match app.error.take() {
         Some(e) => Err(e),
@@ -132,6 +139,7 @@ pub enum Action {
     ToggleWireframe,
     ToggleOverlay,
     ToggleVsync,
+    ToggleTexture,
 }
 
 /// Camera navigation state, independent of the window system: keys held,
@@ -203,6 +211,7 @@ impl Navigator {
             KeyCode::KeyZ if !repeat => return Action::ToggleWireframe,
             KeyCode::F1 | KeyCode::KeyH if !repeat => return Action::ToggleOverlay,
             KeyCode::KeyV if !repeat => return Action::ToggleVsync,
+            KeyCode::KeyT if !repeat => return Action::ToggleTexture,
             KeyCode::KeyU if !repeat => {
                 self.up = if self.up == DVec3::Z {
                     DVec3::Y
@@ -310,6 +319,10 @@ struct App {
     error: Option<Error>,
     nav: Navigator,
     wireframe: bool,
+    /// The texture, until the renderer takes it.
+    texture: Option<super::texture::MipChain>,
+    /// Draw with the texture (when the renderer has one).
+    textured: bool,
     show_overlay: bool,
     last_frame: Instant,
     fps: FpsCounter,
@@ -328,6 +341,8 @@ impl App {
         App {
             nav: Navigator::new(viewer.bounds(), opts.up.resolve(&viewer.bounds()), opts.fov_deg),
             wireframe: opts.wireframe,
+            texture: None,
+            textured: opts.texture,
             show_overlay: opts.overlay,
             opts,
             viewer,
@@ -357,6 +372,7 @@ impl App {
             Action::None => {}
             Action::Quit => event_loop.exit(),
             Action::ToggleWireframe => self.wireframe = !self.wireframe,
+            Action::ToggleTexture => self.textured = !self.textured,
             Action::ToggleOverlay => self.show_overlay = !self.show_overlay,
             Action::ToggleVsync => {
                 if let Some(r) = &mut self.renderer {
@@ -377,7 +393,8 @@ impl App {
         let Some(renderer) = self.renderer.as_mut() else { return };
         let (w, h) = renderer.size();
         let mut stats = self.viewer.frame(&cam, (w, h), &mut |m| renderer.upload(m));
-        let p = draw_params(&cam, self.viewer.origin(), w, h, self.wireframe);
+        let mut p = draw_params(&cam, self.viewer.origin(), w, h, self.wireframe);
+        p.textured = self.textured;
         let t = Instant::now();
         let list = self.viewer.draw_list();
         let overlay = if self.show_overlay { self.overlay.as_ref() } else { None };
@@ -438,11 +455,15 @@ impl App {
             self.nav.mode.name(),
             self.up_text(),
             self.nav.fov_deg,
-            if self.wireframe { "wireframe" } else { "shaded" },
+            match (self.wireframe, self.textured && self.renderer.as_ref().is_some_and(|r| r.has_texture())) {
+                (true, _) => "wireframe",
+                (false, true) => "textured",
+                (false, false) => "shaded",
+            },
             if vsync { "  vsync" } else { "" },
             adapter
         ));
-        lines.push("1/2/3 Tab: mode  R: reset  F: frame  Z: wire  +/-: fov  H: hide  Esc: quit".into());
+        lines.push("1/2/3 Tab: mode  R: reset  F: frame  Z: wire  T: texture  +/-: fov  H: hide  Esc: quit".into());
         lines
     }
 
@@ -490,7 +511,12 @@ impl ApplicationHandler for App {
         };
         let opts = RendererOptions { vsync: self.opts.vsync, ..Default::default() };
         match Renderer::for_window_with(window.clone(), opts) {
-            Ok(r) => {
+            Ok(mut r) => {
+                if let Some(t) = self.texture.take() {
+                    if let Err(e) = r.set_texture(&t, self.viewer.store.payload_layout.attrs.color()) {
+                        return self.fail(event_loop, e);
+                    }
+                }
                 if !self.opts.quiet {
                     let i = r.adapter_info();
                     eprintln!(
@@ -661,6 +687,7 @@ mod tests {
         assert!(close(n.fov_deg, 10.0));
         assert!(close(n.cam.fov_y, 10f64.to_radians()));
         assert_eq!(n.key(KeyCode::KeyZ, true, false), Action::ToggleWireframe);
+        assert_eq!(n.key(KeyCode::KeyT, true, false), Action::ToggleTexture);
         assert_eq!(n.key(KeyCode::F1, true, false), Action::ToggleOverlay);
         assert_eq!(n.key(KeyCode::KeyH, true, false), Action::ToggleOverlay);
         assert_eq!(n.key(KeyCode::Escape, true, false), Action::Quit);

@@ -17,10 +17,10 @@ use std::path::{Path, PathBuf};
 const ALL: u32 = AttrSet::NORMAL | AttrSet::COLOR | AttrSet::ALPHA | AttrSet::UV;
 
 const VARIANTS: [GltfOptions; 4] = [
-    GltfOptions { quantize: false, compress: false },
-    GltfOptions { quantize: true, compress: false },
-    GltfOptions { quantize: false, compress: true },
-    GltfOptions { quantize: true, compress: true },
+    GltfOptions { quantize: false, compress: false, texture: None },
+    GltfOptions { quantize: true, compress: false, texture: None },
+    GltfOptions { quantize: false, compress: true, texture: None },
+    GltfOptions { quantize: true, compress: true, texture: None },
 ];
 
 fn tag(o: &GltfOptions) -> &'static str {
@@ -373,7 +373,9 @@ fn check(d: &Decoded, want: &IndexedMesh, attrs: AttrSet, opts: &GltfOptions, wh
         assert_eq!(d.types[2], if q { 5123 } else { 5126 }, "{what}: uv storage");
         let utol = if q { 0.5 / 65535.0 + 1e-9 } else { 0.0 };
         for (a, b) in uv.iter().zip(&want.vertices) {
-            assert!((0..2).all(|c| (a[c] - b.uv[c] as f64).abs() <= utol), "{what}: uv {a:?} vs {:?}", b.uv);
+            // glTF's v runs down the image: TEXCOORD_0 is (u, 1 - v).
+            let g = [b.uv[0], 1.0 - b.uv[1]];
+            assert!((0..2).all(|c| (a[c] - g[c] as f64).abs() <= utol), "{what}: uv {a:?} vs {g:?} (octolod's {:?})", b.uv);
         }
     }
     // Same triangles in the same order with the same winding (meshopt's
@@ -426,6 +428,10 @@ fn fallback_bytes(g: &Gltf) -> Vec<u8> {
     let len = g.json["buffers"][1]["byteLength"].as_u64().unwrap() as usize;
     let mut out = vec![0u8; len];
     for k in 0..g.json["bufferViews"].as_array().unwrap().len() {
+        // Views stored as they are (an embedded image) are not in the fallback.
+        if g.view(k).get("extensions").is_none() {
+            continue;
+        }
         let off = g.view(k)["byteOffset"].as_u64().unwrap() as usize;
         let b = g.view_bytes(k);
         out[off..off + b.len()].copy_from_slice(&b);
@@ -589,10 +595,10 @@ fn big_meshes_get_32_bit_indices_and_odd_uvs_stay_float() {
     // 255 × 257 = 65535 vertices: still u16.
     let m = grid(255, 257, [0.0; 3], false);
     let mut b = Vec::new();
-    encode_glb(&m, AttrSet(0), &GltfOptions { quantize: true, compress: true }, &mut b).unwrap();
+    encode_glb(&m, AttrSet(0), &GltfOptions { quantize: true, compress: true, texture: None }, &mut b).unwrap();
     let dec = decode(&parse_glb(&b));
     assert_eq!(dec.prims, vec![(65535, 5123)]);
-    check(&dec, &m, AttrSet(0), &GltfOptions { quantize: true, compress: true }, "65535");
+    check(&dec, &m, AttrSet(0), &GltfOptions { quantize: true, compress: true, texture: None }, "65535");
 }
 
 #[test]
@@ -626,13 +632,13 @@ fn only_our_own_gltf_is_replaced_and_only_with_force() {
     extract_as(&s, spec, &glb, true, false, &opts).unwrap();
     let e = extract_as(&s, spec, &glb, true, false, &opts).unwrap_err().to_string();
     assert!(e.contains("--force"), "{e}");
-    extract_as(&s, spec, &glb, true, true, &GltfOptions { quantize: true, compress: false }).unwrap();
+    extract_as(&s, spec, &glb, true, true, &GltfOptions { quantize: true, compress: false, texture: None }).unwrap();
     assert!(read(&glb).extensions("extensionsUsed").contains(&"KHR_mesh_quantization".to_string()));
 
     // A pair, replaced as a pair.
     let gltf = dir.join("b.gltf");
     extract_as(&s, spec, &gltf, true, false, &opts).unwrap();
-    extract_as(&s, spec, &gltf, false, true, &GltfOptions { quantize: false, compress: true }).unwrap();
+    extract_as(&s, spec, &gltf, false, true, &GltfOptions { quantize: false, compress: true, texture: None }).unwrap();
     assert_eq!(decode(&read(&gltf)).tris.len() as u64, s.level_triangles(1));
     assert_eq!(names(&dir), ["a.glb", "b.bin", "b.gltf"]);
 
@@ -674,7 +680,7 @@ fn only_our_own_gltf_is_replaced_and_only_with_force() {
 fn errors_leave_nothing_behind() {
     let d = tempfile::tempdir().unwrap();
     let out = d.path().join("x.gltf");
-    let opts = GltfOptions { quantize: true, compress: true };
+    let opts = GltfOptions { quantize: true, compress: true, texture: None };
     // Empty: an error, not an empty file.
     let e = write_parts(&out, AttrSet(0), &opts, false, "e", 100, || std::iter::once(Ok(IndexedMesh::default()))).unwrap_err().to_string();
     assert!(e.contains("no triangles"), "{e}");
@@ -689,7 +695,7 @@ fn errors_leave_nothing_behind() {
         let out = d.path().join(format!("y.{ext}"));
         for compress in [false, true] {
             let mut pass = 0;
-            let e = write_parts(&out, AttrSet(ALL), &GltfOptions { quantize: false, compress }, false, "e", 20, || {
+            let e = write_parts(&out, AttrSet(ALL), &GltfOptions { quantize: false, compress, texture: None }, false, "e", 20, || {
                 pass += 1;
                 let p = pass;
                 (0..4).map(move |k| if p == 2 && k == 2 { Err(octolod::Error::Usage("gone".into())) } else { Ok(grid(4, 4, [k as f64; 3], false)) })
@@ -784,7 +790,7 @@ fn every_primitive_uses_one_rough_double_sided_dielectric_material() {
         docs.push(read(&out).json);
     }
     let mut b = Vec::new();
-    encode_glb(&grid(3, 3, [0.0; 3], false), AttrSet(0), &GltfOptions { quantize: true, compress: true }, &mut b).unwrap();
+    encode_glb(&grid(3, 3, [0.0; 3], false), AttrSet(0), &GltfOptions { quantize: true, compress: true, texture: None }, &mut b).unwrap();
     docs.push(parse_glb(&b).json);
     for (k, j) in docs.iter().enumerate() {
         let mats = j["materials"].as_array().unwrap();
@@ -960,8 +966,18 @@ fn validator() -> Option<PathBuf> {
 /// `g` as a plain GLB: the decompressed views in buffer 0 at their
 /// fallback offsets, without EXT_meshopt_compression.
 fn decompressed_glb(g: &Gltf) -> Vec<u8> {
-    let bin = fallback_bytes(g);
+    let mut bin = fallback_bytes(g);
     let mut j = g.json.clone();
+    // Views stored uncompressed in buffer 0 (an embedded image) follow.
+    for (k, v) in j["bufferViews"].as_array_mut().unwrap().iter_mut().enumerate() {
+        if v.get("extensions").is_none() {
+            let bytes = g.view_bytes(k);
+            bin.resize(bin.len().div_ceil(4) * 4, 0);
+            v["byteOffset"] = bin.len().into();
+            bin.extend_from_slice(&bytes);
+        }
+    }
+    bin.resize(bin.len().div_ceil(4) * 4, 0);
     for key in ["extensionsUsed", "extensionsRequired"] {
         let v: Vec<Value> = j[key].as_array().unwrap().iter().filter(|x| *x != "EXT_meshopt_compression").cloned().collect();
         j.as_object_mut().unwrap().remove(key);
@@ -1032,6 +1048,20 @@ fn the_khronos_validator_finds_no_error_in_any_variant() {
         std::fs::write(&out, b).unwrap();
         files.push(out);
     }
+    // Textured: the image embedded (extracts) or named by URI (tiles).
+    let t = textured_store(d.path());
+    for opts in [&VARIANTS[0], &VARIANTS[3]] {
+        for ext in ["glb", "gltf"] {
+            let out = d.path().join(format!("textured-{}.{ext}", tag(opts)));
+            extract_as(&t, CutSpec::Level(1), &out, true, false, opts).unwrap();
+            files.push(out);
+        }
+    }
+    let tiles = d.path().join("tiles");
+    octolod::tiles::export(&t, &tiles, &octolod::tiles::TilesOptions { tile_tris: 2000, ..Default::default() }).unwrap();
+    let mut glbs: Vec<PathBuf> = std::fs::read_dir(tiles.join("t")).unwrap().map(|e| e.unwrap().path()).filter(|p| p.extension().unwrap() == "glb").collect();
+    glbs.sort();
+    files.extend(glbs.into_iter().step_by(3));
     // The validator cannot read EXT_meshopt_compression: each compressed
     // file is also validated decompressed (its fallback filled in).
     for f in files.clone() {
@@ -1067,4 +1097,119 @@ fn the_khronos_validator_finds_no_error_in_any_variant() {
         }
     }
     assert!(failed.is_empty(), "validator errors in {failed:?}");
+}
+
+/// A generated textured scan (atlas and baked texture) built into a store.
+fn textured_store(dir: &Path) -> Store {
+    let ply = dir.join("tex.ply");
+    common::cli::gen_with("scan", 8000, &ply, &["--atlas", "4", "--texture", "128"]);
+    let params = octolod::manifest::BuildParams { mem: 16 << 20, leaf_tris: 1024, ..Default::default() };
+    Store::open(&common::build_store_at(dir, &ply, &common::build_options(params))).unwrap()
+}
+
+/// Issue 32, item 2: a glTF extract of a textured store embeds the store's
+/// texture (no file beside it) as the material's base colour, sampled
+/// with mipmaps and repeat; TEXCOORD_0 is glTF's (u, 1 − v) and octolod's
+/// glTF reader turns it back. A tileset gets each level's copy of the
+/// texture in `t/`, smaller for coarser levels, named by URI from every
+/// GLB of the level.
+#[test]
+fn textured_stores_carry_their_texture_into_gltf_and_tiles() {
+    let d = tempfile::tempdir().unwrap();
+    let s = textured_store(d.path());
+    let texture = std::fs::read(s.dir.join("texture-0.png")).unwrap();
+    for (ext, opts) in [("glb", &VARIANTS[0]), ("gltf", &VARIANTS[0]), ("glb", &VARIANTS[3])] {
+        let out = d.path().join(format!("x/tex-{}.{ext}", tag(opts)));
+        std::fs::create_dir_all(out.parent().unwrap()).unwrap();
+        extract_as(&s, CutSpec::Level(1), &out, true, false, opts).unwrap();
+        let g = read(&out);
+        let img = &g.json["images"][0];
+        assert_eq!(img["mimeType"], "image/png", "{}", out.display());
+        assert!(img.get("uri").is_none());
+        let view = &g.json["bufferViews"][img["bufferView"].as_u64().unwrap() as usize];
+        let (at, len) = (view["byteOffset"].as_u64().unwrap() as usize, view["byteLength"].as_u64().unwrap() as usize);
+        assert_eq!(view["buffer"], 0);
+        assert_eq!(&g.buffers[0].as_ref().unwrap()[at..at + len], &texture[..], "the store's image, byte for byte");
+        let m = &g.json["materials"][0]["pbrMetallicRoughness"];
+        assert_eq!(m["baseColorTexture"]["index"], 0);
+        assert_eq!(m["baseColorFactor"], serde_json::json!([1.0, 1.0, 1.0, 1.0]));
+        assert_eq!(g.json["samplers"][0]["minFilter"], 9987);
+        assert_eq!(g.json["textures"][0]["source"], 0);
+        // The reader gives back the store's uvs (v turned twice: within
+        // an f32 step of 1) where they are stored as floats.
+        if !opts.quantize {
+            let (_, sink, _) = octolod::input::read_all(&out, 64 << 20).unwrap();
+            let mut got: Vec<[f32; 2]> = sink.vertices.iter().map(|v| v.uv).collect();
+            let cut = s.cut_meshes(&CutSpec::Level(1).cut(&s).unwrap()).collect::<octolod::Result<Vec<_>>>().unwrap();
+            let mut want: Vec<[f32; 2]> = cut.iter().flat_map(|m| m.vertices.iter().map(|v| v.uv)).collect();
+            for v in [&mut got, &mut want] {
+                v.sort_unstable_by(|a, b| a[0].total_cmp(&b[0]).then(a[1].total_cmp(&b[1])));
+                v.dedup_by(|a, b| a[0] == b[0] && (a[1] - b[1]).abs() <= 1.2e-7);
+            }
+            assert_eq!(got.len(), want.len(), "{}", out.display());
+            let off = got.iter().zip(&want).filter(|(g, w)| g[0] != w[0] || (g[1] - w[1]).abs() > 1.2e-7).count();
+            assert_eq!(off, 0, "{}: uvs that did not come back", out.display());
+        }
+    }
+    assert_eq!(names(&d.path().join("x")).len(), 4, "three glTFs and one .bin, nothing else");
+    // Tiles: per-level copies.
+    let t = d.path().join("tiles");
+    octolod::tiles::export(&s, &t, &octolod::tiles::TilesOptions { tile_tris: 2000, ..Default::default() }).unwrap();
+    let names = names(&t.join("t"));
+    let images: Vec<&String> = names.iter().filter(|n| n.ends_with(".png")).collect();
+    assert_eq!(images.iter().map(|s| s.as_str()).collect::<Vec<_>>(), vec!["texture-0-128.png", "texture-0-64.png"], "{names:?}");
+    assert_eq!(std::fs::read(t.join("t/texture-0-128.png")).unwrap(), texture, "the full-size copy is the store's file");
+    let marker = std::fs::read_to_string(t.join(octolod::io::TILES_MARKER)).unwrap();
+    assert!(marker.contains("t/texture-0-64.png"), "the marker lists the copies: {marker}");
+    for n in names.iter().filter(|n| n.ends_with(".glb")) {
+        let g = parse_glb(&std::fs::read(t.join("t").join(n)).unwrap());
+        let level: u8 = n.split('-').next().unwrap().parse().unwrap();
+        let uri = g.json["images"][0]["uri"].as_str().unwrap().to_string();
+        assert_eq!(uri, format!("texture-0-{}.png", octolod::tiles::level_texture_side(128, level)), "{n}");
+        assert!(t.join("t").join(&uri).is_file());
+    }
+}
+
+/// Issue 32, item 2: a glTF's base colour image becomes the store's
+/// texture, whether in its buffer (octolod's own extract, read back) or
+/// a file it names by URI; its uvs come back (v turned twice).
+#[test]
+fn a_gltf_input_keeps_its_base_colour_image() {
+    let d = tempfile::tempdir().unwrap();
+    let s = textured_store(d.path());
+    let texture = std::fs::read(s.dir.join("texture-0.png")).unwrap();
+    let glb = d.path().join("x.glb");
+    extract_as(&s, CutSpec::Level(0), &glb, true, false, &VARIANTS[0]).unwrap();
+    // A .gltf naming the image by URI, in a subfolder, with a space.
+    let gltf = d.path().join("y.gltf");
+    extract_as(&s, CutSpec::Level(0), &gltf, true, false, &VARIANTS[0]).unwrap();
+    let mut j: Value = serde_json::from_slice(&std::fs::read(&gltf).unwrap()).unwrap();
+    j["images"][0] = serde_json::json!({"uri": "img/the%20skin.png"});
+    std::fs::write(&gltf, serde_json::to_vec(&j).unwrap()).unwrap();
+    std::fs::create_dir(d.path().join("img")).unwrap();
+    std::fs::write(d.path().join("img/the skin.png"), &texture).unwrap();
+    // `info-input` lists them.
+    for (input, line) in [(&glb, "base colour image: images[0] texture-0 (image/png, in a buffer)"), (&gltf, "base colour image: img/the skin.png (found)")] {
+        let o = octolod(&["info-input", input.to_str().unwrap()]);
+        assert!(String::from_utf8_lossy(&o.stdout).contains(line), "{}", String::from_utf8_lossy(&o.stdout));
+    }
+    for (input, name) in [(&glb, "texture-0"), (&gltf, "img/the skin.png")] {
+        let out = d.path().join(format!("{}.octolod", input.file_stem().unwrap().to_string_lossy()));
+        octolod::pipeline::build_store(input, &out, &octolod::pipeline::BuildOptions::default()).unwrap();
+        let m = octolod::manifest::Manifest::read(&out).unwrap();
+        assert_eq!(m.textures.len(), 1, "{}", input.display());
+        assert_eq!((m.textures[0].name.as_str(), m.textures[0].file.as_deref()), (name, Some("texture-0.png")));
+        assert_eq!(std::fs::read(out.join("texture-0.png")).unwrap(), texture);
+        let t = Store::open(&out).unwrap();
+        assert!(t.header.attrs.uv());
+        let uvs = |st: &Store| {
+            let mut v: Vec<[f32; 2]> = st.level_nodes(0).into_iter().flat_map(|i| st.read_node(i).unwrap().mesh.vertices).map(|v| v.uv).collect();
+            v.sort_unstable_by(|a, b| a[0].total_cmp(&b[0]).then(a[1].total_cmp(&b[1])));
+            v.dedup_by(|a, b| a[0] == b[0] && (a[1] - b[1]).abs() <= 1.2e-7);
+            v
+        };
+        let (a, b) = (uvs(&t), uvs(&s));
+        assert_eq!(a.len(), b.len());
+        assert!(a.iter().zip(&b).all(|(x, y)| x[0] == y[0] && (x[1] - y[1]).abs() <= 1.2e-7), "uvs changed through glTF");
+    }
 }

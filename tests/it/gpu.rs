@@ -39,7 +39,7 @@ fn grid(n: u32, s: f32, z: f32, normal: [f32; 3], color: [u8; 4]) -> DrawMesh {
             indices.extend_from_slice(&[a, b, d, a, d, c]);
         }
     }
-    DrawMesh { vertices, indices, patches: Vec::new() }
+    DrawMesh { vertices, indices, patches: Vec::new(), uvs: Vec::new() }
 }
 
 /// Camera on the z axis at `eye_z` looking at the origin, 60° vertical field of view.
@@ -47,7 +47,7 @@ fn params(w: u32, h: u32, eye_z: f32) -> DrawParams {
     let eye = Vec3::new(0.0, 0.0, eye_z);
     let view = glam::camera::rh::view::look_at_mat4(eye, Vec3::ZERO, Vec3::Y);
     let proj = glam::camera::rh::proj::directx::perspective(60f32.to_radians(), w as f32 / h as f32, 0.1, 100.0);
-    DrawParams { view_proj: proj * view, eye, light_dir: Vec3::ZERO, wireframe: false, clear: clear() }
+    DrawParams { view_proj: proj * view, eye, light_dir: Vec3::ZERO, wireframe: false, textured: false, clear: clear() }
 }
 
 fn px(img: &[u8], w: u32, x: u32, y: u32) -> [u8; 4] {
@@ -297,5 +297,77 @@ fn renderer_prints_no_wayland_error_line_without_a_desktop_session() {
         assert!(out.contains("CHILD-RENDERED"), "{backend}: the child did not render: {out}\n{err}");
         let bad: Vec<&str> = err.lines().chain(out.lines()).filter(|l| l.trim_start().starts_with("error")).collect();
         assert!(bad.is_empty(), "{backend}: error lines on a successful run: {bad:?}\n{err}");
+    }
+}
+
+/// `grid` with uvs spanning [0, 1]² over it (u along x, v along y).
+fn textured_grid(n: u32, color: [u8; 4]) -> DrawMesh {
+    let mut m = grid(n, 1.0, 0.0, [0.0, 0.0, 1.0], color);
+    m.uvs = m.vertices.iter().map(|v| [(v.pos[0] + 1.0) / 2.0, (v.pos[1] + 1.0) / 2.0]).collect();
+    m
+}
+
+/// Issue 32, item 3: the texture is sampled upright (v = 0 is the image's
+/// bottom row, MeshLab's convention), lit like vertex colours, tinted by
+/// them only when asked, drawn only when `textured`; minified, it is the
+/// linear-light mean of its texels (mipmaps), not an aliased texel; its
+/// uv buffer counts in the mesh's bytes.
+#[test]
+fn textures_are_sampled_upright_lit_and_mipmapped() {
+    use octolod::view::texture::MipChain;
+    let (w, h) = (64, 64);
+    let Some(mut r) = renderer(w, h) else { return };
+    // Image quadrants (top row first): red, green / blue, white.
+    let (red, green, blue, white) = ([230, 20, 20, 255], [20, 230, 20, 255], [20, 20, 230, 255], [255, 255, 255, 255]);
+    let mut rgba = Vec::new();
+    for y in 0..8 {
+        for x in 0..8 {
+            rgba.extend_from_slice(&match (y < 4, x < 4) {
+                (true, true) => red,
+                (true, false) => green,
+                (false, true) => blue,
+                (false, false) => white,
+            });
+        }
+    }
+    let chain = MipChain::new("quadrants", 8, 8, rgba);
+    assert_eq!(r.set_texture(&chain, false).unwrap(), chain.bytes());
+    let d = textured_grid(4, COLOR);
+    assert_eq!(d.bytes(), grid(4, 1.0, 0.0, [0.0, 0.0, 1.0], COLOR).bytes() + 25 * 8);
+    let quad = r.upload(&d);
+    assert_eq!(quad.gpu_bytes(), d.bytes());
+    let mut p = params(w, h, 3.0);
+    p.light_dir = Vec3::Z;
+    p.textured = true;
+    let img = r.render_offscreen(&p, &whole(&[&quad])).unwrap();
+    // The quad spans about 37 of 64 pixels; sample inside each quadrant.
+    let (lo, hi) = (w / 2 - 9, w / 2 + 8);
+    for (x, y, want, what) in [(lo, lo, red, "top left"), (hi, lo, green, "top right"), (lo, hi, blue, "bottom left"), (hi, hi, white, "bottom right")] {
+        let c = px(&img, w, x, y);
+        assert!(near(c, want, 3), "{what}: {c:?}, want {want:?}");
+    }
+    // Not textured: the vertex colour.
+    p.textured = false;
+    let img = r.render_offscreen(&p, &whole(&[&quad])).unwrap();
+    assert!(near(px(&img, w, lo, lo), COLOR, 2));
+    // Tinted: white texels take the vertex colour.
+    r.set_texture(&chain, true).unwrap();
+    p.textured = true;
+    let img = r.render_offscreen(&p, &whole(&[&quad])).unwrap();
+    assert!(near(px(&img, w, hi, hi), COLOR, 3), "{:?}", px(&img, w, hi, hi));
+    // A fine black-and-white checker seen small: the mean of its texels in
+    // linear light (sRGB 188), whichever texels the pixels fall on.
+    let n = 256u32;
+    let checker: Vec<u8> = (0..n * n).flat_map(|i| if (i % n + i / n) % 2 == 0 { [0, 0, 0, 255] } else { [255, 255, 255, 255] }).collect();
+    r.set_texture(&MipChain::new("checker", n, n, checker), false).unwrap();
+    let img = r.render_offscreen(&params(w, h, 3.0), &whole(&[&quad])).unwrap();
+    let mut p = params(w, h, 3.0);
+    p.light_dir = Vec3::Z;
+    p.textured = true;
+    let img2 = r.render_offscreen(&p, &whole(&[&quad])).unwrap();
+    assert_ne!(img, img2);
+    for (x, y) in [(w / 2, h / 2), (lo, lo), (hi, hi)] {
+        let c = px(&img2, w, x, y);
+        assert!(near(c, [188, 188, 188, 255], 12), "pixel {x},{y}: {c:?}");
     }
 }

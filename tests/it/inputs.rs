@@ -303,3 +303,39 @@ fn an_obj_with_corners_builds_within_mem() {
     assert!(peak <= mem + (64 << 20), "peak RSS {} MiB under --mem 16M", peak >> 20);
     eprintln!("build of a {}-triangle OBJ with vt/vn under --mem 16M: peak RSS {:.1} MiB", m.triangles.len(), peak as f64 / (1 << 20) as f64);
 }
+
+/// Issue 32, item 2: an OBJ's materials name its textures (`mtllib`, then
+/// `map_Kd` relative to the MTL's folder): a build copies the first into
+/// the store (listed in the manifest, drawn by `view`, carried to glTF);
+/// OBJ's `vt` are v-up like octolod's, so uvs are kept as written.
+#[test]
+fn an_obj_keeps_the_texture_its_material_names() {
+    let d = tempfile::tempdir().unwrap();
+    let ply = d.path().join("a.ply");
+    crate::common::cli::gen_with("scan", 6000, &ply, &["--atlas", "3", "--texture", "64"]);
+    let (_, sink, _) = octolod::input::read_all(&ply, 64 << 20).unwrap();
+    let m = IndexedMesh { vertices: sink.vertices, triangles: sink.triangles.iter().map(|t| t.map(|i| i as u32)).collect() };
+    let obj = d.path().join("a.obj");
+    write_obj_corners(&obj, &m);
+    let text = std::fs::read_to_string(&obj).unwrap();
+    std::fs::write(&obj, format!("mtllib mat/a.mtl\nusemtl skin\n{text}")).unwrap();
+    std::fs::create_dir_all(d.path().join("mat/tex")).unwrap();
+    std::fs::write(d.path().join("mat/a.mtl"), "newmtl skin\nKd 1 1 1\nmap_Kd -s 1 1 1 tex/skin map.png\n").unwrap();
+    std::fs::copy(d.path().join("a.png"), d.path().join("mat/tex/skin map.png")).unwrap();
+    let out = d.path().join("a.octolod");
+    build_store(&obj, &out, &build_options(BuildParams { leaf_tris: 2048, ..Default::default() })).unwrap();
+    let man = octolod::manifest::Manifest::read(&out).unwrap();
+    assert_eq!(man.textures.len(), 1);
+    assert_eq!((man.textures[0].name.as_str(), man.textures[0].file.as_deref()), ("mat/tex/skin map.png", Some("texture-0.png")));
+    assert_eq!(std::fs::read(out.join("texture-0.png")).unwrap(), std::fs::read(d.path().join("a.png")).unwrap());
+    // The uvs as written: level 0 holds every corner's.
+    let st = Store::open(&out).unwrap();
+    let mut uvs = std::collections::HashSet::new();
+    for i in st.level_nodes(0) {
+        uvs.extend(st.read_node(i).unwrap().mesh.vertices.iter().map(|v| v.uv.map(f32::to_bits)));
+    }
+    assert!(m.vertices.iter().all(|v| uvs.contains(&v.uv.map(f32::to_bits))));
+    // `info` lists it.
+    let o = octolod(&["info", s(&out)]);
+    assert!(String::from_utf8_lossy(&o.stdout).contains("texture: mat/tex/skin map.png (texture-0.png"), "{}", String::from_utf8_lossy(&o.stdout));
+}

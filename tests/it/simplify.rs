@@ -378,3 +378,26 @@ fn a_level_of_about_the_size_asked_is_returned_when_it_measures_better() {
     let (r, _, _) = run(&s, dir.path(), "between", &opts(Target::Tris(between), Simplifier::Collapse, 1 << 30));
     assert!(r.choice.is_none(), "{r:?}");
 }
+
+/// Issue 32, item 2: `simplify` keeps a textured input's uvs and names its
+/// texture (`comment TextureFile`, MeshLab's convention): the input's own
+/// file, relative beside the output, absolute elsewhere (the scratch
+/// store and its copy are gone by then).
+#[test]
+fn simplify_names_the_inputs_texture() {
+    let d = tempfile::tempdir().unwrap();
+    let ply = d.path().join("scan.ply");
+    crate::common::cli::gen_with("scan", 8000, &ply, &["--atlas", "3", "--texture", "64"]);
+    std::fs::create_dir(d.path().join("elsewhere")).unwrap();
+    for (out, want) in [
+        (d.path().join("small.ply"), "scan.png".to_string()),
+        (d.path().join("elsewhere/small.ply"), d.path().canonicalize().unwrap().join("scan.png").display().to_string()),
+    ] {
+        let o = crate::common::cli::octolod(&["simplify", crate::common::cli::s(&ply), "-o", crate::common::cli::s(&out), "--target-tris", "2000", "--quiet"]);
+        assert!(o.status.success(), "{}", crate::common::cli::err(&o));
+        let h = octolod::ply::read_header(&out).unwrap();
+        assert!(h.attrs.uv());
+        assert_eq!(octolod::ply::texture_files(&h.comments), std::slice::from_ref(&want), "{}", out.display());
+        assert!(crate::common::cli::names(out.parent().unwrap()).iter().all(|n| !n.contains("octolod")), "no scratch left");
+    }
+}

@@ -175,6 +175,7 @@ fn client_cuts_mixing_levels_show_no_background_where_the_surface_is() {
             eye: cam.eye_rel(glam::DVec3::from(origin)),
             light_dir: glam::Vec3::ZERO,
             wireframe: false,
+            textured: false,
             clear,
         };
         let reference = r.render_offscreen(&params, &[DrawItem::whole(&full, full.triangles())]).unwrap();

@@ -74,8 +74,15 @@ fn psnr(a: &[u8], b: &[u8]) -> f64 {
     }
 }
 
-/// Builds, exports, validates, serves, shoots and compares one input.
-fn browser_matches_render(shape: &str, tris: u64, extra_gen: &[&str], cameras: &serde_json::Value, error_px: f64) {
+/// Builds, exports, validates, serves, shoots and compares one input;
+/// gives the browser's report.
+fn browser_matches_render(shape: &str, tris: u64, extra_gen: &[&str], cameras: &serde_json::Value, error_px: f64) -> serde_json::Value {
+    browser_matches_render_at(shape, tris, extra_gen, cameras, error_px, 0.0)
+}
+
+/// [`browser_matches_render`], each frame also within `min_psnr` dB of
+/// the full-resolution render.
+fn browser_matches_render_at(shape: &str, tris: u64, extra_gen: &[&str], cameras: &serde_json::Value, error_px: f64, min_psnr: f64) -> serde_json::Value {
     let d = tempfile::tempdir().unwrap();
     let ply = d.path().join("in.ply");
     gen_with(shape, tris, &ply, extra_gen);
@@ -153,12 +160,14 @@ fn browser_matches_render(shape: &str, tris: u64, extra_gen: &[&str], cameras: &
         assert!(iou >= 0.99, "{}", lines.last().unwrap());
         assert_eq!(holes, 0, "{}", lines.last().unwrap());
         assert!(depths >= 2, "frame {i} draws one refinement level only: {}", lines.last().unwrap());
+        assert!(p >= min_psnr, "{}", lines.last().unwrap());
     }
     // The console: shoot.mjs fails on errors; nothing but warnings logged.
     for m in report["console"].as_array().into_iter().flatten() {
         assert_ne!(m["type"].as_str(), Some("error"), "{m}");
     }
     println!("{}", lines.join("\n"));
+    report
 }
 
 #[test]
@@ -177,6 +186,30 @@ fn a_sphere_in_the_browser_matches_the_full_resolution_render() {
         ]
     });
     browser_matches_render("sphere", 300_000, &["--colors"], &cameras, 1.0);
+}
+
+/// Issue 32, item 2: a textured scan (a many-island atlas, the texture
+/// baked from the surface) in the browser: the tiles' per-level copies of
+/// the texture are drawn upright (glTF's v runs down) and match `render`'s
+/// full-resolution textured frame; tiles of a level share one texture.
+#[test]
+fn a_textured_scan_in_the_browser_matches_the_full_resolution_render() {
+    if skip() {
+        return;
+    }
+    let cameras = serde_json::json!({
+        "fov_y_deg": 50, "space": "bbox", "up": [0, 0, 1],
+        "frames": [
+            {"eye": [0.5, -0.45, 3.2], "target": [0.5, 0.45, 0.4]},
+            {"eye": [0.2, 0.05, 0.9], "target": [0.6, 0.6, 0.3]}
+        ]
+    });
+    let report = browser_matches_render_at("scan", 200_000, &["--atlas", "8", "--texture", "1024"], &cameras, 1.0, 24.0);
+    for f in report["frames"].as_array().unwrap() {
+        let shared = f["sharedTextures"].as_array().unwrap();
+        assert!(!shared.is_empty() && shared.len() <= 6, "one texture per drawn level at most: {shared:?}");
+        assert!(shared.iter().all(|n| n.as_str().unwrap().starts_with("texture-0-")), "{shared:?}");
+    }
 }
 
 #[test]

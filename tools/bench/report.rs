@@ -230,7 +230,7 @@ pub fn report_md(r: &Report) -> String {
     }
     let _ = writeln!(
         w,
-        "How to read: octolod rows show the whole build (PLY → all levels, out of core under `--mem {}`), its time and throughput repeated on each level it produced; peer rows show one in-core simplification of the whole input to the matching octolod output size, timed without loading (load separate). Throughput is always input triangles per second. Peers see positions only; octolod models every attribute the input has. Peak RSS is each child process's `VmHWM` (octolod: read after the build, before extraction; peers: including the load). Ratios pair each octolod output with each peer's run at the same target on the same input; below 1 favours octolod.{}\n",
+        "How to read: octolod rows show the whole build (PLY → all levels, out of core under `--mem {}`), its time and throughput repeated on each level it produced; peer rows show one in-core simplification of the whole input to the matching octolod output size, timed without loading (load separate). Throughput is always input triangles per second. Peers see positions only, but for meshoptimizer `simplify` on inputs with uvs: it then weighs them (`simplifyWithAttributes`, weight 1, its seam handling) as the textured-mesh issue asks; octolod models every attribute the input has. Peak RSS is each child process's `VmHWM` (octolod: read after the build, before extraction; peers: including the load). Ratios pair each octolod output with each peer's run at the same target on the same input; below 1 favours octolod.{}\n",
         r.mem,
         match &r.simplify_setting {
             Some(set) => format!(

@@ -178,6 +178,10 @@ fn run_peer(a: &RunOne, m: Method) -> Result<RunOut> {
     let tris: Vec<[u32; 3]> = triangles.iter().map(|t| t.map(|i| i as u32)).collect();
     drop(triangles);
     // meshopt gets packed f32 positions; OOCS keeps the decoded vertices.
+    // meshopt `simplify` weighs uvs where the input has them (its
+    // `simplifyWithAttributes`, the peer for textured meshes), at
+    // weight 1: uvs span [0, 1] as meshopt's unit-box positions do.
+    let uvs: Vec<f32> = if m == Method::MeshoptSimplify && _h.attrs.uv() { vertices.iter().flat_map(|v| v.uv).collect() } else { Vec::new() };
     let (verts, pos): (Vec<Vertex>, Vec<[f32; 3]>) = match m {
         Method::Oocs => (vertices, Vec::new()),
         _ => (Vec::new(), vertices.iter().map(|v| v.pos.map(|x| x as f32)).collect()),
@@ -195,7 +199,22 @@ fn run_peer(a: &RunOne, m: Method) -> Result<RunOut> {
             let mut err = 0f32;
             let probe = CpuProbe::start();
             let t = Instant::now();
-            let out = if m == Method::MeshoptSimplify {
+            let out = if m == Method::MeshoptSimplify && !uvs.is_empty() {
+                // No vertex locked (the crate takes the lock array whole).
+                let locks = vec![false; pos.len()];
+                meshopt::simplify_with_attributes_and_locks(
+                    idx,
+                    &adapter,
+                    &uvs,
+                    &[1.0, 1.0],
+                    8,
+                    &locks,
+                    target_idx,
+                    1.0,
+                    meshopt::SimplifyOptions::None,
+                    Some(&mut err),
+                )
+            } else if m == Method::MeshoptSimplify {
                 meshopt::simplify(idx, &adapter, target_idx, 1.0, meshopt::SimplifyOptions::None, Some(&mut err))
             } else {
                 meshopt::simplify_sloppy(idx, &adapter, target_idx, 1.0, Some(&mut err))
@@ -203,6 +222,7 @@ fn run_peer(a: &RunOne, m: Method) -> Result<RunOut> {
             let seconds = t.elapsed().as_secs_f64();
             j.timed.other_cpu_cores = probe.other_cores();
             j.meshopt_result_error = Some(f64::from(err));
+            j.meshopt_attributes = (!uvs.is_empty()).then(|| "uv (weight 1)".to_string());
             let faces: Vec<[u32; 3]> = out.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
             let (v, f) = compact(|i| pos[i as usize].map(f64::from), &faces, pos.len());
             (seconds, v, f)

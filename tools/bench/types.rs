@@ -216,6 +216,10 @@ pub struct RunOut {
     /// meshopt: the error meshopt reports (relative to the mesh extent).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub meshopt_result_error: Option<f64>,
+    /// meshopt `simplify`: the attributes it weighed
+    /// (`simplifyWithAttributes`), when the input has uvs.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub meshopt_attributes: Option<String>,
     /// oocs: cells along the longest side, cells per axis, occupied cells,
     /// representatives clamped to their cell, and the untimed grid search.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -257,6 +261,7 @@ impl RunOut {
             peak_rss_load_mib: None,
             peak_rss_simplify_mib: None,
             meshopt_result_error: None,
+            meshopt_attributes: None,
             grid: None,
             grid_dims: None,
             cells: None,

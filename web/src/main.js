@@ -42,6 +42,11 @@
  * linear, or sRGB-encoded with colors=srgb) times the base colour;
  * single-sided unless the GLB's material is doubleSided (glTF's default
  * culls back faces, where octolod's own renderer is always two-sided).
+ * A base colour texture is kept (times the vertex colours). Textures that
+ * octolod names (`texture-0-SIDE`: each level's copy, one file for every
+ * tile of the level) are shared: the first tile's texture and material
+ * serve every later tile naming the same image, so the GPU holds each
+ * copy once, not once per tile.
  * Cameras whose view direction is parallel to their up vector get the up
  * vector octolod's camera picks then (glam's any_orthonormal_vector), so
  * such views are oriented as in `octolod render`.
@@ -156,6 +161,32 @@ tiles.registerPlugin({
 			.finally(() => {
 				net.inFlight--;
 			});
+	},
+});
+
+// octolod's per-level texture copies are shared by the tiles of a level and
+// kept for the session (see octolodMaterial): no tile's cache entry owns
+// one. The tiles renderer charges every tile with the whole image it names,
+// so a few tiles of a 4096² atlas would fill its cache; that charge is
+// taken back here.
+tiles.registerPlugin({
+	name: 'OCTOLOD_SHARED_TEXTURE_BYTES',
+	calculateBytesUsed(tile, model) {
+		if (!model) return 0;
+		const seen = new Set();
+		let bytes = 0;
+		model.traverse((c) => {
+			for (const m of Array.isArray(c.material) ? c.material : c.material ? [c.material] : []) {
+				for (const key in m) {
+					const t = m[key];
+					if (t && t.isTexture && t.image && sharedName.test(t.name) && !seen.has(t)) {
+						seen.add(t);
+						bytes += t.image.width * t.image.height * 4 * (t.generateMipmaps ? 4 / 3 : 1);
+					}
+				}
+			}
+		});
+		return -bytes;
 	},
 });
 
@@ -299,27 +330,40 @@ vec3 octolodSrgbToLinear( vec3 c ) {
 
 // octolod's shading: shared Lambert materials, one per variant.
 const materialCache = new Map();
+// Textures by octolod's image name, kept for the session (a few per level).
+const sharedMaps = new Map();
+const sharedName = /^texture-\d+-\d+$/;
+function sharedMap(map) {
+	if (!map || !sharedName.test(map.name)) return map;
+	const known = sharedMaps.get(map.name);
+	if (!known) {
+		sharedMaps.set(map.name, map);
+		return map;
+	}
+	if (known !== map) map.dispose();
+	return known;
+}
 function octolodMaterial(src, geometry) {
 	const vertexColors = Boolean(geometry.attributes.color);
 	const side = src && src.side === DoubleSide ? DoubleSide : FrontSide;
 	const color = src && src.color ? src.color.getHex(LinearSRGBColorSpace) : 0xffffff;
-	const map = src && src.map ? src.map : null;
+	const map = sharedMap(src && src.map ? src.map : null);
 	const opts = { vertexColors, side, color: new Color().setHex(color, LinearSRGBColorSpace), map };
 	const make = () => {
 		const m = new MeshLambertMaterial(opts);
 		return vertexColors && srgbColors ? decodeSrgbColors(m) : m;
 	};
-	if (map) {
+	if (map && !sharedName.test(map.name)) {
 		const m = make();
 		m.userData.octolodPerTile = true;
 		return m;
 	}
-	const key = `${vertexColors}|${side}|${color}|${srgbColors}`;
+	const key = `${vertexColors}|${side}|${color}|${srgbColors}|${map ? map.name : ''}`;
 	if (!materialCache.has(key)) materialCache.set(key, make());
 	return materialCache.get(key);
 }
 
-tiles.addEventListener('load-model', ({ scene: s }) => {
+tiles.addEventListener('load-model', ({ scene: s, tile }) => {
 	changeSerial++;
 	dirty = true;
 	if (keepMaterials) return;
@@ -327,6 +371,13 @@ tiles.addEventListener('load-model', ({ scene: s }) => {
 		if (!o.isMesh) return;
 		o.material = Array.isArray(o.material) ? o.material.map((m) => octolodMaterial(m, o.geometry)) : octolodMaterial(o.material, o.geometry);
 	});
+	// A shared texture outlives the tile that brought it: the renderer
+	// must not close its image when that tile goes.
+	const own = tile && tile.engineData && tile.engineData.textures;
+	if (own && sharedMaps.size) {
+		const shared = new Set(sharedMaps.values());
+		tile.engineData.textures = own.filter((t) => !shared.has(t));
+	}
 });
 
 let resolveReady;
@@ -506,6 +557,9 @@ function stats() {
 		width: size.x,
 		height: size.y,
 		loadErrors: loadErrors.slice(),
+		sharedTextures: [...sharedMaps.keys()].sort(),
+		cacheBytes: tiles.lruCache.cachedBytes,
+		cacheMaxBytes: tiles.lruCache.maxBytesSize,
 	};
 }
 

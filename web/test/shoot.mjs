@@ -306,6 +306,7 @@ async function main() {
 				tilesPerDepth: s.depths,
 				maxErrorPx: s.maxErrorPx,
 				errorTarget: s.errorTarget,
+				sharedTextures: s.sharedTextures,
 				width: s.width,
 				height: s.height,
 			});

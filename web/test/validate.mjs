@@ -25,8 +25,9 @@
 //   asset.version "1.1", `up` a unit 3-vector, `bounds` {min, max} with
 //   min <= max, the root's transform a rotation taking `up` to +Z, the root
 //   refine "REPLACE". Without it: one warning, "not an octolod export".
-// * Every *.glb under DIR (referenced or not) with Khronos' glTF-Validator;
-//   a GLB no tile references is a warning.
+// * Every *.glb under DIR (referenced or not) with Khronos' glTF-Validator
+//   (images it names by URI read beside it); a GLB no tile references is a
+//   warning.
 //
 // Prints one JSON summary on stdout; exit 0 when there is no error (with
 // --strict: no error and no warning), 1 otherwise, 2 on bad usage.
@@ -401,7 +402,20 @@ export async function validateDir(dir, { schemaDir = null, maxIssues = 20 } = {}
 		}
 		let report;
 		try {
-			report = await gltfValidator.validateBytes(new Uint8Array(fs.readFileSync(f)), { uri: rel, format: 'glb', maxIssues: maxIssues, writeTimestamp: false });
+			report = await gltfValidator.validateBytes(new Uint8Array(fs.readFileSync(f)), {
+				uri: rel,
+				format: 'glb',
+				maxIssues: maxIssues,
+				writeTimestamp: false,
+				// Images named by URI (a level's texture copy) beside the GLB.
+				externalResourceFunction: (uri) => new Promise((ok, fail) => {
+					try {
+						ok(new Uint8Array(fs.readFileSync(path.resolve(path.dirname(f), decodeURIComponent(uri)))));
+					} catch (e) {
+						fail(String(e));
+					}
+				}),
+			});
 		} catch (e) {
 			glb.errors++;
 			err(rel, `glTF-Validator failed: ${e && e.message ? e.message : e}`);
