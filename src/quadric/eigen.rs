@@ -59,7 +59,7 @@ impl Eigen {
 /// `out = V diag(1/λ) Vᵀ r` over the eigenpairs with λ > rel_tol · λmax
 /// (`vals[i]`, column i of `vecs`; `n = vals.len()`); returns how many (0,
 /// and out = 0, when λmax ≤ 0 or not finite).
-fn apply_pinv<const M: usize>(vals: &[f64], vecs: &[[f64; M]], rel_tol: f64, r: &[f64], out: &mut [f64]) -> usize {
+pub(super) fn apply_pinv<const M: usize>(vals: &[f64], vecs: &[[f64; M]], rel_tol: f64, r: &[f64], out: &mut [f64]) -> usize {
     let n = vals.len();
     out[..n].fill(0.0);
     let lmax = vals.iter().fold(0.0f64, |m, &v| m.max(v));

@@ -23,7 +23,10 @@
 //! * The minimiser is taken about the cluster mean m, `x = m + A⁺(−b − A m)`,
 //!   the pseudo-inverse dropping eigenvalues below `rel_tol` times the
 //!   largest, so rank-deficient directions (a flat sheet, a crease) stay at
-//!   the mean, as in Lindstrom's / VTK's quadric clustering. Given cell
+//!   the mean, as in Lindstrom's / VTK's quadric clustering. With
+//!   attributes, the position's pseudo-inverse is taken on the
+//!   attribute-eliminated 3×3 quadric (its Schur complement) and the
+//!   attributes solved for that position. Given cell
 //!   bounds, a minimiser outside them is re-optimised exactly inside the box
 //!   and flagged `clamped`.
 //!
@@ -476,6 +479,102 @@ fn half_gradient_at<const M: usize>(a: &[[f64; M]; M], b: &[f64], x: &[f64], n: 
     g
 }
 
+/// `out = A⁺ r` for an n×n quadric matrix (n > 3, leading block of `a`)
+/// by eliminating the attributes: `A = [[P, C], [Cᵀ, S]]` (P the 3×3
+/// position block, S the attribute block), `S` factored `LDLᵀ`, the
+/// position from the Schur complement `P − C S⁻¹ Cᵀ` (the position error
+/// with the attributes at their optimum, as [`eliminate_attrs`] and the box
+/// solve take it) by its closed-form eigen-decomposition and the
+/// pseudo-inverse keeping eigenvalues above `rel_tol` times its largest,
+/// then the attributes at their optimum for that position. Returns the
+/// rank kept (the position block's plus n − 3), or None when S has a
+/// pivot at or below `rel_tol` times its largest diagonal entry (nearly
+/// singular, or not finite): the caller takes the full eigen-decomposition.
+/// About a sixth of the work of the full decomposition at dimension 9,
+/// whose QL steps were a fifth of a build with normals and colours
+/// (`docs/build-costs.md`).
+fn schur_pinv<const M: usize>(a: &[[f64; M]; M], n: usize, rel_tol: f64, r: &[f64], out: &mut [f64]) -> Option<usize> {
+    let k = n - 3;
+    // LDLᵀ of S, L unit lower triangular (strictly lower part in `l`).
+    let mut l = [[0.0; M]; M];
+    let mut d = [0.0; M];
+    let dmax = (0..k).fold(0.0f64, |m, i| m.max(a[3 + i][3 + i]));
+    if !(dmax > 0.0 && dmax.is_finite()) {
+        return None;
+    }
+    let thr = rel_tol * dmax;
+    for j in 0..k {
+        let mut dj = a[3 + j][3 + j];
+        for p in 0..j {
+            dj -= l[j][p] * l[j][p] * d[p];
+        }
+        if !(dj > thr) {
+            return None;
+        }
+        d[j] = dj;
+        for i in j + 1..k {
+            let mut v = a[3 + i][3 + j];
+            for p in 0..j {
+                v -= l[i][p] * l[j][p] * d[p];
+            }
+            l[i][j] = v / dj;
+        }
+    }
+    // y = S⁻¹ rhs in place.
+    let solve = |y: &mut [f64; M]| {
+        for i in 0..k {
+            for p in 0..i {
+                y[i] -= l[i][p] * y[p];
+            }
+        }
+        for i in 0..k {
+            y[i] /= d[i];
+        }
+        for i in (0..k).rev() {
+            for p in i + 1..k {
+                y[i] -= l[p][i] * y[p];
+            }
+        }
+    };
+    // Y = S⁻¹ [Cᵀ | r_s]: columns 0..3 the attributes' response to the
+    // position, column 3 to the right-hand side.
+    let mut y = [[0.0; M]; 4];
+    for (col, yc) in y.iter_mut().enumerate() {
+        for i in 0..k {
+            yc[i] = if col < 3 { a[3 + i][col] } else { r[3 + i] };
+        }
+        solve(yc);
+    }
+    let mut sp = [[0.0; 3]; 3];
+    let mut rp = [0.0; 3];
+    for p in 0..3 {
+        for q in p..3 {
+            let v = a[p][q] - (0..k).map(|i| a[p][3 + i] * y[q][i]).sum::<f64>();
+            sp[p][q] = v;
+            sp[q][p] = v;
+        }
+        rp[p] = r[p] - (0..k).map(|i| a[p][3 + i] * y[3][i]).sum::<f64>();
+    }
+    let (vals, vecs) = eigen::eigen3(&sp);
+    // The cut-off relative to A's scale (its largest diagonal entry, a
+    // lower bound of its largest eigenvalue), not the complement's: as with
+    // the full pseudo-inverse, directions A barely constrains stay at the
+    // mean. Relative to the complement alone, coarse levels of a 2 M sphere
+    // with normals and colours measured up to 3.7× the RMS of the full
+    // pseudo-inverse; with A's diagonal (or six power steps for λmax, the
+    // same results), 0.95–1.004×.
+    let smax = vals.iter().fold(0.0f64, |m, &v| m.max(v));
+    let amax = (0..n).fold(0.0f64, |m, i| m.max(a[i][i]));
+    let rel = if smax > 0.0 && amax > smax { rel_tol * amax / smax } else { rel_tol };
+    let mut dp = [0.0; 3];
+    let rank = eigen::apply_pinv(&vals, &vecs, rel, &rp, &mut dp);
+    out[..3].copy_from_slice(&dp);
+    for i in 0..k {
+        out[3 + i] = y[3][i] - (0..3).map(|p| y[p][i] * dp[p]).sum::<f64>();
+    }
+    Some(rank + k)
+}
+
 /// The eigenvalue cut-off a solve uses for `rel_tol`.
 fn solve_rel_tol(rel_tol: f64) -> f64 {
     if rel_tol.is_finite() {
@@ -502,7 +601,9 @@ fn in_box(x: &[f64], lo: [f64; 3], hi: [f64; 3]) -> bool {
 /// quadrics and matrices per solve, a large share of a small solve's time:
 /// `docs/build-costs.md`). The same operations as the general path, so the
 /// same bits, except at N = 3, whose eigen-decomposition is the closed form
-/// (`eigen3`, cheaper than the general decomposition). None when the
+/// (`eigen3`, cheaper than the general decomposition), and where the
+/// attribute block is nearly singular (the general path's decomposition,
+/// on arrays of size N). None when the
 /// minimiser must be clamped into the box (the caller takes the general
 /// path, which minimises over the box).
 pub fn solve_sized<const N: usize>(k: &[f64], rel_tol: f64, bounds: ([f64; 3], [f64; 3])) -> Option<([f64; N], [f64; N], f64)> {
@@ -516,7 +617,9 @@ pub fn solve_sized<const N: usize>(k: &[f64], rel_tol: f64, bounds: ([f64; 3], [
         // A dx = −(b + A mean).
         let rhs = half_gradient_at(&a, b, &mean, N).map(|g| -g);
         let mut dx = [0.0; N];
-        eigen::pinv_apply_sized::<N>(&a, rel_tol, &rhs, &mut dx);
+        if N == 3 || schur_pinv(&a, N, rel_tol, &rhs, &mut dx).is_none() {
+            eigen::pinv_apply_sized::<N>(&a, rel_tol, &rhs, &mut dx);
+        }
         for i in 0..N {
             x[i] += dx[i];
         }
@@ -873,6 +976,11 @@ impl Quadric {
     /// Minimiser of Q: rank-revealing eigen solve about the cluster mean m,
     /// `x = m + A⁺(−b − A m)`, dropping eigenvalues below `rel_tol` times the
     /// largest (`rel_tol` is floored at 1e-12; [`DEFAULT_REL_TOL`] = 1e-3).
+    /// With attributes whose block is well conditioned (almost always: each
+    /// triangle's attribute block has rank ≥ dim − 5), the position comes
+    /// from the attribute-eliminated 3×3 quadric and the attributes are
+    /// solved exactly for it (`schur_pinv`); the pseudo-inverse's cut-off
+    /// is then relative to that 3×3 block, as without attributes.
     ///
     /// With `bounds = Some((lo, hi))` (local coordinates, normally the cell
     /// box) the position is kept inside the box: if the unconstrained
@@ -889,9 +997,11 @@ impl Quadric {
         if !self.is_empty() {
             // A dx = −(b + A mean).
             let rhs = half_gradient_at(&a, self.b(), &mean, n).map(|g| -g);
-            let eig = Eigen::new(&a, n);
             let mut dx = [0.0; MAX_DIM];
-            rank = eig.pinv_apply(rel_tol, &rhs, &mut dx);
+            rank = match (n > 3).then(|| schur_pinv(&a, n, rel_tol, &rhs, &mut dx)).flatten() {
+                Some(r) => r,
+                None => Eigen::new(&a, n).pinv_apply(rel_tol, &rhs, &mut dx),
+            };
             for i in 0..n {
                 x[i] += dx[i];
             }

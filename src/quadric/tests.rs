@@ -1002,3 +1002,82 @@ fn eliminated_attributes_are_their_minimum_at_every_position() {
         }
     }
 }
+
+/// The attribute-eliminating solve ([`schur_pinv`]) is the exact inverse
+/// where A is well conditioned (same step as the full pseudo-inverse), is
+/// taken on curved patches with normals and colours (the common case it
+/// speeds up), keeps a flat patch's in-plane position at the mean, and
+/// gives way to the full decomposition when the attribute block is
+/// singular.
+#[test]
+fn schur_solve_matches_the_full_pseudo_inverse() {
+    let mut rng = Rng::at(31);
+    let s = QuadricSpace::new(AttrSet(AttrSet::NORMAL | AttrSet::COLOR), AttrWeights::uniform(0.3), [0.0; 3]);
+    let n = s.dim;
+    let mut compared = 0;
+    for trial in 0..200 {
+        // A cap of a sphere of radius 1..4, curved enough or not, with
+        // normals from the sphere and colours varying over it.
+        let (radius, spread) = (rng.range(1.0, 4.0), rng.range(0.05, 0.6));
+        let vert = |rng: &mut Rng| {
+            let d = unit3([rng.range(-spread, spread), rng.range(-spread, spread), 1.0]);
+            let c = [0; 4].map(|_| (rng.next() * 255.0) as u8);
+            Vertex { pos: scale(d, radius), normal: d.map(|c| c as f32), color: c, uv: [0.0; 2] }
+        };
+        let mut q = Quadric::zero(n);
+        for _ in 0..12 {
+            let v = [0; 3].map(|_| s.embed(&vert(&mut rng)));
+            q.add_triangle(&v[0], &v[1], &v[2]);
+            q.add_point(&v[0]);
+        }
+        let a = q.matrix();
+        let mean = q.mean();
+        let rhs = half_gradient_at(&a, q.b(), &mean, n).map(|g| -g);
+        let mut schur = [0.0; MAX_DIM];
+        let rank = schur_pinv(&a, n, DEFAULT_REL_TOL, &rhs, &mut schur).unwrap_or_else(|| panic!("trial {trial}: attribute block singular"));
+        let eig = Eigen::new(&a, n);
+        let mut full = [0.0; MAX_DIM];
+        let full_rank = eig.pinv_apply(DEFAULT_REL_TOL, &rhs, &mut full);
+        let lmax = eig.vals[..n].iter().fold(0.0f64, |m, &v| m.max(v));
+        let lmin = eig.vals[..n].iter().fold(f64::INFINITY, |m, &v| m.min(v));
+        if lmin > 1e-2 * lmax {
+            // Well conditioned: both are A⁻¹ r.
+            assert_eq!((rank, full_rank), (n, n), "trial {trial}");
+            let scale = full[..n].iter().fold(1e-12f64, |m, v| m.max(v.abs()));
+            assert!(dist(&schur[..n], &full[..n]) < 1e-9 * scale, "trial {trial}: {:?} vs {:?}", &schur[..n], &full[..n]);
+            compared += 1;
+        }
+        // Either way the step solves the attribute rows exactly (the
+        // attributes are optimal for the position).
+        let x: Vec<f64> = (0..n).map(|i| mean[i] + schur[i]).collect();
+        let g = q.half_gradient(&x);
+        let gs = (0..n).map(|i| q.b()[i].abs() + (0..n).map(|j| (a[i][j] * x[j]).abs()).sum::<f64>()).fold(0.0, f64::max);
+        assert!(g[3..n].iter().all(|v| v.abs() < 1e-10 * gs), "trial {trial}: attribute gradient {:?}", &g[3..n]);
+    }
+    assert!(compared >= 20, "only {compared} well-conditioned trials");
+    // A flat patch with a colour ramp: the Schur complement is rank one,
+    // the in-plane position stays at the mean.
+    let mut q = Quadric::zero(n);
+    for _ in 0..10 {
+        let v = [0; 3].map(|_| {
+            let (x, y) = ((rng.next() * 255.0).round(), (rng.next() * 255.0).round());
+            let c = [x as u8, y as u8, 60, 255];
+            s.embed(&Vertex { pos: [x / 255.0, y / 255.0, 0.5], normal: [0.0, 0.0, 1.0], color: c, uv: [0.0; 2] })
+        });
+        q.add_triangle(&v[0], &v[1], &v[2]);
+        q.add_point(&v[1]);
+    }
+    let sol = q.solve(DEFAULT_REL_TOL, None);
+    assert_eq!(sol.rank, 1 + n - 3);
+    let m = q.mean();
+    assert!(dist(&sol.x[..2], &m[..2]) < 1e-12 && (sol.x[2] - 0.5).abs() < 1e-12, "{:?}", &sol.x[..3]);
+    // One tiny triangle whose colour changes across it: its plane in R^n
+    // is nearly all colour, so its attribute block is nearly singular (the
+    // colour's in-plane directions cost almost nothing) and the full
+    // decomposition answers, with rank n − 2.
+    let v = [([0.0, 0.0, 0.0], [9, 200, 40, 255]), ([1e-3, 0.0, 0.0], [250, 20, 40, 255]), ([0.0, 1e-3, 0.0], [9, 10, 240, 255])]
+        .map(|(p, c)| s.embed(&Vertex { pos: p, normal: [0.3, 0.1, 0.9], color: c, uv: [0.0; 2] }));
+    let one = Quadric::from_triangle(&s, &v[0], &v[1], &v[2]);
+    assert!(schur_pinv(&one.matrix(), n, DEFAULT_REL_TOL, &[1.0; MAX_DIM], &mut [0.0; MAX_DIM]).is_none());
+    assert_eq!(one.solve(DEFAULT_REL_TOL, None).rank, n - 2);
+}
