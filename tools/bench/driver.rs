@@ -4,7 +4,7 @@
 
 use crate::runners::wait_idle;
 use crate::types::{finite, BuildOut, ChildOut, InputReport, LevelOut, MachineJson, Method, MetroJson, Report, Row, RowChild, RunOut, SweepRow};
-use crate::{parse_setting, BenchArgs};
+use crate::{parse_setting, setting_name, BenchArgs, Setting};
 use anyhow::{anyhow, bail, Context, Result};
 use octolod::gen::{GenOptions, Shape};
 use octolod::mesh::{Aabb, AttrSet, Vertex};
@@ -159,7 +159,7 @@ pub fn bench(args: &BenchArgs) -> Result<()> {
     if args.inputs.is_empty() && args.attr_sweep.is_none() {
         bail!("give at least one input PLY (or --attr-sweep N)");
     }
-    let settings: Vec<(u64, u32)> = args.settings.iter().map(|s| parse_setting(s)).collect::<Result<_>>()?;
+    let settings: Vec<Setting> = args.settings.iter().map(|s| parse_setting(s)).collect::<Result<_>>()?;
     if settings.is_empty() {
         bail!("--settings is empty");
     }
@@ -193,7 +193,7 @@ pub fn bench(args: &BenchArgs) -> Result<()> {
         min_tris: args.min_tris,
         wait_idle: args.wait_idle,
         levels: args.levels.clone(),
-        simplify_setting: simplify.then(|| format!("{}x{}", settings[0].0, settings[0].1)),
+        simplify_setting: simplify.then(|| format!("{}x{}", settings[0].leaf, settings[0].ratio)),
         inputs: Vec::new(),
         attr_sweep: Vec::new(),
         failures: Vec::new(),
@@ -302,19 +302,21 @@ fn run_row(j: RunOut, n_in: f64) -> Row {
 
 /// Every method on one input: the octolod builds (one per setting), then
 /// the peers and the simplifiers at every octolod output size kept.
-fn bench_input(b: &Bench, info: &mut InputReport, dir: &Path, settings: &[(u64, u32)], simplify: bool, failures: &mut Vec<String>) {
+fn bench_input(b: &Bench, info: &mut InputReport, dir: &Path, settings: &[Setting], simplify: bool, failures: &mut Vec<String>) {
     let n_in = info.triangles as f64;
     let input = info.path.display().to_string();
-    for &(leaf, grid) in settings {
-        let setting = format!("{leaf}x{grid}");
-        let prefix = dir.join(format!("octolod-{setting}"));
+    for st in settings {
+        let setting = setting_name(st.leaf, st.ratio, st.simplifier);
+        let prefix = dir.join(format!("octolod-{}", setting.replace(':', "-")));
         let args = vec![
             "--method".into(),
             "octolod".into(),
             "--leaf-tris".into(),
-            leaf.to_string(),
+            st.leaf.to_string(),
             "--level-ratio".into(),
-            grid.to_string(),
+            st.ratio.to_string(),
+            "--simplifier".into(),
+            st.simplifier.name().into(),
             "--mem".into(),
             b.args.mem.clone(),
             input.clone(),
@@ -356,8 +358,12 @@ fn bench_input(b: &Bench, info: &mut InputReport, dir: &Path, settings: &[(u64, 
     let mut targets: Vec<u64> = info.rows.iter().filter(|r| r.method == Method::Octolod).map(|r| r.triangles).collect();
     targets.sort_unstable_by(|a, b| b.cmp(a));
     targets.dedup();
-    let methods: Vec<Method> = Method::PEERS.into_iter().chain(Method::SIMPLIFIERS.into_iter().filter(|_| simplify)).collect();
-    let (leaf, ratio) = settings[0];
+    let methods: Vec<Method> = Method::PEERS
+        .into_iter()
+        .filter(|&m| m != Method::MeshlabQec || b.args.meshlab.is_some())
+        .chain(Method::SIMPLIFIERS.into_iter().filter(|_| simplify))
+        .collect();
+    let (leaf, ratio) = (settings[0].leaf, settings[0].ratio);
     for m in methods {
         for &target in &targets {
             let out = dir.join(format!("{}-{target}.ply", m.name()));
@@ -379,6 +385,9 @@ fn bench_input(b: &Bench, info: &mut InputReport, dir: &Path, settings: &[(u64, 
                     "--level-ratio".into(),
                     ratio.to_string(),
                 ]);
+            }
+            if let (Method::MeshlabQec, Some(py)) = (m, &b.args.meshlab) {
+                args.extend(["--python".into(), py.display().to_string()]);
             }
             let j: RunOut = match b.child(&args) {
                 Ok(j) => j,
@@ -419,7 +428,7 @@ const SWEEP_SETS: [(&str, u32); 4] =
 
 /// `--attr-sweep N`: one generated N-triangle sphere per attribute set,
 /// built (not extracted) with the first setting.
-fn attr_sweep(b: &Bench, n: u64, (leaf, grid): (u64, u32), failures: &mut Vec<String>) -> Result<Vec<SweepRow>> {
+fn attr_sweep(b: &Bench, n: u64, st: Setting, failures: &mut Vec<String>) -> Result<Vec<SweepRow>> {
     let dir = b.args.out.join("attr-sweep");
     std::fs::create_dir_all(&dir).with_context(|| format!("create {}", dir.display()))?;
     let mut out = Vec::new();
@@ -437,9 +446,11 @@ fn attr_sweep(b: &Bench, n: u64, (leaf, grid): (u64, u32), failures: &mut Vec<St
             "--method".into(),
             "octolod".into(),
             "--leaf-tris".into(),
-            leaf.to_string(),
+            st.leaf.to_string(),
             "--level-ratio".into(),
-            grid.to_string(),
+            st.ratio.to_string(),
+            "--simplifier".into(),
+            st.simplifier.name().into(),
             "--mem".into(),
             b.args.mem.clone(),
             "--no-extract".into(),
@@ -504,6 +515,7 @@ mod tests {
                 hausdorff: None,
                 tries: 0,
                 verify_samples: None,
+                choice: None,
             }),
             ..RunOut::new(method, target, 96, target, 22, format!("{}-{target}.ply", method.name()).into(), timed)
         }
@@ -514,6 +526,7 @@ mod tests {
             method: Method::Octolod,
             leaf_tris: 16384,
             level_ratio: 8,
+            simplifier: octolod::manifest::Simplifier::Cluster,
             mem: 1 << 29,
             input_triangles: 96,
             attributes: "position(f32)".into(),
@@ -605,6 +618,29 @@ mod tests {
         for svg in [speed, size] {
             assert!(svg.contains(">octolod simplify collapse<") && svg.contains(">octolod simplify cluster<"), "{svg}");
         }
+    }
+
+    /// MeshLab's edge collapse pairs like any peer where it ran (and only
+    /// then gets columns), and a collapse build's rows name its setting.
+    #[test]
+    fn meshlab_peer_and_collapse_setting_in_the_report() {
+        let mut r = sample_report();
+        r.fill_pairs();
+        assert!(!report_md(&r).contains("meshlab-qec"));
+        let mut r = sample_report();
+        let info = &mut r.inputs[0];
+        info.builds[0].simplifier = octolod::manifest::Simplifier::Collapse;
+        info.rows[0].setting = info.builds[0].setting();
+        let mut ml = run_row(RunOut { meshlab_filter: Some("qec".into()), ..run(Method::MeshlabQec, 40) }, 96.0);
+        set_metro(&mut ml, serde_json::from_str(METRO).unwrap(), 0.3, 2.0);
+        info.rows.push(ml);
+        r.fill_pairs();
+        // octolod's level and both simplifiers against four peers.
+        assert_eq!(r.inputs[0].pairs.len(), 12);
+        let md = report_md(&r);
+        assert!(md.contains("| 16384x8:collapse L1 | 40 | meshlab-qec | 40 |"), "{md}");
+        assert!(md.contains("RMS ÷ meshlab-qec"), "{md}");
+        assert!(md.contains("| 16384x8:collapse | meshlab-qec | 1 |"), "{md}");
     }
 
     /// metro's figures are read from its `combined` object.

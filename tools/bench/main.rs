@@ -10,8 +10,9 @@
 //!     --out out/bench-report [--samples 200000] [--repeat 3] [--attr-sweep 2000000]
 //! ```
 //!
-//! Takes: indexed PLYs; octolod settings (`--settings LEAFxRATIO,...`, default
-//! `16384x2,65536x2`) and budget (`--mem`); a metro sample count
+//! Takes: indexed PLYs; octolod settings (`--settings LEAFxRATIO[:collapse],...`,
+//! default `16384x2,65536x2`; `:collapse` builds with `--simplifier collapse`)
+//! and budget (`--mem`); optionally a Python with pymeshlab (`--meshlab`); a metro sample count
 //! (`--samples`, default metro's own: 10 × the larger face count).
 //!
 //! Gives, under `--out`: `report.md` (tables), `report.json` (every raw
@@ -49,6 +50,14 @@
 //!   quadric clustering in one pass (implemented here, see [`oocs::oocs`]). It runs
 //!   on the loaded mesh, so its peak RSS is an in-core one (Lindstrom streams
 //!   a triangle soup and holds only the grid).
+//! - `meshlab-qec` (with `--meshlab PYTHON`): MeshLab's quadric edge
+//!   collapse (`meshing_decimation_quadric_edge_collapse`, MeshLab's
+//!   defaults: optimal placement, quality threshold 0.3), the reference
+//!   edge collapse, run by `meshlab_qec.py` in that interpreter. Its load
+//!   and filter are timed apart, as for the peers above; peak RSS is the
+//!   interpreter's whole `ru_maxrss`. Such a Python:
+//!   `python3 -m venv out/venv-meshlab && out/venv-meshlab/bin/pip install
+//!   pymeshlab` (the venv `tools/metro-crosscheck.sh` makes and reuses).
 //! - `octolod-collapse`, `octolod-cluster`: the `octolod` binary's
 //!   `simplify IN -o OUT --target-tris N --simplifier collapse|cluster
 //!   --json` (build setting: the first of `--settings`, budget `--mem`),
@@ -133,7 +142,8 @@ pub struct BenchArgs {
     /// Metro samples per direction (default: metro's, 10 × the larger face count).
     #[arg(long, value_parser = parse_count)]
     pub samples: Option<u64>,
-    /// octolod settings, LEAF_TRISxLEVEL_RATIO, comma separated.
+    /// octolod settings, LEAF_TRISxLEVEL_RATIO[:collapse], comma separated
+    /// (`:collapse`: `build --simplifier collapse`; default cluster).
     #[arg(long, default_value = "16384x2,65536x2", value_delimiter = ',')]
     pub settings: Vec<String>,
     /// octolod memory budget.
@@ -142,6 +152,10 @@ pub struct BenchArgs {
     /// octolod binary providing `metro` and `simplify` (default: `octolod` next to this executable).
     #[arg(long)]
     pub octolod: Option<PathBuf>,
+    /// A Python interpreter with pymeshlab: adds MeshLab's quadric edge
+    /// collapse (`meshlab-qec`) as a peer. Absent: that peer is not run.
+    #[arg(long, value_name = "PYTHON")]
+    pub meshlab: Option<PathBuf>,
     /// Skip metro (errors are n/a).
     #[arg(long)]
     pub no_metro: bool,
@@ -203,8 +217,14 @@ pub struct RunOne {
     pub leaf_tris: u64,
     #[arg(long, default_value_t = 2)]
     pub level_ratio: u32,
+    /// octolod: the node simplifier (`cluster` or `collapse`).
+    #[arg(long, default_value = "cluster")]
+    pub simplifier: octolod::manifest::Simplifier,
     #[arg(long, default_value = "512M")]
     pub mem: String,
+    /// `meshlab-qec`: the Python interpreter with pymeshlab.
+    #[arg(long)]
+    pub python: Option<PathBuf>,
     /// `octolod` binary for the `octolod-collapse`/`octolod-cluster` methods.
     #[arg(long)]
     pub octolod: Option<PathBuf>,
@@ -231,10 +251,30 @@ pub fn parse_count(s: &str) -> std::result::Result<u64, String> {
     Ok((v * mul).round() as u64)
 }
 
-/// `LEAFxRATIO` → (leaf_tris, level_ratio).
-pub fn parse_setting(s: &str) -> Result<(u64, u32)> {
-    let (a, b) = s.trim().split_once(['x', 'X']).ok_or_else(|| anyhow!("setting {s:?} is not LEAF_TRISxLEVEL_RATIO"))?;
-    Ok((parse_count(a).map_err(|e| anyhow!(e))?, b.trim().parse().with_context(|| format!("level ratio in {s:?}"))?))
+/// One octolod build setting: leaf triangles, level ratio, node simplifier.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Setting {
+    pub leaf: u64,
+    pub ratio: u32,
+    pub simplifier: octolod::manifest::Simplifier,
+}
+
+/// `LEAFxRATIO[:SIMPLIFIER]` → a [`Setting`] (default simplifier: cluster).
+pub fn parse_setting(s: &str) -> Result<Setting> {
+    let (size, simplifier) = match s.trim().split_once(':') {
+        Some((a, b)) => (a, b.trim().parse().map_err(|e: String| anyhow!("setting {s:?}: {e}"))?),
+        None => (s.trim(), octolod::manifest::Simplifier::Cluster),
+    };
+    let (a, b) = size.split_once(['x', 'X']).ok_or_else(|| anyhow!("setting {s:?} is not LEAF_TRISxLEVEL_RATIO[:SIMPLIFIER]"))?;
+    Ok(Setting { leaf: parse_count(a).map_err(|e| anyhow!(e))?, ratio: b.trim().parse().with_context(|| format!("level ratio in {s:?}"))?, simplifier })
+}
+
+/// A setting's text: `LEAFxRATIO`, with `:collapse` for collapse builds.
+pub fn setting_name(leaf: u64, ratio: u32, simplifier: octolod::manifest::Simplifier) -> String {
+    match simplifier {
+        octolod::manifest::Simplifier::Cluster => format!("{leaf}x{ratio}"),
+        s => format!("{leaf}x{ratio}:{}", s.name()),
+    }
 }
 
 fn main() {
@@ -246,5 +286,26 @@ fn main() {
     if let Err(e) = r {
         eprintln!("octolod-bench: error: {e:#}");
         std::process::exit(1);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use octolod::manifest::Simplifier;
+
+    /// Settings name their simplifier after a colon (default cluster), and
+    /// read back from the name a build reports.
+    #[test]
+    fn settings_parse_with_their_simplifier() {
+        let s = parse_setting("16k x2").unwrap();
+        assert_eq!(s, Setting { leaf: 16000, ratio: 2, simplifier: Simplifier::Cluster });
+        let c = parse_setting("16384x2:collapse").unwrap();
+        assert_eq!(c, Setting { leaf: 16384, ratio: 2, simplifier: Simplifier::Collapse });
+        assert_eq!(setting_name(c.leaf, c.ratio, c.simplifier), "16384x2:collapse");
+        assert_eq!(setting_name(16384, 2, Simplifier::Cluster), "16384x2");
+        assert_eq!(parse_setting(&setting_name(16384, 4, Simplifier::Collapse)).unwrap().ratio, 4);
+        assert!(parse_setting("16384x2:grid").is_err());
+        assert!(parse_setting("16384").is_err());
     }
 }

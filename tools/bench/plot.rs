@@ -40,6 +40,7 @@ fn method_color(m: Method) -> &'static str {
         Method::Oocs => "#c62828",
         Method::OctolodCollapse => "#d81b60",
         Method::OctolodCluster => "#6d4c41",
+        Method::MeshlabQec => "#546e7a",
     }
 }
 

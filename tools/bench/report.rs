@@ -177,7 +177,7 @@ pub fn report_md(r: &Report) -> String {
     }
     let _ = writeln!(
         w,
-        "Machine: {}, {} hardware threads, {:.1} GiB RAM. octolod uses all threads (rayon); meshoptimizer and the OOCS baseline are single-threaded.\n",
+        "Machine: {}, {} hardware threads, {:.1} GiB RAM. octolod uses all threads (rayon); meshoptimizer, the OOCS baseline and MeshLab's edge collapse (pymeshlab, when run) are single-threaded.\n",
         r.machine.cpu, r.machine.threads, r.machine.mem_gib
     );
     // Other processes' CPU use during the timed sections (the machine may be
@@ -398,7 +398,9 @@ fn simplify_section(w: &mut String, rows: &[Row]) {
     );
     let mut head = String::from("| simplifier | target | tris |");
     let mut rule = String::from("|---|---:|---:|");
-    for m in Method::PEERS {
+    // Peers that ran (meshlab-qec only with --meshlab).
+    let peers: Vec<Method> = Method::PEERS.into_iter().filter(|&m| rows.iter().any(|r| r.method == m)).collect();
+    for &m in &peers {
         let n = m.name();
         let _ = write!(head, " time ÷ {n} | peak RSS ÷ {n} | RMS ÷ {n} | Hausdorff ÷ {n} |");
         rule.push_str("---:|---:|---:|---:|");
@@ -406,7 +408,7 @@ fn simplify_section(w: &mut String, rows: &[Row]) {
     let _ = writeln!(w, "{head}\n{rule}");
     for o in rows.iter().filter(|r| Method::SIMPLIFIERS.contains(&r.method)) {
         let _ = write!(w, "| {} | {} | {} |", o.method.simplifier().unwrap_or("?"), o.target.map_or("?".into(), thousands), thousands(o.triangles));
-        for m in Method::PEERS {
+        for &m in &peers {
             match ps.iter().find(|p| std::ptr::eq(p.o, o) && p.p.method == m) {
                 Some(p) => {
                     let _ = write!(w, " {} | {} | {} | {} |", ratio(p.time_with_load()), ratio(p.rss()), opt(p.rms(), ratio), opt(p.hausdorff(), ratio));

@@ -98,7 +98,11 @@ pub fn run_one(a: &RunOne) -> Result<String> {
             serde_json::to_string(&j)?
         }
         m => {
-            let mut j = if m.simplifier().is_some() { run_simplify(a, m)? } else { run_peer(a, m)? };
+            let mut j = match m {
+                _ if m.simplifier().is_some() => run_simplify(a, m)?,
+                Method::MeshlabQec => run_meshlab(a)?,
+                _ => run_peer(a, m)?,
+            };
             j.timed.child_seconds = t_all.elapsed().as_secs_f64();
             serde_json::to_string(&j)?
         }
@@ -111,6 +115,7 @@ fn run_octolod(a: &RunOne) -> Result<BuildOut> {
         mem: octolod::mem::parse_size(&a.mem)?,
         leaf_tris: a.leaf_tris,
         level_ratio: a.level_ratio as f64,
+        simplifier: a.simplifier,
         ..Default::default()
     };
     let opts = BuildOptions {
@@ -141,6 +146,7 @@ fn run_octolod(a: &RunOne) -> Result<BuildOut> {
         method: Method::Octolod,
         leaf_tris: a.leaf_tris,
         level_ratio: a.level_ratio,
+        simplifier: a.simplifier,
         mem: opts.params.mem,
         input_triangles: r.soup.header.triangles,
         attributes: r.soup.header.attrs.describe(),
@@ -274,6 +280,68 @@ fn run_simplify(a: &RunOne, m: Method) -> Result<RunOut> {
         .args(["--leaf-tris", &a.leaf_tris.to_string()])
         .args(["--level-ratio", &a.level_ratio.to_string()])
         .arg("--json");
+    let Spawned { command, stdout: out, code, seconds, peak_rss_mib, other_cpu_cores } = spawn_timed(&mut cmd, bin)?;
+    let start = out.find('{').ok_or_else(|| anyhow!("`{command}` printed no JSON"))?;
+    let rep: SimplifyJson = serde_json::from_str(out[start..].trim()).with_context(|| format!("`{command}`'s JSON"))?;
+    let timed = Timed { seconds, peak_rss_mib, other_cpu_cores, ..Timed::default() };
+    let mut j = run_out(a, m, rep.input_triangles, rep.triangles, rep.vertices, timed);
+    j.command = Some(command);
+    j.exit_code = Some(code);
+    j.simplify = Some(rep);
+    Ok(j)
+}
+
+/// What `meshlab_qec.py` prints.
+#[derive(serde::Deserialize)]
+struct MeshlabJson {
+    input_triangles: u64,
+    load_seconds: f64,
+    seconds: f64,
+    triangles: u64,
+    vertices: u64,
+    filter: String,
+}
+
+/// MeshLab's quadric edge collapse (`meshlab_qec.py`, run by `--python`):
+/// its own load and filter times (the filter alone is the timed section,
+/// as for the in-process peers); peak RSS is the interpreter's
+/// `ru_maxrss`, load included.
+fn run_meshlab(a: &RunOne) -> Result<RunOut> {
+    if a.target == 0 {
+        bail!("--target is required for meshlab-qec");
+    }
+    let py = a.python.as_ref().ok_or_else(|| anyhow!("--python is required for meshlab-qec"))?;
+    let mut cmd = Command::new(py);
+    cmd.arg("-c").arg(include_str!("meshlab_qec.py")).arg(&a.input).arg(&a.output).arg(a.target.to_string());
+    let Spawned { command, stdout, code, peak_rss_mib, other_cpu_cores, .. } = spawn_timed(&mut cmd, py)?;
+    if code != 0 {
+        bail!("`{command}` failed (status {code})");
+    }
+    let line = stdout.lines().rev().find(|l| l.trim_start().starts_with('{')).ok_or_else(|| anyhow!("meshlab_qec.py printed no JSON"))?;
+    let rep: MeshlabJson = serde_json::from_str(line.trim()).context("meshlab_qec.py's JSON")?;
+    let timed = Timed { seconds: rep.seconds, peak_rss_mib, other_cpu_cores, ..Timed::default() };
+    let mut j = run_out(a, Method::MeshlabQec, rep.input_triangles, rep.triangles, rep.vertices, timed);
+    j.load_seconds = Some(rep.load_seconds);
+    j.meshlab_filter = Some(rep.filter);
+    Ok(j)
+}
+
+/// A finished child command: its stdout, exit status (negative: the
+/// signal), wall seconds, peak RSS (`ru_maxrss`, MiB) and the cores other
+/// processes kept busy meanwhile.
+struct Spawned {
+    command: String,
+    stdout: String,
+    code: i32,
+    seconds: f64,
+    peak_rss_mib: f64,
+    other_cpu_cores: Option<f64>,
+}
+
+/// Runs `cmd` (program `bin`) to its end, timed. Exit status 0 and 3
+/// (`octolod simplify`: size not met, the closest mesh written) are
+/// returned; any other is an error carrying the last lines of its stderr.
+fn spawn_timed(cmd: &mut Command, bin: &std::path::Path) -> Result<Spawned> {
     let command = format!("{cmd:?}").replace('"', "");
     let probe = CpuProbe::start();
     let t = Instant::now();
@@ -284,27 +352,19 @@ fn run_simplify(a: &RunOne, m: Method) -> Result<RunOut> {
         let _ = err_pipe.read_to_string(&mut s);
         s
     });
-    let mut out = String::new();
-    child.stdout.take().expect("piped").read_to_string(&mut out).context("read simplify's stdout")?;
+    let mut stdout = String::new();
+    child.stdout.take().expect("piped").read_to_string(&mut stdout).context("read the child's stdout")?;
     let (status, usage) = wait4(child.id())?;
     let seconds = t.elapsed().as_secs_f64();
     let cpu = usage.ru_utime.tv_sec as f64 + usage.ru_utime.tv_usec as f64 * 1e-6 + usage.ru_stime.tv_sec as f64 + usage.ru_stime.tv_usec as f64 * 1e-6;
-    let other = probe.other_cores_besides(cpu);
+    let other_cpu_cores = probe.other_cores_besides(cpu);
     let stderr = err_reader.join().unwrap_or_default();
     let code = if libc::WIFEXITED(status) { libc::WEXITSTATUS(status) } else { -libc::WTERMSIG(status) };
-    // 0: the size asked; 3: not met, the closest mesh written (reported).
     if code != 0 && code != 3 {
         let tail: Vec<&str> = stderr.lines().rev().take(5).collect();
         bail!("`{command}` failed (status {code}): {}", tail.into_iter().rev().collect::<Vec<_>>().join(" | "));
     }
-    let start = out.find('{').ok_or_else(|| anyhow!("`{command}` printed no JSON"))?;
-    let rep: SimplifyJson = serde_json::from_str(out[start..].trim()).with_context(|| format!("`{command}`'s JSON"))?;
-    let timed = Timed { seconds, peak_rss_mib: usage.ru_maxrss as f64 / 1024.0, other_cpu_cores: other, ..Timed::default() };
-    let mut j = run_out(a, m, rep.input_triangles, rep.triangles, rep.vertices, timed);
-    j.command = Some(command);
-    j.exit_code = Some(code);
-    j.simplify = Some(rep);
-    Ok(j)
+    Ok(Spawned { command, stdout, code, seconds, peak_rss_mib: usage.ru_maxrss as f64 / 1024.0, other_cpu_cores })
 }
 
 /// Reaps child `pid`: its wait status and resource usage.

@@ -23,6 +23,9 @@ pub enum Method {
     MeshoptSloppy,
     /// Lindstrom's OOCS (uniform-grid quadric clustering), see `oocs.rs`.
     Oocs,
+    /// MeshLab's quadric edge collapse (pymeshlab), in core, when
+    /// `--meshlab PYTHON` is given.
+    MeshlabQec,
     /// `octolod simplify --simplifier collapse`, the whole command.
     OctolodCollapse,
     /// `octolod simplify --simplifier cluster`, the whole command.
@@ -36,12 +39,13 @@ impl Method {
             Method::MeshoptSimplify => "meshopt-simplify",
             Method::MeshoptSloppy => "meshopt-sloppy",
             Method::Oocs => "oocs",
+            Method::MeshlabQec => "meshlab-qec",
             Method::OctolodCollapse => "octolod-collapse",
             Method::OctolodCluster => "octolod-cluster",
         }
     }
     /// In-core peers, run at every octolod output size.
-    pub const PEERS: [Method; 3] = [Method::MeshoptSimplify, Method::MeshoptSloppy, Method::Oocs];
+    pub const PEERS: [Method; 4] = [Method::MeshoptSimplify, Method::MeshoptSloppy, Method::Oocs, Method::MeshlabQec];
     /// `octolod simplify`, run at the same sizes as the peers.
     pub const SIMPLIFIERS: [Method; 2] = [Method::OctolodCollapse, Method::OctolodCluster];
     /// The `--simplifier` value of an `octolod simplify` method.
@@ -77,6 +81,10 @@ pub mod nullable {
     pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
         Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
     }
+}
+
+fn cluster() -> octolod::manifest::Simplifier {
+    octolod::manifest::Simplifier::Cluster
 }
 
 fn nan() -> f64 {
@@ -148,6 +156,9 @@ pub struct BuildOut {
     /// called the setting's second number `cluster_grid`.
     #[serde(alias = "cluster_grid")]
     pub level_ratio: u32,
+    /// The node simplifier (reports before it was a setting: cluster).
+    #[serde(default = "cluster")]
+    pub simplifier: octolod::manifest::Simplifier,
     /// `--mem`, bytes.
     pub mem: u64,
     pub input_triangles: u64,
@@ -178,9 +189,9 @@ pub struct BuildOut {
 }
 
 impl BuildOut {
-    /// `LEAFxRATIO`.
+    /// `LEAFxRATIO`, with `:collapse` for collapse builds.
     pub fn setting(&self) -> String {
-        format!("{}x{}", self.leaf_tris, self.level_ratio)
+        crate::setting_name(self.leaf_tris, self.level_ratio, self.simplifier)
     }
 }
 
@@ -220,6 +231,9 @@ pub struct RunOut {
     /// (`simplifyWithAttributes`), when the input has uvs.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub meshopt_attributes: Option<String>,
+    /// meshlab-qec: the filter and its parameters, as the script ran it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub meshlab_filter: Option<String>,
     /// oocs: cells along the longest side, cells per axis, occupied cells,
     /// representatives clamped to their cell, and the untimed grid search.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -262,6 +276,7 @@ impl RunOut {
             peak_rss_simplify_mib: None,
             meshopt_result_error: None,
             meshopt_attributes: None,
+            meshlab_filter: None,
             grid: None,
             grid_dims: None,
             cells: None,
