@@ -342,7 +342,12 @@ struct Spawned {
 /// (`octolod simplify`: size not met, the closest mesh written) are
 /// returned; any other is an error carrying the last lines of its stderr.
 fn spawn_timed(cmd: &mut Command, bin: &std::path::Path) -> Result<Spawned> {
-    let command = format!("{cmd:?}").replace('"', "");
+    // The command as reported: a long argument (meshlab-qec's script) by its size.
+    let arg = |a: &std::ffi::OsStr| match a.to_string_lossy() {
+        t if t.len() > 200 => format!("<{} bytes>", t.len()),
+        t => t.into_owned(),
+    };
+    let command = std::iter::once(arg(cmd.get_program())).chain(cmd.get_args().map(arg)).collect::<Vec<_>>().join(" ");
     let probe = CpuProbe::start();
     let t = Instant::now();
     let mut child = cmd.stdin(Stdio::null()).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().with_context(|| format!("start {}", bin.display()))?;
