@@ -980,7 +980,8 @@ impl Quadric {
     /// triangle's attribute block has rank ≥ dim − 5), the position comes
     /// from the attribute-eliminated 3×3 quadric and the attributes are
     /// solved exactly for it (`schur_pinv`); the pseudo-inverse's cut-off
-    /// is then relative to that 3×3 block, as without attributes.
+    /// stays relative to the whole matrix's scale (its largest diagonal
+    /// entry), as in the full decomposition, not to the 3×3 block's.
     ///
     /// With `bounds = Some((lo, hi))` (local coordinates, normally the cell
     /// box) the position is kept inside the box: if the unconstrained
