@@ -18,7 +18,7 @@ fn main() {
         let pts: Vec<[f64; MAX_DIM]> = (0..1024)
             .map(|_| {
                 let pos = [rng.range(-1.0, 1.0), rng.range(-1.0, 1.0), rng.range(-1.0, 1.0)];
-                s.embed(&Vertex { pos, normal: [0.0, 0.0, 1.0], color: [10, 20, 30, 255], uv: [rng.f64() as f32, 0.5] })
+                s.embed(&Vertex { pos, normal: [0.0, 0.0, 1.0], color: [10, 20, 30, 255], uv: [rng.f64() as f32, 0.5], material: 0 })
             })
             .collect();
         let mut acc = Quadric::zero(s.dim);

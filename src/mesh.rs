@@ -24,7 +24,13 @@ impl AttrSet {
     pub const POS_F64: u32 = 8;
     /// Color carries a meaningful alpha channel.
     pub const ALPHA: u32 = 16;
-    const ALL: u32 = 31;
+    /// Per-vertex material: which of the input's textures its faces
+    /// sample (a PLY face's `texnumber`, OBJ's `usemtl`, a glTF
+    /// primitive's material). Vertices are split where materials meet, so
+    /// every triangle's corners agree and a material border is a seam.
+    /// Not part of the quadric: it is an identity, not a value to average.
+    pub const MATERIAL: u32 = 32;
+    const ALL: u32 = 63;
 
     pub const POSITION_ONLY: AttrSet = AttrSet(0);
 
@@ -60,6 +66,9 @@ impl AttrSet {
     pub fn pos_f64(self) -> bool {
         self.has(Self::POS_F64)
     }
+    pub fn material(self) -> bool {
+        self.has(Self::MATERIAL)
+    }
 
     /// Dimension of the generalized quadric for this attribute set:
     /// 3 for position, +2 for uv, +3 for normal, +3 for color.
@@ -79,6 +88,9 @@ impl AttrSet {
         if self.uv() {
             s.push_str("+uv");
         }
+        if self.material() {
+            s.push_str("+material");
+        }
         s
     }
 }
@@ -90,16 +102,20 @@ pub struct Vertex {
     pub normal: [f32; 3],
     pub color: [u8; 4],
     pub uv: [f32; 2],
+    /// Index of the material (texture) its faces use; 0 without
+    /// [`AttrSet::MATERIAL`].
+    pub material: u16,
 }
 
 impl Default for Vertex {
     fn default() -> Self {
-        Vertex { pos: [0.0; 3], normal: [0.0; 3], color: [0, 0, 0, 255], uv: [0.0; 2] }
+        Vertex { pos: [0.0; 3], normal: [0.0; 3], color: [0, 0, 0, 255], uv: [0.0; 2], material: 0 }
     }
 }
 
 /// Packed little-endian layout of a vertex for an attribute set:
-/// position (12 or 24 bytes), then normal (12), color (4), uv (8) when present.
+/// position (12 or 24 bytes), then normal (12), color (4), uv (8) and
+/// material (u16, 2) when present.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct VertexLayout {
     pub attrs: AttrSet,
@@ -107,6 +123,7 @@ pub struct VertexLayout {
     normal_at: usize,
     color_at: usize,
     uv_at: usize,
+    material_at: usize,
 }
 
 impl VertexLayout {
@@ -124,7 +141,11 @@ impl VertexLayout {
         if attrs.uv() {
             off += 8;
         }
-        VertexLayout { attrs, size: off, normal_at, color_at, uv_at }
+        let material_at = off;
+        if attrs.material() {
+            off += 2;
+        }
+        VertexLayout { attrs, size: off, normal_at, color_at, uv_at, material_at }
     }
 
     /// Byte offset of the uv in an encoded vertex, when the layout has one.
@@ -169,6 +190,9 @@ impl VertexLayout {
                 out[o + 4 * k..o + 4 * k + 4].copy_from_slice(&v.uv[k].to_le_bytes());
             }
         }
+        if self.attrs.material() {
+            out[self.material_at..self.material_at + 2].copy_from_slice(&v.material.to_le_bytes());
+        }
     }
 
     /// Reads a vertex from `bytes[..self.size]`.
@@ -199,6 +223,9 @@ impl VertexLayout {
             for k in 0..2 {
                 v.uv[k] = f32::from_le_bytes(b[o + 4 * k..o + 4 * k + 4].try_into().unwrap());
             }
+        }
+        if self.attrs.material() {
+            v.material = u16::from_le_bytes([b[self.material_at], b[self.material_at + 1]]);
         }
         v
     }
@@ -280,10 +307,16 @@ mod tests {
 
     #[test]
     fn layout_round_trips_every_attribute_set() {
-        for bits in 0..32u32 {
+        for bits in 0..64u32 {
             let Some(a) = AttrSet::from_bits(bits) else { continue };
             let l = VertexLayout::new(a);
-            let v = Vertex { pos: [1.0e6 + 1.0e-3, -2.5, 3.25], normal: [0.0, 0.6, 0.8], color: [1, 2, 3, if a.alpha() { 4 } else { 255 }], uv: [0.25, 0.75] };
+            let v = Vertex {
+                pos: [1.0e6 + 1.0e-3, -2.5, 3.25],
+                normal: [0.0, 0.6, 0.8],
+                color: [1, 2, 3, if a.alpha() { 4 } else { 255 }],
+                uv: [0.25, 0.75],
+                material: 517,
+            };
             let mut buf = vec![0u8; l.size];
             l.encode(&v, &mut buf);
             let w = l.decode(&buf);
@@ -298,7 +331,11 @@ mod tests {
             if a.color() {
                 assert_eq!(w.color, v.color);
             }
-            assert_eq!(l.size, 12 * (1 + a.pos_f64() as usize) + 12 * a.normal() as usize + 4 * a.color() as usize + 8 * a.uv() as usize);
+            assert_eq!(w.material, if a.material() { 517 } else { 0 });
+            assert_eq!(
+                l.size,
+                12 * (1 + a.pos_f64() as usize) + 12 * a.normal() as usize + 4 * a.color() as usize + 8 * a.uv() as usize + 2 * a.material() as usize
+            );
         }
     }
 

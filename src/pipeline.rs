@@ -504,7 +504,7 @@ mod tests {
     use super::*;
 
     fn v(x: f64, y: f64, c: u8) -> Vertex {
-        Vertex { pos: [x, y, 0.25], normal: [0.0, 0.0, 1.0], color: [c, 2, 3, 4], uv: [x as f32, 0.5] }
+        Vertex { pos: [x, y, 0.25], normal: [0.0, 0.0, 1.0], color: [c, 2, 3, 4], uv: [x as f32, 0.5], material: 0 }
     }
 
     /// Two parts sharing an edge (one copy of it with another colour),

@@ -893,7 +893,7 @@ mod tests {
     use super::*;
 
     fn tri() -> IndexedMesh {
-        let v = |x: f64, y: f64| Vertex { pos: [x, y, 0.0], normal: [0.0, 0.0, 2.0], color: [1, 2, 3, 4], uv: [x as f32, y as f32] };
+        let v = |x: f64, y: f64| Vertex { pos: [x, y, 0.0], normal: [0.0, 0.0, 2.0], color: [1, 2, 3, 4], uv: [x as f32, y as f32], material: 0 };
         IndexedMesh { vertices: vec![v(0.0, 0.0), v(1.0, 0.0), v(0.0, 1.0)], triangles: vec![[0, 1, 2]] }
     }
 

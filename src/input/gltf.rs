@@ -1300,6 +1300,7 @@ mod tests {
                     normal: [0.0, 0.0, 1.0],
                     color: [(x * 20) as u8, (y * 20) as u8, 128, 255],
                     uv: [fx as f32, fy as f32],
+                    material: 0,
                 });
             }
         }

@@ -429,6 +429,7 @@ mod tests {
                 normal: [0, 1, 2].map(|_| rng.range(-1.0, 1.0) as f32),
                 uv: [rng.range(0.0, 1.0) as f32, rng.range(0.0, 1.0) as f32],
                 color: [0, 1, 2, 3].map(|_| (rng.next_u64() % 256) as u8),
+                material: 0,
             })
             .collect();
         let mut soup = Vec::new();

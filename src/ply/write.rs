@@ -521,7 +521,7 @@ mod tests {
     use super::*;
 
     fn v(x: f64, y: f64, z: f64) -> Vertex {
-        Vertex { pos: [x, y, z], normal: [0.0, 0.0, 1.0], color: [10, 20, 30, 40], uv: [0.25, 0.5] }
+        Vertex { pos: [x, y, z], normal: [0.0, 0.0, 1.0], color: [10, 20, 30, 40], uv: [0.25, 0.5], material: 0 }
     }
 
     #[test]

@@ -108,7 +108,7 @@ fn dimension_follows_attributes_and_embedding_round_trips() {
         (AttrSet(AttrSet::NORMAL | AttrSet::COLOR), 9),
         (AttrSet(AttrSet::UV | AttrSet::NORMAL | AttrSet::COLOR), 11),
     ];
-    let v = Vertex { pos: [1e6 + 0.5, -3.0, 2.25], normal: [0.0, 0.6, 0.8], color: [10, 128, 255, 7], uv: [0.25, 0.75] };
+    let v = Vertex { pos: [1e6 + 0.5, -3.0, 2.25], normal: [0.0, 0.6, 0.8], color: [10, 128, 255, 7], uv: [0.25, 0.75], material: 0 };
     for (attrs, d) in dims {
         let s = QuadricSpace::new(attrs, AttrWeights { uv: 2.0, normal: 3.0, color: 5.0 }, [1e6, -4.0, 2.0]);
         assert_eq!(s.dim, d);
@@ -346,8 +346,11 @@ fn degenerate_triangles_contribute_nothing_and_never_nan() {
         let s = QuadricSpace::new(attrs, AttrWeights::uniform(0.3), [0.0; 3]);
         for (ti, t) in bad.iter().enumerate() {
             // Attributes differ per corner: collinear positions still count zero.
-            let vs: Vec<Vertex> =
-                t.iter().enumerate().map(|(c, &pos)| Vertex { pos, color: [50 * c as u8, 0, 90, 255], uv: [c as f32, 0.5], normal: [0.0, 0.0, 1.0] }).collect();
+            let vs: Vec<Vertex> = t
+                .iter()
+                .enumerate()
+                .map(|(c, &pos)| Vertex { pos, color: [50 * c as u8, 0, 90, 255], uv: [c as f32, 0.5], normal: [0.0, 0.0, 1.0], material: 0 })
+                .collect();
             let e: Vec<_> = vs.iter().map(|v| s.embed(v)).collect();
             let q = Quadric::from_triangle(&s, &e[0], &e[1], &e[2]);
             assert!(q.coeffs().iter().all(|&c| c == 0.0), "attrs {attrs:?} triangle {ti}: {q:?}");
@@ -485,6 +488,7 @@ fn clamping_minimises_inside_the_box() {
                 normal: rng.vec3(-1.0, 1.0).map(|c| c as f32),
                 color: [0; 4].map(|_| (rng.next() * 255.0) as u8),
                 uv: [rng.next() as f32, rng.next() as f32],
+                material: 0,
             });
             if flat {
                 for v in &mut vs {
@@ -589,7 +593,7 @@ fn uv_and_full_attribute_ramps_are_reproduced() {
         m.grid(8, 8, |i, j| {
             let (x, y) = (i as f64 / 8.0, j as f64 / 8.0);
             let c = color_ramp(i, j).map(|c| c as u8);
-            Vertex { pos: [x, y, plane_z(x, y)], uv: uv_of(x, y).map(|c| c as f32), normal: nrm.map(|c| c as f32), color: [c[0], c[1], c[2], 255] }
+            Vertex { pos: [x, y, plane_z(x, y)], uv: uv_of(x, y).map(|c| c as f32), normal: nrm.map(|c| c as f32), color: [c[0], c[1], c[2], 255], material: 0 }
         });
         let mut q = m.triangles(&s);
         for v in &m.verts {
@@ -628,6 +632,7 @@ fn quadrics_add_and_errors_are_nonnegative() {
                     normal: rng.vec3(-1.0, 1.0).map(|c| c as f32),
                     color: [0; 4].map(|_| (rng.next() * 255.0) as u8),
                     uv: [rng.next() as f32, rng.next() as f32],
+                    material: 0,
                 })
             })
         };
@@ -741,6 +746,7 @@ fn eigen_decomposition_reconstructs() {
                 normal: rng.vec3(-1.0, 1.0).map(|c| c as f32),
                 color: [0; 4].map(|_| (rng.next() * 255.0) as u8),
                 uv: [rng.next() as f32, rng.next() as f32],
+                material: 0,
             })
         });
         let q = Quadric::from_triangle(&s, &v[0], &v[1], &v[2]);
@@ -944,6 +950,7 @@ fn sized_solve_matches_the_general_solve() {
                         normal: unit3(rng.vec3(-1.0, 1.0)).map(|c| c as f32),
                         uv: [rng.next() as f32, rng.next() as f32],
                         color: [0; 4].map(|_| (rng.next() * 255.0) as u8),
+                        material: 0,
                     })
                 });
                 q.add_triangle(&v[0], &v[1], &v[2]);
@@ -1022,7 +1029,7 @@ fn schur_solve_matches_the_full_pseudo_inverse() {
         let vert = |rng: &mut Rng| {
             let d = unit3([rng.range(-spread, spread), rng.range(-spread, spread), 1.0]);
             let c = [0; 4].map(|_| (rng.next() * 255.0) as u8);
-            Vertex { pos: scale(d, radius), normal: d.map(|c| c as f32), color: c, uv: [0.0; 2] }
+            Vertex { pos: scale(d, radius), normal: d.map(|c| c as f32), color: c, uv: [0.0; 2], material: 0 }
         };
         let mut q = Quadric::zero(n);
         for _ in 0..12 {
@@ -1062,7 +1069,7 @@ fn schur_solve_matches_the_full_pseudo_inverse() {
         let v = [0; 3].map(|_| {
             let (x, y) = ((rng.next() * 255.0).round(), (rng.next() * 255.0).round());
             let c = [x as u8, y as u8, 60, 255];
-            s.embed(&Vertex { pos: [x / 255.0, y / 255.0, 0.5], normal: [0.0, 0.0, 1.0], color: c, uv: [0.0; 2] })
+            s.embed(&Vertex { pos: [x / 255.0, y / 255.0, 0.5], normal: [0.0, 0.0, 1.0], color: c, uv: [0.0; 2], material: 0 })
         });
         q.add_triangle(&v[0], &v[1], &v[2]);
         q.add_point(&v[1]);
@@ -1076,7 +1083,7 @@ fn schur_solve_matches_the_full_pseudo_inverse() {
     // colour's in-plane directions cost almost nothing) and the full
     // decomposition answers, with rank n − 2.
     let v = [([0.0, 0.0, 0.0], [9, 200, 40, 255]), ([1e-3, 0.0, 0.0], [250, 20, 40, 255]), ([0.0, 1e-3, 0.0], [9, 10, 240, 255])]
-        .map(|(p, c)| s.embed(&Vertex { pos: p, normal: [0.3, 0.1, 0.9], color: c, uv: [0.0; 2] }));
+        .map(|(p, c)| s.embed(&Vertex { pos: p, normal: [0.3, 0.1, 0.9], color: c, uv: [0.0; 2], material: 0 }));
     let one = Quadric::from_triangle(&s, &v[0], &v[1], &v[2]);
     assert!(schur_pinv(&one.matrix(), n, DEFAULT_REL_TOL, &[1.0; MAX_DIM], &mut [0.0; MAX_DIM]).is_none());
     assert_eq!(one.solve(DEFAULT_REL_TOL, None).rank, n - 2);

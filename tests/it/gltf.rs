@@ -474,6 +474,7 @@ fn grid(w: u32, h: u32, origin: [f64; 3], wide_uv: bool) -> IndexedMesh {
                 normal: [0.1 * u as f32, 0.0, 2.0],
                 color: [(i % 256) as u8, (j % 256) as u8, 7, (i * j % 256) as u8],
                 uv,
+                material: 0,
             });
         }
     }
@@ -735,7 +736,7 @@ fn the_cli_picks_the_format_by_extension_and_refuses_gltf_flags_for_ply() {
 
 #[test]
 fn colours_are_linear_normalized_unsigned_shorts_and_alpha_is_kept() {
-    let v = |x: f64, y: f64, color: [u8; 4]| Vertex { pos: [x, y, 0.0], normal: [0.0, 0.0, 1.0], color, uv: [0.0, 0.0] };
+    let v = |x: f64, y: f64, color: [u8; 4]| Vertex { pos: [x, y, 0.0], normal: [0.0, 0.0, 1.0], color, uv: [0.0, 0.0], material: 0 };
     let m = IndexedMesh {
         vertices: vec![v(0.0, 0.0, [0, 128, 255, 0]), v(1.0, 0.0, [128, 1, 13, 77]), v(0.0, 1.0, [255, 0, 128, 255])],
         triangles: vec![[0, 1, 2]],

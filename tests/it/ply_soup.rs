@@ -18,6 +18,7 @@ fn expected_vertex(i: u32) -> Vertex {
         normal: [(2.0 * bx - 1.0) as f32, (2.0 * by - 1.0) as f32, (2.0 * bz - 1.0) as f32],
         color: [(10 * i + 5) as u8, (200 - 20 * i) as u8, (7 * i) as u8, (255 - i) as u8],
         uv: [i as f32 / 8.0, 1.0 - i as f32 / 8.0],
+        material: 0,
     }
 }
 

@@ -309,6 +309,7 @@ fn decode(r: &[u8; VREC]) -> Vertex {
         color: r[24..28].try_into().unwrap(),
         uv: [f32_at(28), f32_at(32)],
         normal: [f32_at(36), f32_at(40), f32_at(44)],
+        material: 0,
     }
 }
 
