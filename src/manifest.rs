@@ -34,7 +34,9 @@ pub struct Manifest {
     pub disk_bytes: u64,
     pub levels: Vec<LevelReport>,
     /// The textures the input names (a PLY's `comment TextureFile`), in
-    /// their order (a face's `texnumber`), and their copies in the store.
+    /// their order, and their copies in the store. A vertex's material id
+    /// ([`crate::mesh::Vertex::material`], when the store has
+    /// [`crate::mesh::AttrSet::MATERIAL`]) indexes this list.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub textures: Vec<TextureRef>,
 }
@@ -58,14 +60,19 @@ pub struct TextureRef {
     pub bytes: u64,
 }
 
-/// The first texture a store holds (what `view`, `render`, `tiles` and
-/// glTF extracts show: `texnumber` is not read yet): its file name in the
-/// store and path; none when the store names none it holds.
+/// The first texture a store holds: its file name in the store and path;
+/// none when the store names none it holds.
 pub fn store_texture(store: &Path) -> Option<(String, std::path::PathBuf)> {
-    let m = Manifest::read(store).ok()?;
-    let file = m.textures.iter().find_map(|t| t.file.clone())?;
-    let path = store.join(&file);
-    Some((file, path))
+    store_textures(store).into_iter().flatten().next()
+}
+
+/// Every texture slot of a store, indexed by material id
+/// ([`crate::mesh::Vertex::material`]): the copy's file name in the store
+/// and its path, or none where the input named a texture the store does
+/// not hold. Empty when the store names none (or has no manifest).
+pub fn store_textures(store: &Path) -> Vec<Option<(String, std::path::PathBuf)>> {
+    let Ok(m) = Manifest::read(store) else { return Vec::new() };
+    m.textures.iter().map(|t| t.file.clone().map(|f| (f.clone(), store.join(f)))).collect()
 }
 
 impl TextureRef {

@@ -103,8 +103,16 @@ pub struct Vertex {
     pub color: [u8; 4],
     pub uv: [f32; 2],
     /// Index of the material (texture) its faces use; 0 without
-    /// [`AttrSet::MATERIAL`].
+    /// [`AttrSet::MATERIAL`]. It indexes the input's texture list (the
+    /// store manifest's `textures`); [`Vertex::NO_TEXTURE`] for faces whose
+    /// material has no texture.
     pub material: u16,
+}
+
+impl Vertex {
+    /// Material id of faces without a texture (an OBJ material without
+    /// `map_Kd`, a glTF material without a base colour texture).
+    pub const NO_TEXTURE: u16 = u16::MAX;
 }
 
 impl Default for Vertex {
