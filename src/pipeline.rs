@@ -248,7 +248,7 @@ fn extract_ply(store: &Store, spec: CutSpec, out: &Path, weld: bool, force: bool
         for m in store.cut_meshes(&cut) {
             let m = m?;
             for t in &m.triangles {
-                w.face(&t.map(|i| i + base)).ctx(out, "write")?;
+                w.face_material(&t.map(|i| i + base), m.vertices[t[0] as usize].material).ctx(out, "write")?;
             }
             base += m.vertices.len() as u32;
         }
@@ -319,7 +319,7 @@ pub fn write_mesh_ply_with(out: &Path, opts: &PlyWriteOptions, m: &IndexedMesh, 
         w.vertex(v).ctx(out, "write")?;
     }
     for t in &m.triangles {
-        w.face(t).ctx(out, "write")?;
+        w.face_material(t, m.vertices[t[0] as usize].material).ctx(out, "write")?;
     }
     w.finish().ctx(out, "write")?;
     file.commit()
@@ -406,9 +406,11 @@ impl SpooledPly {
         self.vertices.put(&self.buf)
     }
 
-    pub fn face(&mut self, t: &[u32; 3]) -> Result<()> {
+    /// One triangle and its material (its corner 0's; the `texnumber`
+    /// of a mesh with materials).
+    pub fn face(&mut self, t: &[u32; 3], material: u16) -> Result<()> {
         self.buf.clear();
-        self.enc.face(t, &mut self.buf).ctx(&self.faces.path, "encode")?;
+        self.enc.face_material(t, material, &mut self.buf).ctx(&self.faces.path, "encode")?;
         self.faces.put(&self.buf)
     }
 
@@ -532,7 +534,7 @@ mod tests {
             for part in parts() {
                 let (vs, ts) = w.add(&part, |_| true);
                 vs.iter().try_for_each(|x| p.vertex(x)).unwrap();
-                ts.iter().try_for_each(|t| p.face(t)).unwrap();
+                ts.iter().try_for_each(|t| p.face(t, 0)).unwrap();
             }
             assert_eq!(p.counts(), (whole.vertices.len() as u64, whole.triangles.len() as u64));
             p.finish(&["octolod test".to_string()]).unwrap();

@@ -617,12 +617,14 @@ impl<'a> PerNode<'a> {
         let mut ply = SpooledPly::create(out, self.store.header.attrs, force)?;
         let mut weld = VertexWelder::new(&self.store.layout);
         for k in 0..self.cut.drawn.len() {
-            let (v, t) = weld.add(&self.spill.read(k)?, |v| self.shared.contains(&pos_bits(v.pos)));
+            let part = self.spill.read(k)?;
+            let (v, t) = weld.add(&part, |v| self.shared.contains(&pos_bits(v.pos)));
             for x in &v {
                 ply.vertex(x)?;
             }
-            for x in &t {
-                ply.face(x)?;
+            // A face's material is its corner 0's (the welder keeps triangle order).
+            for (x, src) in t.iter().zip(&part.triangles) {
+                ply.face(x, part.vertices[src[0] as usize].material)?;
             }
         }
         Ok(ply)

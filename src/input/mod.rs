@@ -265,5 +265,5 @@ fn weld(sink: CollectSink) -> CollectSink {
     let mut vertices = Vec::with_capacity(sink.vertices.len() / 2);
     let map: Vec<u64> = sink.vertices.iter().map(|v| w.id(v.pos, |_| vertices.push(*v)) as u64).collect();
     let triangles = sink.triangles.iter().map(|t| t.map(|i| map[i as usize])).collect();
-    CollectSink { vertices, triangles, wedges: Vec::new() }
+    CollectSink { vertices, triangles, ..Default::default() }
 }

@@ -4,7 +4,9 @@
 //! Takes: a path to a `.ply` file. Gives: a parsed [`PlyHeader`] (elements in
 //! file order, the recognised attribute set, the body's byte offset) and a
 //! body reader ([`read::read_body`]) that calls back once per vertex and once
-//! per fan-triangulated triangle, never holding the mesh in memory.
+//! per fan-triangulated triangle, never holding the mesh in memory. Faces
+//! may carry MeshLab's per-wedge `texcoord` and per-face `texnumber`
+//! (which `comment TextureFile` texture they sample: [`AttrSet::MATERIAL`]).
 //!
 //! The header is read by a small grammar of our own ([`parse_header`]):
 //! ply-rs-bw's rejected valid names (`.`, `:`, `$`, `/`, leading digits,
@@ -148,7 +150,9 @@ pub struct PlyHeader {
     pub vertex_elem: usize,
     /// Index of the `face` element (None: no faces declared).
     pub face_elem: Option<usize>,
-    /// Attributes carried from the vertex element.
+    /// Attributes carried from the vertex element (and the faces: per-wedge
+    /// `texcoord` gives uvs; `texnumber` with uvs and at least one `comment
+    /// TextureFile` gives [`AttrSet::MATERIAL`]).
     pub attrs: AttrSet,
 }
 
@@ -158,6 +162,11 @@ impl PlyHeader {
     }
     pub fn face_count(&self) -> u64 {
         self.face_elem.map(|i| self.elements[i].count).unwrap_or(0)
+    }
+    /// The textures the faces' `texnumber` chooses among (`comment
+    /// TextureFile` lines, in order).
+    pub fn texture_count(&self) -> usize {
+        texture_files(&self.comments).len()
     }
 }
 
@@ -437,6 +446,12 @@ pub fn parse_header(path: &Path, bytes: &[u8], body_offset: u64) -> Result<PlyHe
         if wedge_uv_prop(f).is_some() {
             attrs = attrs.with(AttrSet::UV, true);
         }
+        // A face `texnumber` choosing among named textures gives each
+        // face its material (only with uvs: without them there is nothing
+        // to sample).
+        if attrs.uv() && texnumber_prop(f).is_some() && !texture_files(&comments).is_empty() {
+            attrs = attrs.with(AttrSet::MATERIAL, true);
+        }
         match face_index_prop(f) {
             Some(i) => {
                 if let PropType::List(c, s) = f.props[i].ty {
@@ -473,6 +488,13 @@ pub(crate) fn wedge_uv_prop(f: &ElementDef) -> Option<usize> {
 /// convention; their order is the faces' `texnumber`).
 pub fn texture_files(comments: &[String]) -> Vec<String> {
     comments.iter().filter_map(|c| c.strip_prefix("TextureFile").map(|n| n.trim().to_string())).filter(|n| !n.is_empty()).collect()
+}
+
+/// Index of the face's `texnumber` (MeshLab's convention: which of the
+/// `comment TextureFile` textures the face samples, -1 for none), when it
+/// is an integer scalar.
+pub(crate) fn texnumber_prop(f: &ElementDef) -> Option<usize> {
+    f.prop("texnumber").filter(|&i| matches!(f.props[i].ty, PropType::Scalar(s) if !s.is_float()))
 }
 
 /// Index of the face's vertex index list property.

@@ -4,9 +4,12 @@
 //! vertices (in index order) and of fan-triangulated triangles (in face
 //! order) to a [`BodySink`], validating as it goes: non-finite coordinates,
 //! negative or out-of-range indices, faces with fewer than three corners,
-//! truncated bodies and trailing bytes (wrong header counts) are errors naming
+//! truncated bodies and trailing bytes (wrong header counts), a `texnumber`
+//! naming no `comment TextureFile` texture, are errors naming
 //! the file, element, record and byte offset. Triangles with a repeated
-//! index are dropped and counted.
+//! index are dropped and counted. A face's per-wedge `texcoord` and its
+//! `texnumber` go to the sink beside each triangle batch
+//! ([`BodySink::wedge_uvs`], [`BodySink::materials`]).
 //!
 //! Binary records are decoded through per-field (offset, type) tables
 //! compiled from the header, over a large refillable buffer fed by plain
@@ -33,6 +36,13 @@ pub trait BodySink {
     /// (a face whose list is not two values per corner). Sinks that keep
     /// no uvs ignore them.
     fn wedge_uvs(&mut self, _batch: &[[[f32; 2]; 3]]) -> Result<()> {
+        Ok(())
+    }
+    /// Material of each triangle of the next [`BodySink::triangles`]
+    /// batch, when the input has [`AttrSet::MATERIAL`] (a PLY face's
+    /// `texnumber`, -1 read as [`Vertex::NO_TEXTURE`]): every corner of
+    /// the triangle takes it. Sinks that keep no materials ignore them.
+    fn materials(&mut self, _batch: &[u16]) -> Result<()> {
         Ok(())
     }
 }
@@ -150,6 +160,8 @@ pub fn read_body(path: &Path, header: &PlyHeader, sink: &mut dyn BodySink, progr
         reported: header.body_offset,
         tris: Vec::with_capacity(BATCH),
         wedges: Vec::new(),
+        mats: Vec::new(),
+        face_mat: 0,
         face_idx: Vec::new(),
         face_tc: Vec::new(),
         verts: Vec::with_capacity(BATCH),
@@ -175,7 +187,12 @@ struct BodyReader<'a> {
     tris: Vec<[u64; 3]>,
     /// Per-wedge uvs of `tris` (faces with a `texcoord` list), else empty.
     wedges: Vec<[[f32; 2]; 3]>,
-    /// One face's corners and texcoords (faces with a `texcoord` list).
+    /// Material of each of `tris` (faces with a `texnumber`), else empty.
+    mats: Vec<u16>,
+    /// The material of the face being read.
+    face_mat: u16,
+    /// One face's corners and texcoords (faces with a `texcoord` list or
+    /// a `texnumber`, fanned once the whole record is read).
     face_idx: Vec<i64>,
     face_tc: Vec<f32>,
     verts: Vec<Vertex>,
@@ -459,12 +476,34 @@ impl BodyReader<'_> {
         let start = self.input.offset();
         let mut fan = Fan { first: 0, prev: 0, k: 0 };
         let tc_prop = super::wedge_uv_prop(e);
-        if tc_prop.is_some() {
+        let tex_prop = if self.header.attrs.material() { super::texnumber_prop(e) } else { None };
+        // Faces whose corners need a later property are fanned at the record's end.
+        let deferred = tc_prop.is_some() || tex_prop.is_some();
+        if deferred {
             self.face_idx.clear();
             self.face_tc.clear();
+            self.face_mat = 0;
         }
         for (pi, p) in e.props.iter().enumerate() {
             let want = pi == idx_prop;
+            if Some(pi) == tex_prop {
+                let PropType::Scalar(s) = p.ty else { unreachable!("checked by texnumber_prop") };
+                let (x, at) = if ascii {
+                    self.input.skip_ws()?;
+                    let at = self.input.offset();
+                    (self.ascii_number(e, rec, s, &p.name)? as i64, at)
+                } else {
+                    if !self.input.ensure(s.size())? {
+                        return Err(self.truncated(e, rec));
+                    }
+                    let at = self.input.offset();
+                    let x = bin_i64(&self.input.buf, self.input.pos, s, be);
+                    self.input.pos += s.size();
+                    (x, at)
+                };
+                self.face_mat = self.texnumber(x, e, rec, at)?;
+                continue;
+            }
             if Some(pi) == tc_prop {
                 // Per-wedge uvs: 2 per corner, kept for the record's end.
                 let PropType::List(c, s) = p.ty else { unreachable!("checked by wedge_uv_prop") };
@@ -507,7 +546,7 @@ impl BodyReader<'_> {
                     if n > 3 {
                         self.stats.polygons += 1;
                     }
-                    if tc_prop.is_some() {
+                    if deferred {
                         // Wedge faces are fanned once their texcoords are read.
                         for _ in 0..n {
                             let x = if ascii {
@@ -547,18 +586,38 @@ impl BodyReader<'_> {
                 }
             }
         }
-        if tc_prop.is_some() {
-            self.fan_wedges(e, rec, start, sink)?;
+        if deferred {
+            self.fan_deferred(e, rec, start, tc_prop.is_some(), tex_prop.is_some(), sink)?;
         }
         self.stats.faces += 1;
         Ok(())
     }
 
+    /// A face's `texnumber` as its material: -1 is [`Vertex::NO_TEXTURE`];
+    /// anything else must name one of the header's `comment TextureFile`
+    /// textures.
+    fn texnumber(&self, x: i64, e: &ElementDef, rec: u64, at: u64) -> Result<u16> {
+        let n = self.header.texture_count() as i64;
+        match x {
+            -1 => Ok(Vertex::NO_TEXTURE),
+            // NO_TEXTURE (65535) is reserved: ids stop below it.
+            _ if (0..n.min(Vertex::NO_TEXTURE as i64)).contains(&x) => Ok(x as u16),
+            _ => Err(Error::input(
+                self.loc(&e.name, rec, at),
+                format!(
+                    "texnumber {x} names no texture: the header's {n} 'comment TextureFile' line(s) allow 0..={} (or -1 for none)",
+                    (n.min(Vertex::NO_TEXTURE as i64) - 1)
+                ),
+            )),
+        }
+    }
+
     /// Fans the face just read (`face_idx`) with its per-wedge uvs
-    /// (`face_tc`, two per corner).
-    fn fan_wedges(&mut self, e: &ElementDef, rec: u64, start: u64, sink: &mut dyn BodySink) -> Result<()> {
+    /// (`face_tc`, two per corner, when `wedges`) and its material
+    /// (`face_mat`, when `material`).
+    fn fan_deferred(&mut self, e: &ElementDef, rec: u64, start: u64, wedges: bool, material: bool, sink: &mut dyn BodySink) -> Result<()> {
         let n = self.face_idx.len();
-        if self.face_tc.len() != 2 * n {
+        if wedges && self.face_tc.len() != 2 * n {
             // Not MeshLab's u and v per corner (a list of another use):
             // the corners keep their vertices' uvs (NaN marks it).
             self.face_tc.clear();
@@ -579,7 +638,12 @@ impl BodyReader<'_> {
                 continue;
             }
             self.tris.push(t);
-            self.wedges.push(c.map(|j| uv(j, &self.face_tc)));
+            if wedges {
+                self.wedges.push(c.map(|j| uv(j, &self.face_tc)));
+            }
+            if material {
+                self.mats.push(self.face_mat);
+            }
             if self.tris.len() == BATCH {
                 self.flush_triangles(sink)?;
             }
@@ -640,6 +704,11 @@ impl BodyReader<'_> {
                 debug_assert_eq!(self.wedges.len(), self.tris.len());
                 sink.wedge_uvs(&self.wedges)?;
                 self.wedges.clear();
+            }
+            if !self.mats.is_empty() {
+                debug_assert_eq!(self.mats.len(), self.tris.len());
+                sink.materials(&self.mats)?;
+                self.mats.clear();
             }
             sink.triangles(&self.tris)?;
             self.stats.triangles += self.tris.len() as u64;
@@ -820,13 +889,24 @@ pub struct CollectSink {
     /// Per-wedge uvs of `triangles` (faces with a `texcoord` list) until
     /// [`CollectSink::split_wedges`] makes them vertices.
     pub wedges: Vec<[[f32; 2]; 3]>,
+    /// Material of each of `triangles` (inputs with
+    /// [`AttrSet::MATERIAL`]) until [`CollectSink::split_wedges`] gives
+    /// it to their corners.
+    pub materials: Vec<u16>,
 }
 
 impl CollectSink {
     /// Per-wedge uvs made vertices: one per distinct (vertex, uv) corner,
     /// the first uv met at a vertex taking the vertex itself (numbers kept
     /// where every corner agrees); NaN wedges keep the vertex's uv.
+    ///
+    /// With per-triangle materials, corners are split by (vertex, uv,
+    /// material) the same way, so a vertex where materials meet becomes
+    /// one per material and every triangle's corners carry its material.
     pub fn split_wedges(&mut self) {
+        if !self.materials.is_empty() {
+            return self.split_materials();
+        }
         if self.wedges.is_empty() {
             return;
         }
@@ -867,6 +947,47 @@ impl CollectSink {
     }
 }
 
+impl CollectSink {
+    /// [`CollectSink::split_wedges`] with per-triangle materials (and
+    /// maybe per-wedge uvs): one vertex per distinct (vertex, uv,
+    /// material) corner, the first met taking the vertex itself.
+    fn split_materials(&mut self) {
+        debug_assert_eq!(self.materials.len(), self.triangles.len());
+        let own: Vec<[f32; 2]> = self.vertices.iter().map(|v| v.uv).collect();
+        let mut ids: std::collections::HashMap<(u64, [u32; 2], u16), u64> = std::collections::HashMap::new();
+        let mut taken = vec![false; self.vertices.len()];
+        for (k, t) in self.triangles.iter_mut().enumerate() {
+            let m = self.materials[k];
+            for c in 0..3 {
+                let v = t[c] as usize;
+                let uv = match self.wedges.get(k) {
+                    Some(w) if !w[c].iter().any(|x| x.is_nan()) => w[c],
+                    _ => own[v],
+                };
+                let key = (t[c], uv.map(f32::to_bits), m);
+                t[c] = match ids.get(&key) {
+                    Some(&id) => id,
+                    None if !taken[v] => {
+                        taken[v] = true;
+                        self.vertices[v].uv = uv;
+                        self.vertices[v].material = m;
+                        ids.insert(key, v as u64);
+                        v as u64
+                    }
+                    None => {
+                        self.vertices.push(Vertex { uv, material: m, ..self.vertices[v] });
+                        let id = self.vertices.len() as u64 - 1;
+                        ids.insert(key, id);
+                        id
+                    }
+                };
+            }
+        }
+        self.wedges = Vec::new();
+        self.materials = Vec::new();
+    }
+}
+
 impl BodySink for CollectSink {
     fn vertices(&mut self, first: u64, batch: &[Vertex]) -> Result<()> {
         debug_assert_eq!(first, self.vertices.len() as u64);
@@ -881,6 +1002,10 @@ impl BodySink for CollectSink {
         self.wedges.extend_from_slice(batch);
         Ok(())
     }
+    fn materials(&mut self, batch: &[u16]) -> Result<()> {
+        self.materials.extend_from_slice(batch);
+        Ok(())
+    }
 }
 
 /// Reads a whole PLY into memory. For small meshes only.
@@ -890,4 +1015,113 @@ pub fn read_all(path: &Path) -> Result<(PlyHeader, CollectSink, BodyStats)> {
     let stats = read_body(path, &header, &mut sink, &Progress::hidden())?;
     sink.split_wedges();
     Ok((header, sink, stats))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const HEAD: &str = "comment TextureFile a.png\ncomment TextureFile b.png\nelement vertex 5\nproperty float x\nproperty float y\nproperty float z\nproperty float s\nproperty float t\nelement face 2\nproperty list uchar int vertex_indices\nproperty int texnumber\nend_header\n";
+    const VERTS: [[f32; 5]; 5] = [[0., 0., 0., 0., 0.], [1., 0., 0., 1., 0.], [1., 1., 0., 1., 1.], [0., 1., 0., 0., 1.], [2., 0., 0., 0.5, 0.5]];
+    /// A quad (texture 1) and a triangle (texture 0) sharing vertices 1 and 2.
+    const FACES: [(&[i32], i32); 2] = [(&[0, 1, 2, 3], 1), (&[1, 4, 2], 0)];
+
+    fn binary(faces: &[(&[i32], i32)]) -> Vec<u8> {
+        let mut b = format!("ply\nformat binary_little_endian 1.0\n{HEAD}").into_bytes();
+        for v in VERTS {
+            v.iter().for_each(|x| b.extend_from_slice(&x.to_le_bytes()));
+        }
+        for (idx, tex) in faces {
+            b.push(idx.len() as u8);
+            idx.iter().for_each(|i| b.extend_from_slice(&i.to_le_bytes()));
+            b.extend_from_slice(&tex.to_le_bytes());
+        }
+        b
+    }
+
+    fn ascii(faces: &[(&[i32], i32)]) -> Vec<u8> {
+        let mut s = format!("ply\nformat ascii 1.0\n{HEAD}");
+        for v in VERTS {
+            s += &format!("{} {} {} {} {}\n", v[0], v[1], v[2], v[3], v[4]);
+        }
+        for (idx, tex) in faces {
+            s += &format!("{} {} {tex}\n", idx.len(), idx.iter().map(|i| i.to_string()).collect::<Vec<_>>().join(" "));
+        }
+        s.into_bytes()
+    }
+
+    fn read(bytes: &[u8]) -> Result<(PlyHeader, CollectSink)> {
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("m.ply");
+        std::fs::write(&p, bytes).unwrap();
+        read_all(&p).map(|(h, s, _)| (h, s))
+    }
+
+    #[test]
+    fn texnumber_gives_each_triangle_its_material() {
+        for bytes in [binary(&FACES), ascii(&FACES)] {
+            let (h, m) = read(&bytes).unwrap();
+            assert!(h.attrs.material() && h.attrs.uv(), "{}", h.attrs.describe());
+            assert_eq!(h.texture_count(), 2);
+            // The quad fans into two triangles that keep its texnumber.
+            assert_eq!(m.triangles.len(), 3);
+            let mats: Vec<[u16; 3]> = m.triangles.iter().map(|t| t.map(|i| m.vertices[i as usize].material)).collect();
+            assert_eq!(mats, [[1; 3], [1; 3], [0; 3]]);
+            // Vertices 1 and 2 are split where the materials meet, positions and uvs kept.
+            assert_eq!(m.vertices.len(), 7);
+            for t in &m.triangles {
+                for &i in t {
+                    let v = &m.vertices[i as usize];
+                    let src = VERTS.iter().find(|s| s[0] as f64 == v.pos[0] && s[1] as f64 == v.pos[1]).unwrap();
+                    assert_eq!(v.uv, [src[3], src[4]]);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn texnumber_minus_one_is_no_texture() {
+        let faces: [(&[i32], i32); 2] = [(&[0, 1, 2, 3], -1), (&[1, 4, 2], 1)];
+        let (_, m) = read(&binary(&faces)).unwrap();
+        let mats: Vec<u16> = m.triangles.iter().map(|t| m.vertices[t[0] as usize].material).collect();
+        assert_eq!(mats, [Vertex::NO_TEXTURE, Vertex::NO_TEXTURE, 1]);
+    }
+
+    #[test]
+    fn texnumber_without_texture_comments_is_no_material() {
+        let b = String::from_utf8(ascii(&FACES)).unwrap().replace("comment TextureFile a.png\ncomment TextureFile b.png\n", "");
+        let (h, m) = read(b.as_bytes()).unwrap();
+        assert!(!h.attrs.material() && h.attrs.uv());
+        assert_eq!((m.vertices.len(), m.triangles.len()), (5, 3));
+    }
+
+    #[test]
+    fn texnumber_out_of_range_names_record_and_offset() {
+        let faces: [(&[i32], i32); 2] = [(&[0, 1, 2, 3], 1), (&[1, 4, 2], 2)];
+        let b = binary(&faces);
+        // Record 1's texnumber: its last 4 bytes.
+        let at = b.len() - 4;
+        let e = read(&b).unwrap_err().to_string();
+        assert!(e.contains("element 'face' record 1") && e.contains(&format!("byte offset {at}")) && e.contains("texnumber 2"), "{e}");
+        let a = ascii(&faces);
+        let at = a.len() - 2;
+        let e = read(&a).unwrap_err().to_string();
+        assert!(e.contains("element 'face' record 1") && e.contains(&format!("byte offset {at}")) && e.contains("texnumber 2"), "{e}");
+        let faces: [(&[i32], i32); 2] = [(&[0, 1, 2, 3], -2), (&[1, 4, 2], 0)];
+        let e = read(&binary(&faces)).unwrap_err().to_string();
+        assert!(e.contains("record 0") && e.contains("texnumber -2"), "{e}");
+    }
+
+    #[test]
+    fn texnumber_with_wedge_texcoords() {
+        // MeshLab's order: vertex_indices, texcoord, texnumber; positions only on the vertices.
+        let s = "ply\nformat ascii 1.0\ncomment TextureFile a.png\ncomment TextureFile b.png\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\nelement face 2\nproperty list uchar int vertex_indices\nproperty list uchar float texcoord\nproperty int texnumber\nend_header\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n3 0 1 2 6 0 0 .5 0 .5 .5 0\n3 0 2 3 6 0 0 .5 .5 0 .5 1\n";
+        let (h, m) = read(s.as_bytes()).unwrap();
+        assert!(h.attrs.material() && h.attrs.uv());
+        let mats: Vec<u16> = m.triangles.iter().map(|t| m.vertices[t[0] as usize].material).collect();
+        assert_eq!(mats, [0, 1]);
+        // Shared corners 0 and 2 split: different materials (their uvs agree).
+        assert_eq!(m.vertices.len(), 6);
+        assert!(m.triangles.iter().all(|t| t.iter().all(|&i| m.vertices[i as usize].material == m.vertices[t[0] as usize].material)));
+    }
 }

@@ -14,7 +14,12 @@
 //! (`double` with [`AttrSet::POS_F64`], else `float`), `nx ny nz` (`float`),
 //! `red green blue [alpha]` (`uchar`, or `float` in \[0,1\] with
 //! [`PlyWriteOptions::float_colors`]), then the texture coordinates (`float`,
-//! named per [`UvNames`]). Faces are `property list uchar <index> vertex_indices`.
+//! named per [`UvNames`]). Faces are `property list uchar <index> vertex_indices`,
+//! then, with [`AttrSet::MATERIAL`], `property int texnumber` (MeshLab's
+//! convention: the index of the face's `comment TextureFile` texture, -1
+//! for [`Vertex::NO_TEXTURE`]); the material is not a vertex property.
+//! Such faces are written with [`PlyWriter::face_material`] (a face's
+//! material is its corner 0's); [`write_ply`] takes it from the vertices.
 //!
 //! Binary records are encoded into byte buffers ([`PlyEncoder`], which is
 //! `Sync` so callers can encode chunks in parallel and hand the bytes over with
@@ -122,6 +127,9 @@ pub fn header(opts: &PlyWriteOptions, n_vertices: u64, n_faces: u64) -> String {
     }
     let _ = writeln!(h, "element face {n_faces}");
     let _ = writeln!(h, "property list uchar {} vertex_indices", opts.index_type.name());
+    if a.material() {
+        h.push_str("property int texnumber\n");
+    }
     h.push_str("end_header\n");
     h
 }
@@ -136,6 +144,8 @@ pub struct PlyEncoder {
     quality: bool,
     index: Scalar,
     vertex_size: usize,
+    /// Faces end with an `int texnumber`.
+    material: bool,
 }
 
 fn invalid_data(msg: String) -> io::Error {
@@ -157,6 +167,7 @@ impl PlyEncoder {
             quality: opts.extra_vertex_quality,
             index: opts.index_type,
             vertex_size,
+            material: a.material(),
         }
     }
 
@@ -171,7 +182,7 @@ impl PlyEncoder {
 
     /// Bytes per binary face record of `n` indices (None for ASCII).
     pub fn face_record_size(&self, n: usize) -> Option<usize> {
-        (self.encoding != Encoding::Ascii).then_some(1 + n * self.index.size())
+        (self.encoding != Encoding::Ascii).then_some(1 + n * self.index.size() + 4 * self.material as usize)
     }
 
     /// A rough upper estimate of one vertex record's size, for sizing buffers.
@@ -190,8 +201,8 @@ impl PlyEncoder {
     /// A rough upper estimate of one triangle record's size.
     pub fn approx_face_size(&self) -> usize {
         match self.encoding {
-            Encoding::Ascii => 2 + 3 * 11,
-            _ => 1 + 3 * self.index.size(),
+            Encoding::Ascii => 2 + 3 * 11 + 7 * self.material as usize,
+            _ => 1 + 3 * self.index.size() + 4 * self.material as usize,
         }
     }
 
@@ -287,10 +298,29 @@ impl PlyEncoder {
     }
 
     /// Appends one face record (a polygon of 1..=255 indices) to `out`. Fails
-    /// with `InvalidInput` for an empty or too long polygon and `InvalidData`
-    /// for an index the index type cannot hold; `out` is unchanged then.
+    /// with `InvalidInput` for an empty or too long polygon, and for a
+    /// face of a mesh with materials (those need
+    /// [`PlyEncoder::face_material`]), and `InvalidData` for an index the
+    /// index type cannot hold; `out` is unchanged then.
     #[inline]
     pub fn face(&self, idx: &[u32], out: &mut Vec<u8>) -> io::Result<()> {
+        if self.material {
+            return Err(io::Error::new(io::ErrorKind::InvalidInput, "a face of a mesh with materials needs its material (face_material)"));
+        }
+        self.face_record(idx, 0, out)
+    }
+
+    /// [`PlyEncoder::face`] of a face whose material is `material` (its
+    /// `texnumber`, -1 for [`Vertex::NO_TEXTURE`]; ignored without
+    /// [`AttrSet::MATERIAL`]).
+    #[inline]
+    pub fn face_material(&self, idx: &[u32], material: u16, out: &mut Vec<u8>) -> io::Result<()> {
+        self.face_record(idx, material, out)
+    }
+
+    fn face_record(&self, idx: &[u32], material: u16, out: &mut Vec<u8>) -> io::Result<()> {
+        let texnumber: i32 = if material == Vertex::NO_TEXTURE { -1 } else { material as i32 };
+        let be = self.encoding == Encoding::BinaryBe;
         let n = idx.len();
         if n == 0 || n > 255 {
             return Err(io::Error::new(io::ErrorKind::InvalidInput, format!("a face has {n} vertices; PLY lists with uchar counts hold 1..=255")));
@@ -300,12 +330,13 @@ impl PlyEncoder {
             if self.index == Scalar::I32 && idx.iter().any(|&i| i > i32::MAX as u32) {
                 return Err(self.range_error(idx));
             }
-            let mut rec = [3u8; 13];
+            let mut rec = [3u8; 17];
             for k in 0..3 {
-                let b = if self.encoding == Encoding::BinaryBe { idx[k].to_be_bytes() } else { idx[k].to_le_bytes() };
+                let b = if be { idx[k].to_be_bytes() } else { idx[k].to_le_bytes() };
                 rec[1 + 4 * k..5 + 4 * k].copy_from_slice(&b);
             }
-            out.extend_from_slice(&rec);
+            rec[13..].copy_from_slice(&if be { texnumber.to_be_bytes() } else { texnumber.to_le_bytes() });
+            out.extend_from_slice(&rec[..13 + 4 * self.material as usize]);
             return Ok(());
         }
         let max: u64 = match self.index {
@@ -326,11 +357,13 @@ impl PlyEncoder {
             for &i in idx {
                 let _ = write!(out, " {i}");
             }
+            if self.material {
+                let _ = write!(out, " {texnumber}");
+            }
             out.push(b'\n');
             return Ok(());
         }
-        let be = self.encoding == Encoding::BinaryBe;
-        out.reserve(1 + n * self.index.size());
+        out.reserve(1 + n * self.index.size() + 4);
         out.push(n as u8);
         macro_rules! put {
             ($x:expr) => {{
@@ -349,6 +382,9 @@ impl PlyEncoder {
                 Scalar::F32 => put!(i as f32),
                 Scalar::F64 => put!(i as f64),
             }
+        }
+        if self.material {
+            put!(texnumber);
         }
         Ok(())
     }
@@ -444,11 +480,22 @@ impl<W: Write> PlyWriter<W> {
         self.maybe_flush()
     }
 
-    /// Writes one face: a polygon of 1..=255 vertex indices.
+    /// Writes one face: a polygon of 1..=255 vertex indices (not of a
+    /// mesh with materials: see [`PlyWriter::face_material`]).
     #[inline]
     pub fn face(&mut self, idx: &[u32]) -> io::Result<()> {
         self.check_faces(1)?;
         self.enc.face(idx, &mut self.buf)?;
+        self.faces += 1;
+        self.maybe_flush()
+    }
+
+    /// Writes one face with its material (its `texnumber` with
+    /// [`AttrSet::MATERIAL`]; ignored without).
+    #[inline]
+    pub fn face_material(&mut self, idx: &[u32], material: u16) -> io::Result<()> {
+        self.check_faces(1)?;
+        self.enc.face_material(idx, material, &mut self.buf)?;
         self.faces += 1;
         self.maybe_flush()
     }
@@ -489,7 +536,8 @@ impl<W: Write> PlyWriter<W> {
 }
 
 /// Writes a triangle mesh to `path` atomically, replacing a PLY octolod
-/// wrote there before (never anything else).
+/// wrote there before (never anything else). With [`AttrSet::MATERIAL`]
+/// each face's `texnumber` is its corner 0's material.
 pub fn write_ply(path: &Path, opts: &PlyWriteOptions, vertices: &[Vertex], faces: &[[u32; 3]]) -> Result<()> {
     write_whole(path, opts, vertices, faces.len() as u64, faces.iter().map(|f| &f[..]))
 }
@@ -507,7 +555,8 @@ fn write_whole<'a>(path: &Path, opts: &PlyWriteOptions, vertices: &[Vertex], n_f
             w.vertex(v)?;
         }
         for f in faces {
-            w.face(f)?;
+            let m = f.first().and_then(|&i| vertices.get(i as usize)).map_or(0, |v| v.material);
+            w.face_material(f, m)?;
         }
         w.finish()?;
         Ok(())

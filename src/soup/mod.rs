@@ -24,6 +24,11 @@
 //! counts and fills level 0's octree cells this way, and then no soup file is
 //! written ([`TapMode::Takes`], [`SoupReport::written`]).
 //!
+//! Faces' per-wedge uvs and per-face materials (a PLY's `texcoord` and
+//! `texnumber`) replace their corners' vertex uvs and materials: on the
+//! in-memory path batch by batch; on the external path written in
+//! triangle order in phase 1 and patched in, in the same order, in phase 3.
+//!
 //! The records, the budget split and the tap in detail: `docs/ply-and-soup.md`.
 
 pub mod format;
@@ -205,7 +210,7 @@ pub enum TapMode {
     Takes,
 }
 
-/// Triangles patched with their wedge uvs at a time in phase 3.
+/// Triangles patched with their wedge uvs and materials at a time in phase 3.
 const WEDGE_BATCH: usize = 1 << 14;
 
 /// First corners per batch shown to a [`SoupTap`] in phase 2.
@@ -269,6 +274,8 @@ struct InMemorySink<'a> {
     rec: Vec<u8>,
     /// Per-wedge uvs of the next triangle batch.
     wedges: Vec<[[f32; 2]; 3]>,
+    /// Per-triangle materials of the next triangle batch.
+    mats: Vec<u16>,
 }
 
 impl BodySink for InMemorySink<'_> {
@@ -285,12 +292,16 @@ impl BodySink for InMemorySink<'_> {
     fn triangles(&mut self, batch: &[[u64; 3]]) -> Result<()> {
         let s = self.layout.size;
         let wedges = std::mem::take(&mut self.wedges);
+        let mats = std::mem::take(&mut self.mats);
         for (k, t) in batch.iter().enumerate() {
             for (c, &v) in t.iter().enumerate() {
                 let i = v as usize * s;
                 self.rec[c * s..(c + 1) * s].copy_from_slice(&self.table[i..i + s]);
                 if let Some(w) = wedges.get(k).filter(|w| !w[c][0].is_nan()) {
                     self.layout.set_uv(&mut self.rec[c * s..], w[c]);
+                }
+                if let Some(&m) = mats.get(k) {
+                    set_material(&self.layout, &mut self.rec[c * s..(c + 1) * s], m);
                 }
             }
             self.soup.push_encoded(&self.rec)?;
@@ -302,6 +313,18 @@ impl BodySink for InMemorySink<'_> {
         self.wedges.extend_from_slice(batch);
         Ok(())
     }
+    fn materials(&mut self, batch: &[u16]) -> Result<()> {
+        self.mats.clear();
+        self.mats.extend_from_slice(batch);
+        Ok(())
+    }
+}
+
+/// Sets the material of one encoded vertex `rec` (the layout's last two
+/// bytes, little endian; see [`VertexLayout`]).
+fn set_material(layout: &VertexLayout, rec: &mut [u8], m: u16) {
+    debug_assert!(layout.attrs.material());
+    rec[layout.size - 2..layout.size].copy_from_slice(&m.to_le_bytes());
 }
 
 fn build_in_memory(input: &Path, output: &Path, header: &InputHeader, opts: &SoupOptions, progress: &Progress) -> Result<SoupReport> {
@@ -313,6 +336,7 @@ fn build_in_memory(input: &Path, output: &Path, header: &InputHeader, opts: &Sou
         soup: &mut soup,
         rec: vec![0; 3 * layout.size],
         wedges: Vec::new(),
+        mats: Vec::new(),
     };
     // The vertex table takes up to ¾ of the budget (see `build_soup_tapped`); the reader holds the rest.
     let scratch = crate::io::parent_dir(output);
@@ -368,6 +392,9 @@ struct ExternalSink<'a> {
     /// written in sequence, applied in sequence by phase 3.
     wedges: Option<BufWriter<File>>,
     wpath: PathBuf,
+    /// Per-triangle materials (u16) in triangle order, likewise.
+    mats: Option<BufWriter<File>>,
+    mpath: PathBuf,
 }
 
 impl BodySink for ExternalSink<'_> {
@@ -379,6 +406,15 @@ impl BodySink for ExternalSink<'_> {
         let w = self.wedges.as_mut().expect("just made");
         let bytes: Vec<u8> = batch.iter().flatten().flatten().flat_map(|x| x.to_le_bytes()).collect();
         w.write_all(&bytes).ctx(&self.wpath, "write wedge uv file")
+    }
+    fn materials(&mut self, batch: &[u16]) -> Result<()> {
+        if self.mats.is_none() {
+            let f = File::create(&self.mpath).ctx(&self.mpath, "create material file")?;
+            self.mats = Some(BufWriter::with_capacity(SEQ_BUF, f));
+        }
+        let w = self.mats.as_mut().expect("just made");
+        let bytes: Vec<u8> = batch.iter().flat_map(|m| m.to_le_bytes()).collect();
+        w.write_all(&bytes).ctx(&self.mpath, "write material file")
     }
     fn vertices(&mut self, _first: u64, batch: &[Vertex]) -> Result<()> {
         let s = self.layout.size;
@@ -496,6 +532,8 @@ struct SlabCorners {
     slot_bytes: usize,
     /// The per-wedge uv file, when the faces carry uvs.
     wedges: Option<PathBuf>,
+    /// The per-triangle material file, when the faces carry materials.
+    materials: Option<PathBuf>,
 }
 
 /// Phase 1: one pass over the PLY; vertices to the vertex file, corners
@@ -521,6 +559,8 @@ fn distribute_by_slab(input: &Path, header: &InputHeader, opts: &SoupOptions, pr
             bbox: Aabb::EMPTY,
             wedges: None,
             wpath: scratch.join("wedges.bin"),
+            mats: None,
+            mpath: scratch.join("materials.bin"),
         };
         // The reader holds what the corner buckets' and the vertex file's buffers leave.
         let reader_mem = opts.mem.saturating_sub(sink.corners.buffer_bytes() + SEQ_BUF as u64);
@@ -537,7 +577,7 @@ fn distribute_by_slab(input: &Path, header: &InputHeader, opts: &SoupOptions, pr
         if body.triangles == 0 {
             return Err(no_triangles_error(input, header, &body));
         }
-        let ExternalSink { vfile, corners, bbox, wedges, wpath, .. } = sink;
+        let ExternalSink { vfile, corners, bbox, wedges, wpath, mats, mpath, .. } = sink;
         vfile.into_inner().map_err(|e| e.into_error()).ctx(&vpath, "write vertex file")?;
         let wedges = match wedges {
             Some(w) => {
@@ -546,7 +586,14 @@ fn distribute_by_slab(input: &Path, header: &InputHeader, opts: &SoupOptions, pr
             }
             None => None,
         };
-        return Ok(SlabCorners { body, buckets: corners.finish()?, vpath, vertex_bbox: bbox, slot_bytes, wedges });
+        let materials = match mats {
+            Some(w) => {
+                w.into_inner().map_err(|e| e.into_error()).ctx(&mpath, "write material file")?;
+                Some(mpath)
+            }
+            None => None,
+        };
+        return Ok(SlabCorners { body, buckets: corners.finish()?, vpath, vertex_bbox: bbox, slot_bytes, wedges, materials });
     }
 }
 
@@ -560,13 +607,15 @@ struct Joined {
     corner_bucket_bytes: u64,
     /// The per-wedge uv file, when the faces carry uvs.
     wedges: Option<PathBuf>,
+    /// The per-triangle material file, when the faces carry materials.
+    materials: Option<PathBuf>,
 }
 
 /// Phase 2: slab by slab, the slab's vertices in memory (read in sequence
 /// from the vertex file), its corners dereferenced and distributed by slot;
 /// the tap sees each triangle's first corner.
 fn join_slabs(plan: &ExternalPlan, scratch: &Path, slabs: SlabCorners, quiet: bool, tap: &mut Option<&mut dyn SoupTap>) -> Result<Joined> {
-    let SlabCorners { body, vpath, buckets: corner_buckets, vertex_bbox, slot_bytes, wedges } = slabs;
+    let SlabCorners { body, vpath, buckets: corner_buckets, vertex_bbox, slot_bytes, wedges, materials } = slabs;
     let (layout, s, per_slab, n_vertices) = (plan.layout, plan.layout.size, plan.per_slab, plan.n_vertices);
     let crec = corner_rec(slot_bytes);
     let n_corners = body.triangles * 3;
@@ -629,7 +678,7 @@ fn join_slabs(plan: &ExternalPlan, scratch: &Path, slabs: SlabCorners, quiet: bo
     drop((vfile, slab, chunk, firsts));
     let _ = std::fs::remove_file(&vpath);
     join_progress.finish();
-    Ok(Joined { buckets, bbox, corner_bucket_bytes, wedges })
+    Ok(Joined { buckets, bbox, corner_bucket_bytes, wedges, materials })
 }
 
 /// What phase 3 wrote.
@@ -651,15 +700,20 @@ fn write_slots(
     joined: Joined,
     tap: &mut Option<&mut dyn SoupTap>,
 ) -> Result<Written> {
-    let Joined { buckets, bbox, wedges, .. } = joined;
+    let Joined { buckets, bbox, wedges, materials, .. } = joined;
     let s = layout.size;
-    // Per-wedge uvs, read in sequence beside the triangles in order.
-    let mut wedges = match &wedges {
-        Some(p) => Some((std::io::BufReader::with_capacity(SEQ_BUF, File::open(p).ctx(p, "open wedge uv file")?), p.clone())),
-        None => None,
+    // Per-wedge uvs and per-triangle materials, read in sequence beside the triangles in order.
+    let open = |p: &Option<PathBuf>, what: &'static str| -> Result<_> {
+        Ok(match p {
+            Some(p) => Some((std::io::BufReader::with_capacity(SEQ_BUF, File::open(p).ctx(p, what)?), p.clone())),
+            None => None,
+        })
     };
+    let mut wedges = open(&wedges, "open wedge uv file")?;
+    let mut mats = open(&materials, "open material file")?;
     let mut patched: Vec<u8> = Vec::new();
     let mut uvs = [0u8; 24];
+    let mut mat = [0u8; 2];
     let write_progress = Progress::items(body.triangles, "writing", opts.quiet);
     let mode = match tap.as_mut() {
         Some(t) => t.begin(&bbox, layout)?,
@@ -672,14 +726,15 @@ fn write_slots(
     let mut written = 0u64;
     let slot_buckets = buckets.len();
     let slot_bucket_bytes = buckets.finish(|all| {
-        // With wedge uvs, a few thousand triangles at a time are patched.
-        let step = if wedges.is_some() { WEDGE_BATCH * 3 * s } else { all.len().max(1) };
+        // With wedge uvs or materials, a few thousand triangles at a time are patched.
+        let patch = wedges.is_some() || mats.is_some();
+        let step = if patch { WEDGE_BATCH * 3 * s } else { all.len().max(1) };
         for tris in all.chunks(step) {
-            let tris = match wedges.as_mut() {
-                Some((r, p)) => {
-                    patched.clear();
-                    patched.extend_from_slice(tris);
-                    for tri in patched.chunks_exact_mut(3 * s) {
+            let tris = if patch {
+                patched.clear();
+                patched.extend_from_slice(tris);
+                for tri in patched.chunks_exact_mut(3 * s) {
+                    if let Some((r, p)) = wedges.as_mut() {
                         r.read_exact(&mut uvs).ctx(&*p, "read wedge uv file")?;
                         for c in 0..3 {
                             let f = |k: usize| f32::from_le_bytes(uvs[4 * k..4 * k + 4].try_into().unwrap());
@@ -688,9 +743,16 @@ fn write_slots(
                             }
                         }
                     }
-                    &patched[..]
+                    if let Some((r, p)) = mats.as_mut() {
+                        r.read_exact(&mut mat).ctx(&*p, "read material file")?;
+                        for c in 0..3 {
+                            set_material(&layout, &mut tri[c * s..(c + 1) * s], u16::from_le_bytes(mat));
+                        }
+                    }
                 }
-                None => tris,
+                &patched[..]
+            } else {
+                tris
             };
             if let Some(soup) = soup.as_mut() {
                 for tri in tris.chunks_exact(3 * s) {
