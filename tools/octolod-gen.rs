@@ -89,6 +89,13 @@ struct Args {
     /// `comment TextureFile` line (MeshLab's convention).
     #[arg(long, value_name = "SIZE", requires = "atlas", value_parser = clap::value_parser!(u32).range(1..=16384))]
     texture: Option<u32>,
+    /// With --texture: spread the atlas's islands over K textures (island
+    /// i samples texture i mod K, MeshLab's face `texnumber`): K images
+    /// (OUTPUT's name with `_0.png` … , each tinted its own colour: red,
+    /// green, blue, yellow, magenta, cyan, …) and K `comment TextureFile`
+    /// lines.
+    #[arg(long, value_name = "K", requires = "texture", value_parser = clap::value_parser!(u32).range(2..=1024))]
+    textures: Option<u32>,
     /// Output file (PLY, or OBJ/STL with --format).
     #[arg(short, long)]
     output: PathBuf,
@@ -217,17 +224,35 @@ fn run(args: Args) -> anyhow::Result<()> {
                 bail!("{} exists (--force replaces a PLY octolod wrote)", args.output.display());
             }
             let (vertices, triangles) = Generator::new(&opts).mesh();
-            let (m, tiles) = octolod::gen::atlas::atlas(&octolod::mesh::IndexedMesh { vertices, triangles }, cells);
+            let (mut m, tiles) = octolod::gen::atlas::atlas(&octolod::mesh::IndexedMesh { vertices, triangles }, cells);
+            if let Some(k) = args.textures {
+                octolod::gen::atlas::spread_textures(&mut m, tiles, k);
+            }
             // Seam vertices split, one per island.
             nv = m.vertices.len() as u64;
             let mut comments = vec![format!("octolod-gen shape {} tris {} seed {} atlas {cells} ({tiles}x{tiles} tiles)", shape.name(), args.tris, args.seed)];
-            if let Some(size) = args.texture {
-                let name = format!("{}.png", args.output.file_stem().unwrap_or_default().to_string_lossy());
-                let path = octolod::io::parent_dir(&args.output).join(&name);
-                octolod::gen::atlas::write_texture(&path, size, &octolod::gen::atlas::paint(&m, size), args.force).map_err(|e| anyhow!("{e}"))?;
-                comments.push(format!("TextureFile {name}"));
+            let stem = args.output.file_stem().unwrap_or_default().to_string_lossy().into_owned();
+            match (args.texture, args.textures) {
+                (Some(size), Some(k)) => {
+                    for t in 0..k {
+                        let name = format!("{stem}_{t}.png");
+                        let path = octolod::io::parent_dir(&args.output).join(&name);
+                        let img = octolod::gen::atlas::paint_material(&m, size, t as u16);
+                        octolod::gen::atlas::write_texture(&path, size, &img, args.force).map_err(|e| anyhow!("{e}"))?;
+                        comments.push(format!("TextureFile {name}"));
+                    }
+                }
+                (Some(size), None) => {
+                    let name = format!("{stem}.png");
+                    let path = octolod::io::parent_dir(&args.output).join(&name);
+                    octolod::gen::atlas::write_texture(&path, size, &octolod::gen::atlas::paint(&m, size), args.force).map_err(|e| anyhow!("{e}"))?;
+                    comments.push(format!("TextureFile {name}"));
+                }
+                _ => {}
             }
-            let wopts = PlyWriteOptions { comments, ..wopts };
+            // Faces carry their texture as `texnumber`.
+            let attrs = wopts.attrs.with(AttrSet::MATERIAL, args.textures.is_some());
+            let wopts = PlyWriteOptions { comments, attrs, ..wopts };
             octolod::ply::write::write_ply(&args.output, &wopts, &m.vertices, &m.triangles)
                 .map(|_| std::fs::metadata(&args.output).map(|m| m.len()).unwrap_or(0))
         }

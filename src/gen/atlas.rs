@@ -239,6 +239,59 @@ pub fn write_texture(path: &std::path::Path, size: u32, rgba: &[u8], force: bool
     Ok(())
 }
 
+/// Base colours of the textures [`tint`] marks (red, green, blue, yellow,
+/// magenta, cyan, then repeating): a render tells which texture a pixel
+/// came from by its dominant hue.
+pub const PALETTE: [[u8; 3]; 6] = [[230, 40, 40], [40, 200, 40], [50, 70, 235], [225, 215, 40], [215, 50, 215], [40, 210, 220]];
+
+/// Spreads an atlas's islands over `k` textures (MeshLab's `texnumber`):
+/// island `i` (its tile, `tx + ty × tiles`) samples texture `i mod k`, so
+/// neighbouring islands mostly differ. Every vertex belongs to one island
+/// (the atlas splits them along island borders), so each takes its
+/// island's material and every triangle's corners agree. Gives the
+/// triangles per texture.
+pub fn spread_textures(mesh: &mut IndexedMesh, tiles: u32, k: u32) -> Vec<u64> {
+    let k = k.max(1);
+    let mut per = vec![0u64; k as usize];
+    for v in &mut mesh.vertices {
+        let (tx, ty) = tile(v.uv, tiles);
+        let island = (ty.clamp(0, tiles as i64 - 1) * tiles as i64 + tx.clamp(0, tiles as i64 - 1)) as u32;
+        v.material = (island % k) as u16;
+    }
+    for t in &mesh.triangles {
+        per[mesh.vertices[t[0] as usize].material as usize] += 1;
+    }
+    per
+}
+
+/// The texture of material `m` for a mesh spread over textures
+/// ([`spread_textures`]): its islands painted ([`paint`]), then every
+/// texel mixed 60 % toward `PALETTE[m % 6]` (and a second, darker grid
+/// for m ≥ 6), so each texture is told apart at a glance and in a render.
+pub fn paint_material(mesh: &IndexedMesh, size: u32, m: u16) -> Vec<u8> {
+    let own = IndexedMesh {
+        vertices: mesh.vertices.clone(),
+        triangles: mesh.triangles.iter().copied().filter(|t| mesh.vertices[t[0] as usize].material == m).collect(),
+    };
+    let mut img = paint(&own, size);
+    tint(&mut img, size, m);
+    img
+}
+
+/// Mixes an RGBA8 image 60 % toward texture `m`'s palette colour (see
+/// [`paint_material`]).
+pub fn tint(rgba: &mut [u8], size: u32, m: u16) {
+    let base = PALETTE[m as usize % PALETTE.len()];
+    let dark = m as usize >= PALETTE.len();
+    for (i, px) in rgba.chunks_exact_mut(4).enumerate() {
+        let stripe = dark && ((i % size as usize) / 8 + (i / size as usize) / 8) % 2 == 0;
+        for c in 0..3 {
+            let x = 0.4 * px[c] as f64 + 0.6 * base[c] as f64;
+            px[c] = (if stripe { x * 0.6 } else { x }).round() as u8;
+        }
+    }
+}
+
 /// The atlas tile a uv lies in.
 pub fn tile(uv: [f32; 2], tiles: u32) -> (i64, i64) {
     ((uv[0] as f64 * tiles as f64).floor() as i64, (uv[1] as f64 * tiles as f64).floor() as i64)
@@ -249,6 +302,24 @@ mod tests {
     use super::*;
     use crate::gen::{GenOptions, Generator, Shape};
     use crate::mesh::AttrSet;
+
+    #[test]
+    fn islands_spread_over_textures_each_tinted_its_own_colour() {
+        let (vertices, triangles) = Generator::new(&GenOptions { shape: Shape::Sphere, tris: 4000, attrs: AttrSet(AttrSet::UV), ..Default::default() }).mesh();
+        let (mut a, tiles) = atlas(&IndexedMesh { vertices, triangles }, 4);
+        let per = spread_textures(&mut a, tiles, 3);
+        assert_eq!(per.iter().sum::<u64>(), a.triangles.len() as u64);
+        assert!(per.iter().all(|&n| n > a.triangles.len() as u64 / 10), "{per:?}");
+        // Every triangle lies on one island, so its corners agree.
+        assert!(a.triangles.iter().all(|t| t.iter().all(|&i| a.vertices[i as usize].material == a.vertices[t[0] as usize].material)));
+        // Each image's dominant channel is its palette colour's.
+        for m in 0..3u16 {
+            let img = paint_material(&a, 32, m);
+            let sum = [0, 1, 2].map(|c| img.chunks_exact(4).map(|p| p[c] as u64).sum::<u64>());
+            let top = (0..3).max_by_key(|&c| sum[c]).unwrap();
+            assert_eq!(top, m as usize, "texture {m}: channel sums {sum:?}");
+        }
+    }
 
     #[test]
     fn islands_are_split_along_their_borders_and_tiled() {

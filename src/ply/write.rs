@@ -746,4 +746,43 @@ mod tests {
         assert_eq!(std::fs::read_dir(d.path()).unwrap().count(), 1);
         assert_eq!(std::fs::metadata(&p).unwrap().len() as usize, len);
     }
+
+    /// A face's material is written as `int texnumber` (not per vertex) and
+    /// read back per triangle, polygons and NO_TEXTURE (-1) included.
+    #[test]
+    fn texnumber_round_trips() {
+        let d = tempfile::tempdir().unwrap();
+        let attrs = AttrSet(AttrSet::UV | AttrSet::MATERIAL);
+        let mv = |x: f64, y: f64, m: u16| Vertex { material: m, ..v(x, y, 0.0) };
+        // Two materials meeting along x = 1: vertices split there, as stores have them.
+        let verts =
+            vec![mv(0., 0., 2), mv(1., 0., 2), mv(1., 1., 2), mv(0., 1., 2), mv(1., 0., 0), mv(2., 0., 0), mv(1., 1., 0), mv(2., 2., Vertex::NO_TEXTURE)];
+        let polys = vec![vec![0, 1, 2, 3], vec![4, 5, 6], vec![7, 5, 6]];
+        let comments = vec!["TextureFile a.png".to_string(), "TextureFile b.png".into(), "TextureFile c.png".into()];
+        for encoding in [Encoding::Ascii, Encoding::BinaryLe, Encoding::BinaryBe] {
+            let opts = PlyWriteOptions { encoding, attrs, comments: comments.clone(), ..Default::default() };
+            let h = header(&opts, 8, 3);
+            assert!(h.ends_with("vertex_indices\nproperty int texnumber\nend_header\n"), "{h}");
+            assert!(!h.contains("material"));
+            let p = d.path().join("m.ply");
+            write_ply_polygons(&p, &opts, &verts, &polys).unwrap();
+            let (rh, m, _) = crate::ply::read::read_all(&p).unwrap();
+            assert!(rh.attrs.material(), "{encoding:?}");
+            let mats: Vec<[u16; 3]> = m.triangles.iter().map(|t| t.map(|i| m.vertices[i as usize].material)).collect();
+            assert_eq!(mats, [[2; 3], [2; 3], [0; 3], [Vertex::NO_TEXTURE; 3]], "{encoding:?}");
+            // Vertex 5 and 6 are used by material 0 and by NO_TEXTURE: split on reading.
+            assert_eq!(m.vertices.len(), 10, "{encoding:?}");
+            // write_ply (triangles) agrees with the encoder's polygon path.
+            let tris: Vec<[u32; 3]> = m.triangles.iter().map(|t| t.map(|i| i as u32)).collect();
+            write_ply(&p, &opts, &m.vertices, &tris).unwrap();
+            let (_, m2, _) = crate::ply::read::read_all(&p).unwrap();
+            let mats2: Vec<u16> = m2.triangles.iter().map(|t| m2.vertices[t[0] as usize].material).collect();
+            assert_eq!(mats2, [2, 2, 0, Vertex::NO_TEXTURE]);
+            assert_eq!(m2.vertices.len(), m.vertices.len());
+        }
+        // A bare face of a mesh with materials is refused, not written as texture 0.
+        let enc = PlyEncoder::new(&PlyWriteOptions { attrs, ..Default::default() });
+        assert!(enc.face(&[0, 1, 2], &mut Vec::new()).is_err());
+        assert_eq!(enc.face_record_size(3), Some(17));
+    }
 }

@@ -27,6 +27,7 @@ mod gltf;
 mod gpu;
 mod inputs;
 mod lod;
+mod materials;
 mod metro;
 mod octree;
 mod options_v2;
