@@ -16,7 +16,11 @@
 //! (linear, stored as sRGB bytes) and TEXCOORD_0 (v turned to octolod's
 //! v-up convention, MeshLab's) when every primitive has them; the base
 //! colour images the primitives' materials use ([`GltfInfo::images`], by
-//! URI or in a buffer: [`image_bytes`]), which a build keeps; byte strides honoured; node `matrix` or T·R·S; a negative
+//! URI or in a buffer: [`image_bytes`]), which a build keeps, each
+//! primitive's vertices getting its image's slot in that list as their
+//! material id ([`AttrSet::MATERIAL`], when the primitives use two
+//! images, or a textured and an untextured material: those without a
+//! base colour texture get [`Vertex::NO_TEXTURE`]); byte strides honoured; node `matrix` or T·R·S; a negative
 //! determinant flips the winding; EXT_meshopt_compression bufferViews
 //! (modes ATTRIBUTES, TRIANGLES, INDICES; filters OCTAHEDRAL, QUATERNION,
 //! EXPONENTIAL, COLOR) decoded with the `meshopt` crate, fallback buffers
