@@ -16,7 +16,11 @@
 //! (linear, stored as sRGB bytes) and TEXCOORD_0 (v turned to octolod's
 //! v-up convention, MeshLab's) when every primitive has them; the base
 //! colour images the primitives' materials use ([`GltfInfo::images`], by
-//! URI or in a buffer: [`image_bytes`]), which a build keeps; byte strides honoured; node `matrix` or T·R·S; a negative
+//! URI or in a buffer: [`image_bytes`]), which a build keeps, each
+//! primitive's vertices getting its image's slot in that list as their
+//! material id ([`AttrSet::MATERIAL`], when the primitives use two
+//! images, or a textured and an untextured material: those without a
+//! base colour texture get [`Vertex::NO_TEXTURE`]); byte strides honoured; node `matrix` or T·R·S; a negative
 //! determinant flips the winding; EXT_meshopt_compression bufferViews
 //! (modes ATTRIBUTES, TRIANGLES, INDICES; filters OCTAHEDRAL, QUATERNION,
 //! EXPONENTIAL, COLOR) decoded with the `meshopt` crate, fallback buffers
@@ -59,7 +63,7 @@ pub struct GltfInfo {
 }
 
 /// Where a base colour image is.
-#[derive(Clone, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq, Eq, PartialOrd, Ord)]
 pub enum GltfImage {
     /// A file, its URI relative to the glTF (%-escapes decoded).
     File(String),
@@ -223,6 +227,9 @@ struct Prim {
     uv: Option<usize>,
     indices: Option<usize>,
     material: Option<usize>,
+    /// Its material's base colour image's slot in [`GltfInfo::images`]
+    /// (None: no textured material).
+    slot: Option<u16>,
     /// Vertices (the POSITION count) and index count (or the vertex count).
     verts: u64,
     corners: u64,
@@ -645,12 +652,22 @@ impl Gltf {
     }
 
     /// Finds the triangle primitives of the default scene with their world matrices.
-    /// See [`GltfInfo::images`]; references that lead nowhere are skipped
-    /// (a texture is not geometry).
+    /// See [`GltfInfo::images`]: the primitives' [`Gltf::textures`].
     fn base_color_images(&self) -> Vec<GltfImage> {
+        self.textures().0
+    }
+
+    /// The base colour images the primitives' materials use, in order of
+    /// first use, each once (a file by its URI, an image in a buffer by its
+    /// index), and each primitive's slot in that list (None: its material
+    /// has no base colour texture, or it leads nowhere: a `data:` URI, a
+    /// missing texture or image; a texture is not geometry, so no error).
+    /// Slots past [`Vertex::NO_TEXTURE`] − 1 are None too.
+    fn textures(&self) -> (Vec<GltfImage>, Vec<Option<u16>>) {
         let d = &self.doc;
-        let mut seen = std::collections::HashSet::new();
+        let mut slot_of: BTreeMap<GltfImage, u16> = BTreeMap::new();
         let mut out = Vec::new();
+        let mut slots = Vec::with_capacity(self.prims.len());
         for p in &self.prims {
             let image = p
                 .material
@@ -658,16 +675,26 @@ impl Gltf {
                 .and_then(|m| m.pbr_metallic_roughness.as_ref())
                 .and_then(|pbr| pbr.base_color_texture.as_ref())
                 .and_then(|t| d.textures.get(t.index))
-                .and_then(|t| t.source);
-            let Some(i) = image.filter(|&i| seen.insert(i)) else { continue };
-            let Some(def) = d.images.get(i) else { continue };
-            match (&def.uri, def.buffer_view) {
-                (Some(u), _) if !u.starts_with("data:") => out.push(GltfImage::File(percent_decode(u))),
-                (None, Some(_)) => out.push(GltfImage::Embedded { index: i, mime: def.mime_type.clone().unwrap_or_default(), name: def.name.clone() }),
-                _ => {}
-            }
+                .and_then(|t| t.source)
+                .and_then(|i| Some((i, d.images.get(i)?)));
+            let im = image.and_then(|(i, def)| match (&def.uri, def.buffer_view) {
+                (Some(u), _) if !u.starts_with("data:") => Some(GltfImage::File(percent_decode(u))),
+                (None, Some(_)) => Some(GltfImage::Embedded { index: i, mime: def.mime_type.clone().unwrap_or_default(), name: def.name.clone() }),
+                _ => None,
+            });
+            let slot = im.and_then(|im| match slot_of.get(&im) {
+                Some(&s) => Some(s),
+                None if out.len() < Vertex::NO_TEXTURE as usize => {
+                    let s = out.len() as u16;
+                    slot_of.insert(im.clone(), s);
+                    out.push(im);
+                    Some(s)
+                }
+                None => None,
+            });
+            slots.push(slot);
         }
-        out
+        (out, slots)
     }
 
     fn collect(&mut self) -> Result<()> {
@@ -736,6 +763,7 @@ impl Gltf {
                         uv: p.attributes.get("TEXCOORD_0").copied(),
                         indices: p.indices,
                         material: p.material,
+                        slot: None,
                         verts,
                         corners,
                     });
@@ -753,6 +781,16 @@ impl Gltf {
         let rgba = attrs.color() && prims.iter().all(|p| p.color.and_then(|c| self.doc.accessors.get(c)).is_some_and(|a| a.kind == "VEC4"));
         attrs = attrs.with(AttrSet::ALPHA, rgba);
         self.prims = prims;
+        let (_, slots) = self.textures();
+        for (p, s) in self.prims.iter_mut().zip(&slots) {
+            p.slot = *s;
+        }
+        // Faces choose among textures when two primitives' slots differ
+        // (two images, or a textured and an untextured one); one image on
+        // every primitive is texture 0, what every vertex reads without
+        // MATERIAL.
+        let distinct: std::collections::BTreeSet<Option<u16>> = slots.into_iter().collect();
+        attrs = attrs.with(AttrSet::MATERIAL, attrs.uv() && distinct.len() >= 2);
         self.attrs = attrs;
         Ok(())
     }
@@ -927,7 +965,8 @@ impl Gltf {
         }
         let m = &p.m;
         let nm = normal_matrix(m);
-        let mut vs = vec![Vertex::default(); BATCH.min(n)];
+        let material = if self.attrs.material() { p.slot.unwrap_or(Vertex::NO_TEXTURE) } else { 0 };
+        let mut vs = vec![Vertex { material, ..Vertex::default() }; BATCH.min(n)];
         let mut done = 0usize;
         while done < n {
             let k = BATCH.min(n - done);

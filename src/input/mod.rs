@@ -7,7 +7,11 @@
 //! triangle (polygons fan-triangulated, triangles with a repeated corner
 //! dropped and counted), in sequential passes over the file (or positioned
 //! reads of a glTF's accessors), never holding the mesh in memory — so the
-//! soup stage's out-of-core dereference serves every format alike. Two
+//! soup stage's out-of-core dereference serves every format alike. Faces
+//! that choose among several textures (a PLY's `texnumber`, an OBJ's
+//! `usemtl`, a glTF primitive's material) give their vertices a material
+//! id ([`AttrSet::MATERIAL`]): the texture's index in
+//! [`InputHeader::texture_sources`]. Two
 //! exceptions, bounded: an OBJ whose corners carry uvs or normals is split
 //! into vertices in memory within `--mem`, and a meshopt-compressed glTF
 //! buffer view is decoded whole. Bad input is an error naming the file, line or byte
@@ -121,58 +125,68 @@ impl InputHeader {
     /// MeshLab's convention; an OBJ's materials' `map_Kd` through its
     /// `mtllib` files, an MTL that cannot be read naming none; a glTF's
     /// base colour images by URI) or images inside it (a glTF's in a
-    /// buffer: PNG or JPEG; one that cannot be read is left out, with a
-    /// warning unless `quiet`). Which face uses which (MeshLab's
-    /// `texnumber`, OBJ's `usemtl`, glTF's materials) is not carried yet:
-    /// stores draw the first on every face.
+    /// buffer: PNG or JPEG).
+    ///
+    /// A vertex's material id ([`crate::mesh::Vertex::material`]) is its
+    /// faces' texture's index in this list, which the build copies into
+    /// the store manifest's `textures` in the same order. The OBJ and glTF
+    /// readers number their materials by the very list given here
+    /// ([`obj::ObjInfo::textures`], [`gltf::GltfInfo::images`], made once
+    /// with the slot map), so the two cannot disagree: an OBJ face after
+    /// `usemtl M` gets the slot of M's `map_Kd`, a glTF primitive that of
+    /// its material's base colour image; faces without a textured material
+    /// get [`crate::mesh::Vertex::NO_TEXTURE`]. A glTF image in a buffer
+    /// that cannot be read keeps its slot (a warning unless `quiet`) under
+    /// a name that is never a file, so the store records it without a
+    /// copy and later slots stay where the vertices point.
     pub fn texture_sources(&self, input: &Path, quiet: bool) -> Vec<crate::manifest::TextureSource> {
         use crate::manifest::TextureSource;
         let files = |names: Vec<String>| names.into_iter().map(TextureSource::File).collect::<Vec<_>>();
-        let mut out = match &self.details {
-            Details::Ply(h) => files(crate::ply::texture_files(&h.comments)),
-            Details::Obj(i) => {
-                let base = crate::io::parent_dir(input);
-                let mut names = Vec::new();
-                for lib in &i.mtllibs {
-                    let Ok(mats) = obj::read_mtl(&base.join(lib)) else { continue };
-                    let dir = Path::new(lib).parent().unwrap_or(Path::new(""));
-                    names.extend(mats.into_iter().filter_map(|m| m.map_kd).map(|t| dir.join(t).to_string_lossy().into_owned()));
-                }
+        match &self.details {
+            Details::Ply(h) => {
+                let mut names = crate::ply::texture_files(&h.comments);
+                let mut seen = std::collections::HashSet::new();
+                names.retain(|n| seen.insert(n.clone()));
                 files(names)
             }
+            // Listed once each by the reader, which numbers the materials
+            // by this list.
+            Details::Obj(i) => files(i.textures.clone()),
             Details::Gltf(g) => g
                 .images
                 .iter()
-                .filter_map(|im| match im {
-                    gltf::GltfImage::File(u) => Some(TextureSource::File(u.clone())),
+                .map(|im| match im {
+                    gltf::GltfImage::File(u) => TextureSource::File(u.clone()),
                     gltf::GltfImage::Embedded { index, name, .. } => {
+                        let name = name.clone().unwrap_or_else(|| format!("images[{index}]"));
                         let got = gltf::image_bytes(input, *index).and_then(|b| match crate::gltf::image_mime(&b) {
                             Some(m) => Ok((b, if m == "image/png" { "png" } else { "jpg" })),
                             None => Err(crate::Error::Usage(format!("{}: images[{index}] is neither PNG nor JPEG", input.display()))),
                         });
                         match got {
-                            Ok((bytes, ext)) => Some(TextureSource::Embedded { name: name.clone().unwrap_or_else(|| format!("images[{index}]")), ext, bytes }),
+                            Ok((bytes, ext)) => TextureSource::Embedded { name, ext, bytes },
                             Err(e) => {
                                 if !quiet {
                                     eprintln!("warning: {e}; the store keeps its uvs without that texture");
                                 }
-                                None
+                                // Its slot stays, without a copy, so later slots keep their
+                                // material ids: a file name no folder holds.
+                                TextureSource::File(unreadable_image_name(&name, *index))
                             }
                         }
                     }
                 })
                 .collect(),
             Details::Stl(_) => Vec::new(),
-        };
-        let mut seen = std::collections::HashSet::new();
-        out.retain(|s| {
-            seen.insert(match s {
-                TextureSource::File(n) => n.clone(),
-                TextureSource::Embedded { name, .. } => format!("embedded {name}"),
-            })
-        });
-        out
+        }
     }
+}
+
+/// The texture-list name of a glTF's embedded image `images[index]` that
+/// cannot be read: a name that is never a regular file (it ends in `/`),
+/// so the build records its slot without a copy.
+fn unreadable_image_name(name: &str, index: usize) -> String {
+    format!("{name} (images[{index}], unreadable)/")
 }
 
 /// Reads what the input says of itself: a PLY's header, an STL's header

@@ -339,3 +339,254 @@ fn an_obj_keeps_the_texture_its_material_names() {
     let o = octolod(&["info", s(&out)]);
     assert!(String::from_utf8_lossy(&o.stdout).contains("texture: mat/tex/skin map.png (texture-0.png"), "{}", String::from_utf8_lossy(&o.stdout));
 }
+
+/// An n×n grid of unit quads in z = 0 with a uv per position, in three
+/// bands of columns: faces before any `usemtl`, then `usemtl wood`, then
+/// `usemtl stone`; the MTL (`mat/m.mtl`) lists `unused` (a texture no face
+/// uses), `wood`, `plain` (no texture) and `stone`. Gives the expected
+/// material of a face at column x.
+fn write_banded_obj(dir: &Path, n: usize) -> (std::path::PathBuf, impl Fn(usize) -> u16) {
+    std::fs::create_dir_all(dir.join("mat/tex")).unwrap();
+    std::fs::write(
+        dir.join("mat/m.mtl"),
+        "newmtl unused\nmap_Kd unused.png\nnewmtl wood\nmap_Kd tex/wood.png\nnewmtl plain\nKd 1 0 0\nnewmtl stone\nmap_Kd stone.jpg\n",
+    )
+    .unwrap();
+    for (f, b) in [("mat/unused.png", &b"\x89PNG\r\n\x1a\nunused"[..]), ("mat/tex/wood.png", b"\x89PNG\r\n\x1a\nwood"), ("mat/stone.jpg", b"\xff\xd8\xffstone")]
+    {
+        std::fs::write(dir.join(f), b).unwrap();
+    }
+    let p = dir.join("banded.obj");
+    let mut w = std::io::BufWriter::new(std::fs::File::create(&p).unwrap());
+    writeln!(w, "mtllib mat/m.mtl").unwrap();
+    for y in 0..=n {
+        for x in 0..=n {
+            writeln!(w, "v {x} {y} 0\nvt {} {}", x as f64 / n as f64, y as f64 / n as f64).unwrap();
+        }
+    }
+    let band = move |x: usize| [None, Some("wood"), Some("stone")][3 * x / n];
+    let id = |x: usize, y: usize| y * (n + 1) + x + 1;
+    for (k, name) in [None, Some("wood"), Some("stone")].into_iter().enumerate() {
+        if let Some(m) = name {
+            writeln!(w, "usemtl {m}").unwrap();
+        }
+        for y in 0..n {
+            for x in (0..n).filter(|&x| 3 * x / n == k) {
+                let c = [id(x, y), id(x + 1, y), id(x + 1, y + 1), id(x, y + 1)];
+                writeln!(w, "f {0}/{0} {1}/{1} {2}/{2} {3}/{3}", c[0], c[1], c[2], c[3]).unwrap();
+            }
+        }
+    }
+    drop(w);
+    // The texture list: unused.png 0, wood 1, stone 2.
+    (p, move |x: usize| match band(x) {
+        None => octolod::mesh::Vertex::NO_TEXTURE,
+        Some("wood") => 1,
+        _ => 2,
+    })
+}
+
+/// Issue 32: `usemtl` chooses each face's texture. Read through the
+/// input API, every triangle's corners carry its material's slot in
+/// `texture_sources` (faces before any `usemtl` none), and a position on
+/// a material border is one vertex per material.
+#[test]
+fn an_objs_usemtl_gives_each_triangle_its_texture_slot() {
+    let d = tempfile::tempdir().unwrap();
+    let n = 6;
+    let (p, want) = write_banded_obj(d.path(), n);
+    // Small --mem too: the corners out of core give the same materials.
+    for mem in [1u64 << 30, 0] {
+        let (h, sink, stats) = octolod::input::read_all(&p, mem).unwrap();
+        assert!(h.attrs.material() && h.attrs.uv(), "{}", h.attrs.describe());
+        let names: Vec<String> = h
+            .texture_sources(&p, true)
+            .into_iter()
+            .map(|s| match s {
+                octolod::manifest::TextureSource::File(n) => n,
+                other => panic!("{other:?}"),
+            })
+            .collect();
+        assert_eq!(names, ["mat/unused.png", "mat/tex/wood.png", "mat/stone.jpg"]);
+        assert_eq!(stats.triangles, 2 * (n * n) as u64);
+        for t in &sink.triangles {
+            let v = t.map(|i| sink.vertices[i as usize]);
+            let x = v.iter().map(|v| v.pos[0]).fold(f64::INFINITY, f64::min) as usize;
+            assert!(v.iter().all(|c| c.material == want(x)), "mem {mem}: triangle at column {x}: {:?}", v.map(|c| c.material));
+        }
+        // Columns 2 and 4 are borders: their n + 1 positions are two
+        // vertices each; the other 5 columns' one: 9·7 + 2·7 vertices.
+        assert_eq!(sink.vertices.len(), (n + 1) * (n + 1) + 2 * (n + 1), "mem {mem}");
+        let border: Vec<u16> = sink.vertices.iter().filter(|v| v.pos == [2.0, 0.0, 0.0]).map(|v| v.material).collect();
+        assert_eq!(border.len(), 2);
+        assert!(border.contains(&octolod::mesh::Vertex::NO_TEXTURE) && border.contains(&1));
+    }
+}
+
+/// `octolod build` of that OBJ: the manifest lists the three textures in
+/// slot order with their copies, the attributes name the material, and
+/// level 0's triangles keep their materials.
+#[test]
+fn an_obj_with_materials_builds_a_store_with_material_ids() {
+    let d = tempfile::tempdir().unwrap();
+    let n = 24;
+    let (p, want) = write_banded_obj(d.path(), n);
+    let out = d.path().join("banded.octolod");
+    let o = octolod(&["build", s(&p), "-o", s(&out), "--quiet", "--leaf-tris", "256"]);
+    assert!(o.status.success(), "{}", err(&o));
+    let man = octolod::manifest::Manifest::read(&out).unwrap();
+    assert!(man.attributes.contains("material"), "{}", man.attributes);
+    let got: Vec<(&str, Option<&str>)> = man.textures.iter().map(|t| (t.name.as_str(), t.file.as_deref())).collect();
+    assert_eq!(got, [("mat/unused.png", Some("texture-0.png")), ("mat/tex/wood.png", Some("texture-1.png")), ("mat/stone.jpg", Some("texture-2.jpg"))]);
+    assert_eq!(std::fs::read(out.join("texture-2.jpg")).unwrap(), b"\xff\xd8\xffstone");
+    let st = Store::open(&out).unwrap();
+    let mut tris = 0;
+    for i in st.level_nodes(0) {
+        let m = st.read_node(i).unwrap().mesh;
+        for t in &m.triangles {
+            let v = t.map(|i| m.vertices[i as usize]);
+            let x = v.iter().map(|v| v.pos[0]).fold(f64::INFINITY, f64::min) as usize;
+            assert!(v.iter().all(|c| c.material == want(x)), "triangle at column {x}: {:?}", v.map(|c| c.material));
+            tris += 1;
+        }
+    }
+    assert_eq!(tris, 2 * n * n);
+}
+
+/// A GLB of one quad per primitive (uvs on all), primitive k at x = k,
+/// with the materials given (None: no material); `materials[m]` is the
+/// image index of material m's base colour texture (None: untextured).
+/// Images: 0 `a.png` by URI, 1 a PNG in the buffer, 2 `a.png` again, 3
+/// bytes that are neither PNG nor JPEG in the buffer.
+fn write_glb_materials(path: &Path, prims: &[Option<usize>], materials: &[Option<usize>]) {
+    let mut bin: Vec<u8> = Vec::new();
+    let png = b"\x89PNG\r\n\x1a\nembedded".to_vec();
+    let junk = b"not an image".to_vec();
+    let mut views = Vec::new();
+    let mut accessors = Vec::new();
+    let mut push = |bin: &mut Vec<u8>, bytes: &[u8]| {
+        while bin.len() % 4 != 0 {
+            bin.push(0);
+        }
+        views.push(serde_json::json!({"buffer": 0, "byteOffset": bin.len(), "byteLength": bytes.len()}));
+        bin.extend_from_slice(bytes);
+        views.len() - 1
+    };
+    let png_view = push(&mut bin, &png);
+    let junk_view = push(&mut bin, &junk);
+    let mut primitives = Vec::new();
+    for (k, m) in prims.iter().enumerate() {
+        let x = k as f32;
+        let pos: Vec<u8> = [[x, 0., 0.], [x + 1., 0., 0.], [x + 1., 1., 0.], [x, 1., 0.]].iter().flatten().flat_map(|c| c.to_le_bytes()).collect();
+        let uv: Vec<u8> = [[0f32, 1.], [1., 1.], [1., 0.], [0., 0.]].iter().flatten().flat_map(|c| c.to_le_bytes()).collect();
+        let idx: Vec<u8> = [0u16, 1, 2, 0, 2, 3].iter().flat_map(|i| i.to_le_bytes()).collect();
+        let (pv, uvv, iv) = (push(&mut bin, &pos), push(&mut bin, &uv), push(&mut bin, &idx));
+        let a = accessors.len();
+        accessors.push(serde_json::json!({"bufferView": pv, "componentType": 5126, "count": 4, "type": "VEC3", "min": [x, 0, 0], "max": [x + 1., 1, 0]}));
+        accessors.push(serde_json::json!({"bufferView": uvv, "componentType": 5126, "count": 4, "type": "VEC2"}));
+        accessors.push(serde_json::json!({"bufferView": iv, "componentType": 5123, "count": 6, "type": "SCALAR"}));
+        let mut p = serde_json::json!({"attributes": {"POSITION": a, "TEXCOORD_0": a + 1}, "indices": a + 2, "mode": 4});
+        if let Some(m) = m {
+            p["material"] = (*m).into();
+        }
+        primitives.push(p);
+    }
+    let mats: Vec<serde_json::Value> = materials
+        .iter()
+        .map(|i| match i {
+            Some(i) => serde_json::json!({"pbrMetallicRoughness": {"baseColorTexture": {"index": i}}}),
+            None => serde_json::json!({"pbrMetallicRoughness": {"baseColorFactor": [1, 0, 0, 1]}}),
+        })
+        .collect();
+    while bin.len() % 4 != 0 {
+        bin.push(0);
+    }
+    let json = serde_json::json!({
+        "asset": {"version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"mesh": 0}],
+        "meshes": [{"primitives": primitives}],
+        "materials": mats,
+        "textures": [{"source": 0}, {"source": 1}, {"source": 2}, {"source": 3}],
+        "images": [
+            {"uri": "a.png"},
+            {"bufferView": png_view, "mimeType": "image/png", "name": "skin"},
+            {"uri": "a.png"},
+            {"bufferView": junk_view, "mimeType": "image/png"}
+        ],
+        "buffers": [{"byteLength": bin.len()}],
+        "bufferViews": views,
+        "accessors": accessors
+    });
+    let mut j = serde_json::to_vec(&json).unwrap();
+    while j.len() % 4 != 0 {
+        j.push(b' ');
+    }
+    let total = 12 + 8 + j.len() + 8 + bin.len();
+    let mut b = Vec::with_capacity(total);
+    b.extend_from_slice(b"glTF");
+    b.extend_from_slice(&2u32.to_le_bytes());
+    b.extend_from_slice(&(total as u32).to_le_bytes());
+    b.extend_from_slice(&(j.len() as u32).to_le_bytes());
+    b.extend_from_slice(b"JSON");
+    b.extend_from_slice(&j);
+    b.extend_from_slice(&(bin.len() as u32).to_le_bytes());
+    b.extend_from_slice(b"BIN\0");
+    b.extend_from_slice(&bin);
+    std::fs::write(path, b).unwrap();
+}
+
+/// Issue 32: a glTF primitive's material chooses its faces' texture: the
+/// slot of its base colour image in `texture_sources` (an image named
+/// twice by URI is one slot; one in the buffer that is no image keeps its
+/// slot, with no copy, so later slots hold), none without a textured
+/// material; one image on every primitive needs no MATERIAL.
+#[test]
+fn a_gltfs_materials_give_each_triangle_its_texture_slot() {
+    use octolod::manifest::TextureSource;
+    const N: u16 = octolod::mesh::Vertex::NO_TEXTURE;
+    let d = tempfile::tempdir().unwrap();
+    std::fs::write(d.path().join("a.png"), b"\x89PNG\r\n\x1a\nfile").unwrap();
+    let p = d.path().join("m.glb");
+    // Materials: 0 image 0 (a.png), 1 image 1 (in the buffer), 2
+    // untextured, 3 image 2 (a.png again), 4 image 3 (not an image).
+    let materials = [Some(0), Some(1), None, Some(2), Some(3)];
+    let prims = [Some(2), Some(1), Some(0), Some(3), None, Some(4), Some(1)];
+    write_glb_materials(&p, &prims, &materials);
+    let (h, sink, _) = octolod::input::read_all(&p, 1 << 30).unwrap();
+    assert!(h.attrs.material() && h.attrs.uv(), "{}", h.attrs.describe());
+    let sources = h.texture_sources(&p, true);
+    assert_eq!(sources.len(), 3, "{sources:?}");
+    assert!(matches!(&sources[0], TextureSource::Embedded { name, ext: "png", bytes } if name == "skin" && bytes.starts_with(b"\x89PNG")));
+    assert_eq!(sources[1], TextureSource::File("a.png".into()));
+    assert!(matches!(&sources[2], TextureSource::File(n) if n.starts_with("images[3]") && !d.path().join(n).is_file()));
+    // Per primitive (two triangles each, at x = k): its slot.
+    let want = [N, 0, 1, 1, N, 2, 0];
+    assert_eq!(sink.triangles.len(), 2 * prims.len());
+    for t in &sink.triangles {
+        let v = t.map(|i| sink.vertices[i as usize]);
+        let k = v.iter().map(|v| v.pos[0]).fold(f64::INFINITY, f64::min) as usize;
+        assert!(v.iter().all(|c| c.material == want[k]), "primitive {k}: {:?}", v.map(|c| c.material));
+    }
+    // The build keeps the slots aligned: the unreadable image's has no copy.
+    let out = d.path().join("m.octolod");
+    let o = octolod(&["build", s(&p), "-o", s(&out), "--quiet"]);
+    assert!(o.status.success(), "{}", err(&o));
+    let man = octolod::manifest::Manifest::read(&out).unwrap();
+    assert!(man.attributes.contains("material"), "{}", man.attributes);
+    let files: Vec<Option<&str>> = man.textures.iter().map(|t| t.file.as_deref()).collect();
+    assert_eq!(files, [Some("texture-0.png"), Some("texture-1.png"), None]);
+    assert_eq!(std::fs::read(out.join("texture-1.png")).unwrap(), b"\x89PNG\r\n\x1a\nfile");
+
+    // One image on every primitive: texture 0 everywhere, no MATERIAL;
+    // a textured and an untextured primitive: MATERIAL.
+    for (prims, material) in [(&[Some(0), Some(3)][..], false), (&[Some(0), None][..], true), (&[None, Some(2)][..], false)] {
+        write_glb_materials(&p, prims, &materials);
+        let (h, sink, _) = octolod::input::read_all(&p, 1 << 30).unwrap();
+        assert_eq!(h.attrs.material(), material, "{prims:?}");
+        if !material {
+            assert!(sink.vertices.iter().all(|v| v.material == 0));
+        }
+    }
+}

@@ -10,10 +10,23 @@
 //! `vn x y z`, and `f` with corners `v`, `v/vt`, `v//vn` or `v/vt/vn`:
 //! 1-based indices, a negative one counting back from the last of its
 //! kind defined before that line. Polygons are fan-triangulated.
-//! `o`, `g`, `s`, `usemtl`, comments (`#` where a line or a token could
+//! `o`, `g`, `s`, comments (`#` where a line or a token could
 //! start), blank lines, `l` and `p` (lines and
 //! points) and every keyword not named here are ignored without a word
-//! (OBJ has many vendor keys); `mtllib` names are collected. `\r\n` line
+//! (OBJ has many vendor keys); `mtllib` names are collected, and their
+//! materials' `map_Kd` images make the texture list ([`texture_slots`]).
+//!
+//! Materials: `usemtl NAME` selects the material of the faces after it.
+//! When the faces have uvs and choose among textures, the vertices get
+//! [`AttrSet::MATERIAL`]: a face's material id is the slot of its
+//! material's `map_Kd` image in [`ObjInfo::textures`] (the input's texture
+//! list), or [`Vertex::NO_TEXTURE`] for a face before any `usemtl`, or
+//! whose material has no `map_Kd` or is defined in no MTL file read. The
+//! material joins the corner key, so a position used by two materials
+//! becomes two vertices. MATERIAL is left off (every vertex reads material
+//! 0, texture 0) when no face follows a `usemtl`, when there is no
+//! texture, and when every face uses texture 0 (one textured material
+//! whose image is first in the list): what every vertex reads without it. `\r\n` line
 //! ends and `\` continuations are accepted. A malformed number, corner or
 //! index (0, out of range, before the first definition), a non-finite
 //! number, or a `v`, `vt`, `vn` or `f` line with the wrong number of items
@@ -27,7 +40,7 @@
 //!   no `v` line follows the first `f` line (the usual layout) both happen
 //!   in one pass; otherwise a second pass starts at the first `f` line.
 //! * **corners** (faces reference `vt` or `vn`): every distinct
-//!   (v, vt, vn) corner becomes one vertex. In memory when the position,
+//!   (v, vt, vn, material) corner becomes one vertex. In memory when the position,
 //!   texture-coordinate and normal tables and a hash map of the most
 //!   corners there can be fit `mem` (numbered in order of first
 //!   appearance; a second pass from the first face emits the triangles);
@@ -53,6 +66,8 @@ use crate::mesh::{AttrSet, Vertex};
 use crate::ply::read::{BodySink, BodyStats};
 use crate::progress::Progress;
 use rustc_hash::FxHashMap;
+use std::borrow::Cow;
+use std::collections::{BTreeMap, HashSet};
 use std::fs::File;
 use std::io::{ErrorKind, Read, Seek, SeekFrom};
 use std::path::Path;
@@ -83,6 +98,13 @@ pub struct ObjInfo {
     /// `mtllib` file names, in order of first mention (at most
     /// [`MAX_MTLLIBS`]).
     pub mtllibs: Vec<String>,
+    /// The texture images the materials name (`map_Kd`, relative to the
+    /// OBJ's folder), each once: the input's texture list, whose index is
+    /// a vertex's material id ([`texture_slots`]).
+    pub textures: Vec<String>,
+    /// Each textured material's slot in [`textures`](Self::textures), by
+    /// name (the first `newmtl` of a name counts).
+    pub material_slots: BTreeMap<String, u16>,
     /// The file's length.
     pub bytes: u64,
     /// Where the first `f` line starts, with the counts defined before it
@@ -134,10 +156,13 @@ impl ObjInfo {
 }
 
 /// Memory counted per distinct corner on the corner paths: the hash map
-/// entry (12-byte key, 4-byte value, a control byte, at most 7/8 full and
-/// up to twice the entries after growth) and the 12-byte corner in the
-/// list that numbers them.
-pub const CORNER_BYTES: u64 = 48;
+/// entry (16-byte key: v, vt, vn and material; 4-byte value; a control
+/// byte; at most 7/8 full and up to twice the entries after growth: 48)
+/// and the 16-byte corner in the list that numbers them.
+pub const CORNER_BYTES: u64 = 64;
+
+/// At most this many distinct `usemtl` names are used by faces.
+pub const MAX_MATERIALS: usize = 1 << 16;
 
 const BUF: usize = 4 << 20;
 /// Longest line (continuations included) accepted: bounds the buffer.
@@ -346,6 +371,7 @@ enum Kw {
     Vn,
     F,
     Mtllib,
+    Usemtl,
     Other,
 }
 
@@ -363,9 +389,28 @@ fn keyword(b: &[u8], from: usize) -> Option<(Kw, usize)> {
         b"vn" => Kw::Vn,
         b"f" => Kw::F,
         b"mtllib" => Kw::Mtllib,
+        b"usemtl" => Kw::Usemtl,
         _ => Kw::Other,
     };
     Some((kw, j))
+}
+
+/// The material a `usemtl` line names (its arguments from `b[at]`,
+/// trimmed, as [`read_mtl`] reads `newmtl` names).
+fn usemtl_name(b: &[u8], at: usize) -> Cow<'_, str> {
+    let s = skip_ws(b, at);
+    let mut e = b.len();
+    while e > s && is_ws(b[e - 1]) {
+        e -= 1;
+    }
+    String::from_utf8_lossy(&b[s..e])
+}
+
+/// The material id of the faces after a `usemtl` line: its material's
+/// texture slot, or [`Vertex::NO_TEXTURE`] for a material without
+/// `map_Kd` or one no MTL file defines.
+fn usemtl_slot(info: &ObjInfo, b: &[u8], at: usize) -> u16 {
+    info.material_slots.get(usemtl_name(b, at).as_ref()).copied().unwrap_or(Vertex::NO_TEXTURE)
 }
 
 // ---------------------------------------------------------------- numbers
@@ -757,6 +802,11 @@ fn read_info_buf(path: &Path, progress: &Progress, buf: usize) -> Result<ObjInfo
     let (mut all_rgb, mut f64_pos, mut uv, mut nrm) = (true, false, false, false);
     let mut max = [MaxRef::default(); 3];
     let mut nums = [0f64; 8];
+    // The `usemtl` material in force (and whether a face used it yet), the
+    // materials faces use, and whether some face comes before any `usemtl`.
+    let (mut current, mut current_used): (Option<String>, bool) = (None, false);
+    let mut used: HashSet<String> = HashSet::new();
+    let mut untagged = false;
     while let Some(l) = lines.next()? {
         let b = &lines.buf[l.s..l.e];
         let Some((kw, at)) = keyword(b, 0) else { continue };
@@ -811,6 +861,17 @@ fn read_info_buf(path: &Path, progress: &Progress, buf: usize) -> Result<ObjInfo
                 if k < 3 {
                     return Err(lines.err(&l, l.s, format!("face with {k} corner(s); a face needs at least 3")));
                 }
+                match &current {
+                    None => untagged = true,
+                    Some(name) if !current_used => {
+                        current_used = true;
+                        if used.len() == MAX_MATERIALS && !used.contains(name) {
+                            return Err(lines.err(&l, l.s, format!("faces use more than {MAX_MATERIALS} distinct 'usemtl' materials")));
+                        }
+                        used.insert(name.clone());
+                    }
+                    Some(_) => {}
+                }
                 info.faces += 1;
                 info.corners += k;
             }
@@ -829,6 +890,13 @@ fn read_info_buf(path: &Path, progress: &Progress, buf: usize) -> Result<ObjInfo
                     i = e;
                 }
             }
+            Kw::Usemtl => {
+                let name = usemtl_name(b, at);
+                if current.as_deref() != Some(name.as_ref()) {
+                    current = Some(name.into_owned());
+                    current_used = false;
+                }
+            }
             Kw::Other => {}
         }
     }
@@ -842,11 +910,21 @@ fn read_info_buf(path: &Path, progress: &Progress, buf: usize) -> Result<ObjInfo
     attrs = attrs.with(AttrSet::COLOR, all_rgb && info.positions > 0);
     attrs = attrs.with(AttrSet::UV, uv);
     attrs = attrs.with(AttrSet::NORMAL, nrm);
+    (info.textures, info.material_slots) = texture_slots(path, &info.mtllibs)?;
+    // Faces choose among the textures (MATERIAL) when they have uvs, some
+    // face follows a `usemtl`, and not every face uses texture 0 (which is
+    // what every face reads without MATERIAL): one textured material in
+    // slot 0 on every face, or no `usemtl` at all, leaves it off.
+    let slot = |name: &String| info.material_slots.get(name).copied().unwrap_or(Vertex::NO_TEXTURE);
+    let material = uv && !info.textures.is_empty() && !used.is_empty() && (untagged || used.iter().any(|n| slot(n) != 0));
+    attrs = attrs.with(AttrSet::MATERIAL, material);
     info.attrs = attrs;
     info.vertices = if uv || nrm {
-        // A corner's vt (vn) is one of the vt (vn) lines or none.
+        // A corner's vt (vn) is one of the vt (vn) lines or none; its
+        // material one of those used, or none.
         let options = |n: u64, used: bool| if used { n + 1 } else { 1 };
         let combos = info.positions.saturating_mul(options(info.texcoords, uv)).saturating_mul(options(info.normals, nrm));
+        let combos = combos.saturating_mul(options(used.len() as u64, material));
         info.corners.min(combos)
     } else {
         info.positions
@@ -1110,26 +1188,33 @@ fn position_face(lines: &Lines, l: &Line, b: &[u8], at: usize, defined: u64, tot
 }
 
 /// The first pass of the corner path reads into one of these: the `v`,
-/// `vt` and `vn` tables, and each face's corners as (v, vt, vn), 0-based,
-/// [`split::NONE`] for none.
+/// `vt` and `vn` tables, and each face's corners as (v, vt, vn,
+/// material), 0-based, [`split::NONE`] for no vt or vn; the material is
+/// the face's texture slot ([`usemtl_slot`]) when the file has
+/// [`AttrSet::MATERIAL`], else 0.
 trait CornerPass {
     fn position(&mut self, v: &Vertex) -> Result<()>;
     fn texcoord(&mut self, uv: [f32; 2]) -> Result<()>;
     fn normal(&mut self, n: [f32; 3]) -> Result<()>;
-    fn corner(&mut self, k: [u32; 3]) -> Result<()>;
+    fn corner(&mut self, k: [u32; 4]) -> Result<()>;
     fn face_end(&mut self, lines: &Lines, l: &Line) -> Result<()>;
 }
 
-/// A face corner's (v, vt, vn), checked against what is defined so far
-/// (`defined`: v, vt, vn lines before this one).
-fn corner_key(lines: &Lines, l: &Line, c: Corner, defined: [u64; 3], info: &ObjInfo) -> Result<[u32; 3]> {
+/// A face corner's (v, vt, vn, material), checked against what is
+/// defined so far (`defined`: v, vt, vn lines before this one).
+fn corner_key(lines: &Lines, l: &Line, c: Corner, defined: [u64; 3], material: u16, info: &ObjInfo) -> Result<[u32; 4]> {
     let r = |x: i64, defined: u64, total: u64, kind: Kind| -> Result<u32> {
         if x == NONE {
             return Ok(split::NONE);
         }
         resolve(x, defined, Some(total), kind).map(|z| z as u32).map_err(|msg| lines.err(l, l.s + c.at, msg))
     };
-    Ok([r(c.v, defined[0], info.positions, Kind::Pos)?, r(c.vt, defined[1], info.texcoords, Kind::Tex)?, r(c.vn, defined[2], info.normals, Kind::Nrm)?])
+    Ok([
+        r(c.v, defined[0], info.positions, Kind::Pos)?,
+        r(c.vt, defined[1], info.texcoords, Kind::Tex)?,
+        r(c.vn, defined[2], info.normals, Kind::Nrm)?,
+        material as u32,
+    ])
 }
 
 /// The corner path's first pass over the whole file into `to`; gives the
@@ -1140,6 +1225,7 @@ fn corner_pass(path: &Path, info: &ObjInfo, to: &mut impl CornerPass, progress: 
     let mut n = [0u64; 3];
     let mut lines = Lines::open(path, Mark { line: 1, ..Default::default() }, buf, progress)?;
     let totals = [info.positions, info.texcoords, info.normals];
+    let mut mat = first_material(info);
     while let Some(l) = lines.next()? {
         let b = &lines.buf[l.s..l.e];
         let Some((kw, at)) = keyword(b, 0) else { continue };
@@ -1151,9 +1237,13 @@ fn corner_pass(path: &Path, info: &ObjInfo, to: &mut impl CornerPass, progress: 
                 let mut i = at;
                 while let Some(c) = next_corner(b, &mut i) {
                     let c = c.map_err(|a| lines.err(&l, l.s + a, format!("'{}' is not a face corner ({CORNER_FORMS})", token(b, a))))?;
-                    to.corner(corner_key(&lines, &l, c, n, info)?)?;
+                    to.corner(corner_key(&lines, &l, c, n, mat, info)?)?;
                 }
                 to.face_end(&lines, &l)?;
+                continue;
+            }
+            Kw::Usemtl if info.attrs.material() => {
+                mat = usemtl_slot(info, b, at);
                 continue;
             }
             _ => continue,
@@ -1186,6 +1276,16 @@ fn corner_pass(path: &Path, info: &ObjInfo, to: &mut impl CornerPass, progress: 
     Ok(read)
 }
 
+/// The material id of faces before any `usemtl`: none
+/// ([`Vertex::NO_TEXTURE`]) with [`AttrSet::MATERIAL`], else 0.
+fn first_material(info: &ObjInfo) -> u16 {
+    if info.attrs.material() {
+        Vertex::NO_TEXTURE
+    } else {
+        0
+    }
+}
+
 /// Whether the corner path runs in memory: the tables and the map of the
 /// most corners there can be ([`ObjInfo::vertices`]) fit `mem`; else
 /// [`split`] runs it out of core.
@@ -1206,8 +1306,10 @@ fn read_corners(path: &Path, info: &ObjInfo, out: &mut Out, progress: &Progress,
         nor: Vec<[f32; 3]>,
         color: bool,
         /// Corners in order of first appearance, and their numbers.
-        order: Vec<[u32; 3]>,
-        ids: FxHashMap<[u32; 3], u32>,
+        order: Vec<[u32; 4]>,
+        ids: FxHashMap<[u32; 4], u32>,
+        /// The first face's material (where the second pass starts).
+        first_mat: Option<u16>,
     }
     impl CornerPass for Tables {
         fn position(&mut self, v: &Vertex) -> Result<()> {
@@ -1225,7 +1327,8 @@ fn read_corners(path: &Path, info: &ObjInfo, out: &mut Out, progress: &Progress,
             self.nor.push(n);
             Ok(())
         }
-        fn corner(&mut self, k: [u32; 3]) -> Result<()> {
+        fn corner(&mut self, k: [u32; 4]) -> Result<()> {
+            self.first_mat.get_or_insert(k[3] as u16);
             let next = self.order.len() as u32;
             if let std::collections::hash_map::Entry::Vacant(e) = self.ids.entry(k) {
                 e.insert(next);
@@ -1247,6 +1350,7 @@ fn read_corners(path: &Path, info: &ObjInfo, out: &mut Out, progress: &Progress,
         color,
         order: Vec::with_capacity(info.vertices.min(info.positions) as usize),
         ids: FxHashMap::default(),
+        first_mat: None,
     };
     t.ids.reserve(info.vertices.min(info.positions) as usize);
     let mut read = corner_pass(path, info, &mut t, progress, buf)?;
@@ -1256,7 +1360,7 @@ fn read_corners(path: &Path, info: &ObjInfo, out: &mut Out, progress: &Progress,
     // pass for data and split the corner per face; for uv nothing better
     // exists without the texture.
     for k in &t.order {
-        let mut v = Vertex { pos: t.pos[k[0] as usize], ..Default::default() };
+        let mut v = Vertex { pos: t.pos[k[0] as usize], material: k[3] as u16, ..Default::default() };
         if color {
             v.color = t.rgb[k[0] as usize];
         }
@@ -1269,22 +1373,26 @@ fn read_corners(path: &Path, info: &ObjInfo, out: &mut Out, progress: &Progress,
         out.vertex(v)?;
     }
     out.flush_vertices()?;
-    let Tables { ids, .. } = t;
+    let Tables { ids, first_mat, .. } = t;
     let m = info.first_face.unwrap_or(Mark { offset: info.bytes, line: 1, ..Default::default() });
     let mut lines = Lines::open(path, m, buf, progress)?;
     let mut n = [m.v, m.vt, m.vn];
+    // The material in force at the first face: that of the last `usemtl`
+    // before it, which the second pass starts after.
+    let mut mat = first_mat.unwrap_or(first_material(info));
     while let Some(l) = lines.next()? {
         let b = &lines.buf[l.s..l.e];
         match keyword(b, 0) {
             Some((Kw::V, _)) => n[0] += 1,
             Some((Kw::Vt, _)) => n[1] += 1,
             Some((Kw::Vn, _)) => n[2] += 1,
+            Some((Kw::Usemtl, at)) if info.attrs.material() => mat = usemtl_slot(info, b, at),
             Some((Kw::F, at)) => {
                 let mut fan = Fan::default();
                 let mut i = at;
                 while let Some(c) = next_corner(b, &mut i) {
                     let c = c.map_err(|a| lines.err(&l, l.s + a, format!("'{}' is not a face corner ({CORNER_FORMS})", token(b, a))))?;
-                    let k = corner_key(&lines, &l, c, n, info)?;
+                    let k = corner_key(&lines, &l, c, n, mat, info)?;
                     let Some(&id) = ids.get(&k) else { return Err(changed(path, "a face corner not seen in the first pass")) };
                     fan.push(out, (id as u64, k[0] as u64))?;
                 }
@@ -1317,7 +1425,9 @@ fn read_corners_external(path: &Path, info: &ObjInfo, mem: u64, scratch: &Path, 
         fn normal(&mut self, n: [f32; 3]) -> Result<()> {
             self.spool.normal(n)
         }
-        fn corner(&mut self, k: [u32; 3]) -> Result<()> {
+        fn corner(&mut self, k: [u32; 4]) -> Result<()> {
+            // (Every corner of a face has the face's material.)
+            self.spool.material = k[3] as u16;
             self.fan.push(&mut self.spool, ((k[1] as u64) << 32 | k[2] as u64, k[0] as u64))
         }
         fn face_end(&mut self, lines: &Lines, l: &Line) -> Result<()> {
@@ -1340,6 +1450,49 @@ fn read_corners_external(path: &Path, info: &ObjInfo, mem: u64, scratch: &Path, 
 pub struct Material {
     pub name: String,
     pub map_kd: Option<String>,
+}
+
+/// The OBJ `path`'s texture list and each textured material's slot in it,
+/// from its `mtllib` files (relative to its folder) in order: every
+/// material's `map_Kd` image, relative to the OBJ's folder, listed once
+/// (materials naming the same image share its slot). An MTL file that
+/// cannot be read names none. This one function gives both, so the list
+/// a build copies into the store and the vertices' material ids agree.
+pub fn texture_slots(path: &Path, mtllibs: &[String]) -> Result<(Vec<String>, BTreeMap<String, u16>)> {
+    let base = crate::io::parent_dir(path);
+    let mut names: Vec<String> = Vec::new();
+    let mut slot_of: FxHashMap<String, u16> = FxHashMap::default();
+    let mut slots = BTreeMap::new();
+    let mut defined = HashSet::new();
+    for lib in mtllibs {
+        let Ok(mats) = read_mtl(&base.join(lib)) else { continue };
+        let dir = Path::new(lib).parent().unwrap_or(Path::new(""));
+        for m in mats {
+            let first = defined.insert(m.name.clone());
+            let Some(t) = m.map_kd else { continue };
+            let name = dir.join(t).to_string_lossy().into_owned();
+            let slot = match slot_of.get(&name) {
+                Some(&s) => s,
+                None => {
+                    if names.len() >= Vertex::NO_TEXTURE as usize {
+                        return Err(Error::Usage(format!(
+                            "{}: its materials name more than {} distinct textures (a material id is 16 bits)",
+                            path.display(),
+                            Vertex::NO_TEXTURE
+                        )));
+                    }
+                    let s = names.len() as u16;
+                    slot_of.insert(name.clone(), s);
+                    names.push(name);
+                    s
+                }
+            };
+            if first {
+                slots.insert(m.name, slot);
+            }
+        }
+    }
+    Ok((names, slots))
 }
 
 /// Largest MTL file read (they are small text files; this bounds a mistake).
@@ -1451,6 +1604,7 @@ mod tests {
             b[3] = u32::from_le_bytes(v.color) as u64;
             b[4..6].copy_from_slice(&v.uv.map(|c| c.to_bits() as u64));
             b[6..9].copy_from_slice(&v.normal.map(|c| c.to_bits() as u64));
+            b[9] = v.material as u64;
             b
         };
         s.triangles.iter().map(|t| t.map(|i| bits(&s.vertices[i as usize]))).collect()
@@ -1730,6 +1884,60 @@ mod tests {
         let got: Vec<(&str, Option<&str>)> = m.iter().map(|m| (m.name.as_str(), m.map_kd.as_deref())).collect();
         assert_eq!(got, vec![("skin", Some("textures/skin atlas.png")), ("plain", None), ("wood", Some("wood.jpg"))]);
         assert!(read_mtl(&d.path().join("missing.mtl")).is_err());
+    }
+
+    /// `usemtl` picks each face's texture slot in the texture list (the
+    /// list [`texture_slots`] gives, which the build copies), in memory and
+    /// out of core alike (`read` compares them, materials included).
+    #[test]
+    fn usemtl_gives_each_face_its_textures_slot() {
+        let d = tempfile::tempdir().unwrap();
+        std::fs::create_dir_all(d.path().join("mat")).unwrap();
+        std::fs::write(
+            d.path().join("mat/a.mtl"),
+            "newmtl unused\nmap_Kd unused.png\nnewmtl wood\nmap_Kd -s 2 2 wood.png\nnewmtl plain\nKd 1 0 0\n\
+             newmtl stone\nmap_Kd tex/stone.jpg\nnewmtl wood2\nmap_Kd wood.png\nnewmtl wood\nmap_Kd not-this.png\n",
+        )
+        .unwrap();
+        let p = d.path().join("m.obj");
+        let t = "mtllib mat/a.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 2 0 0\nv 2 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvt 0 1\n\
+                 f 1/1 2/2 3/3\nusemtl wood\nf 1/1 3/3 4/4\nusemtl stone\nf 2/2 5/1 6/4 3/3\nusemtl plain\nf 1/1 2/2 4/4\n\
+                 usemtl wood2\nf 3/3 6/4 4/4\nusemtl ghost\nf 5/1 6/4 4/4\n";
+        std::fs::write(&p, t).unwrap();
+        let (info, s, st) = read(&p).unwrap();
+        assert_eq!(info.textures, vec!["mat/unused.png", "mat/wood.png", "mat/tex/stone.jpg", "mat/not-this.png"]);
+        let slots: Vec<(&str, u16)> = info.material_slots.iter().map(|(k, v)| (k.as_str(), *v)).collect();
+        assert_eq!(slots, vec![("stone", 2), ("unused", 0), ("wood", 1), ("wood2", 1)]);
+        assert!(info.attrs.material() && info.attrs.uv());
+        const N: u16 = Vertex::NO_TEXTURE;
+        let mats: Vec<u16> = s.triangles.iter().map(|t| s.vertices[t[0] as usize].material).collect();
+        assert_eq!(mats, vec![N, 1, 2, 2, N, 1, N]);
+        for t in &s.triangles {
+            assert!(t.iter().all(|&i| s.vertices[i as usize].material == s.vertices[t[0] as usize].material), "{t:?}");
+        }
+        // Position 3 with vt 3 under no material, wood, stone and wood2
+        // (wood's slot): three vertices; 14 distinct (v, vt, material) in
+        // all (wood2's corners are wood's, the same slot).
+        let at = |p: [f64; 3]| s.vertices.iter().filter(|v| v.pos == p).map(|v| v.material).collect::<HashSet<_>>();
+        assert_eq!(at([1.0, 1.0, 0.0]), HashSet::from([N, 1, 2]));
+        assert_eq!(s.vertices.iter().filter(|v| v.pos == [1.0, 1.0, 0.0]).count(), 3);
+        assert_eq!((st.vertices, st.triangles, st.faces, st.polygons), (14, 7, 6, 1));
+        assert!(st.vertices <= info.vertices);
+
+        // One textured material, first in the list, on every face: no
+        // MATERIAL (every vertex reads texture 0); nor without `usemtl`.
+        for (body, material) in [("usemtl unused\n", false), ("", false), ("usemtl wood\n", true), ("usemtl unused\nf 1/1 2/1 3/1\nusemtl plain\n", true)] {
+            std::fs::write(&p, format!("mtllib mat/a.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nvt 0 0\n{body}f 1/1 2/1 3/1\n")).unwrap();
+            let (info, s, _) = read(&p).unwrap();
+            assert_eq!(info.attrs.material(), material, "{body:?}");
+            if !material {
+                assert!(s.vertices.iter().all(|v| v.material == 0));
+            }
+        }
+        // Without uvs the materials change nothing.
+        std::fs::write(&p, "mtllib mat/a.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nusemtl wood\nf 1 2 3\nusemtl stone\nf 3 2 1\n").unwrap();
+        let (info, s, _) = read(&p).unwrap();
+        assert!(!info.attrs.material() && s.vertices.len() == 3);
     }
 
     #[test]

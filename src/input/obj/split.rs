@@ -1,6 +1,7 @@
 //! OBJ corners out of core: the corner path of [`super`] when the `v`,
-//! `vt` and `vn` tables with the map of distinct (v, vt, vn) corners do
-//! not fit `--mem`.
+//! `vt` and `vn` tables with the map of distinct (v, vt, vn, material)
+//! corners do not fit `--mem` (the material: the face's texture slot,
+//! 0 without [`AttrSet::MATERIAL`](crate::mesh::AttrSet::MATERIAL)).
 //!
 //! Takes: the body pass's tables and kept triangles ([`Spool`]). Gives:
 //! the sink's vertices (one per distinct corner of a kept triangle), then
@@ -37,12 +38,13 @@ use std::fs::File;
 use std::io::{BufReader, BufWriter, Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 
-/// A corner record: v, vt, vn (u32, [`NONE`] for none) and its slot (u64).
-const CREC: usize = 20;
+/// A corner record: v, vt, vn (u32, [`NONE`] for none), its slot (u64)
+/// and its material (u16).
+const CREC: usize = 22;
 /// A packed position: 3 × f64 and a colour.
 const PREC: usize = 28;
-/// A vertex as phase 2 writes it: position, colour, uv, normal.
-const VREC: usize = 48;
+/// A vertex as phase 2 writes it: position, colour, uv, normal, material.
+const VREC: usize = 50;
 /// A table request: vertex number (u64) and table index (u32).
 const RREC: usize = 12;
 /// Absent `vt` / `vn`.
@@ -138,6 +140,9 @@ pub(super) struct Spool {
     triangles: u64,
     /// Faces, polygons and degenerate triangles counted by the body pass.
     stats: BodyStats,
+    /// The material of the corners pushed next (the face's: the body pass
+    /// sets it before each corner).
+    pub material: u16,
 }
 
 impl Spool {
@@ -157,7 +162,7 @@ impl Spool {
         let nor = if normal { Some(Table::new(dir.path(), "vn", 12, normals, budget, input)?) } else { None };
         let n_slabs = positions.div_ceil(per_slab).max(1) as usize;
         let corners = BucketFiles::create(dir.path(), "corners", n_slabs, CREC, (budget / 4) as usize)?;
-        Ok(Spool { dir, budget, positions, pos, tex, nor, per_slab, corners, triangles: 0, stats: BodyStats::default() })
+        Ok(Spool { dir, budget, positions, pos, tex, nor, per_slab, corners, triangles: 0, stats: BodyStats::default(), material: 0 })
     }
 
     pub fn position(&mut self, v: &Vertex) -> Result<()> {
@@ -185,7 +190,7 @@ impl Spool {
         for t in [&mut self.tex, &mut self.nor].into_iter().flatten() {
             t.close()?;
         }
-        let Spool { dir, budget, positions, pos, tex, nor, per_slab, corners, triangles, stats } = self;
+        let Spool { dir, budget, positions, pos, tex, nor, per_slab, corners, triangles, stats, .. } = self;
         let dir = dir.path();
         let b = budget as usize;
         let buckets = corners.finish()?;
@@ -197,7 +202,7 @@ impl Spool {
         // Phase 2: number the distinct corners, slab by slab.
         let vpath = dir.join("vertices.bin");
         let mut vfile = BufWriter::with_capacity(SEQ_BUF, File::create(&vpath).ctx(&vpath, "create scratch file")?);
-        let mut map: FxHashMap<[u32; 3], u64> = FxHashMap::default();
+        let mut map: FxHashMap<[u32; 4], u64> = FxHashMap::default();
         let mut chunk = vec![0u8; (SEQ_BUF / CREC) * CREC];
         let mut next = 0u64;
         for (s, (path, count)) in buckets.iter().enumerate() {
@@ -207,7 +212,10 @@ impl Spool {
             for (lo, hi) in sub_ranges(path, *count, first, n, budget / 4 / CORNER_BYTES, &mut chunk)? {
                 map.clear();
                 read_records(path, CREC, *count, &mut chunk, |r| {
-                    let key = [0, 1, 2].map(|k| u32::from_le_bytes(r[4 * k..4 * k + 4].try_into().unwrap()));
+                    let key = [0, 1, 2, 5].map(|k| match k {
+                        5 => u16::from_le_bytes([r[20], r[21]]) as u32,
+                        _ => u32::from_le_bytes(r[4 * k..4 * k + 4].try_into().unwrap()),
+                    });
                     if (key[0] as u64) < lo || key[0] as u64 >= hi {
                         return Ok(());
                     }
@@ -221,6 +229,7 @@ impl Spool {
                             let mut v = [0u8; VREC];
                             let at = (key[0] as u64 - first) as usize * PREC;
                             v[..PREC].copy_from_slice(&slab[at..at + PREC]);
+                            v[48..50].copy_from_slice(&(key[3] as u16).to_le_bytes());
                             for (a, (k, off)) in attrs.iter_mut().zip([(key[1], PREC), (key[2], PREC + 8)]) {
                                 if let Some(a) = a {
                                     a.lookup(id, k, &mut v[off..off + a.table.elem])?;
@@ -309,7 +318,7 @@ fn decode(r: &[u8; VREC]) -> Vertex {
         color: r[24..28].try_into().unwrap(),
         uv: [f32_at(28), f32_at(32)],
         normal: [f32_at(36), f32_at(40), f32_at(44)],
-        material: 0,
+        material: u16::from_le_bytes([r[48], r[49]]),
     }
 }
 
@@ -393,6 +402,7 @@ impl Tris for Spool {
             r[4..8].copy_from_slice(&((t[c] >> 32) as u32).to_le_bytes());
             r[8..12].copy_from_slice(&(t[c] as u32).to_le_bytes());
             r[12..20].copy_from_slice(&(slot0 + c as u64).to_le_bytes());
+            r[20..22].copy_from_slice(&self.material.to_le_bytes());
         }
         self.triangles += 1;
         Ok(())
