@@ -786,7 +786,7 @@ fn cmd_extract(args: ExtractArgs, force: bool) -> Result<ExitCode> {
         }
         None => octolod::pipeline::CutSpec::Level(level.unwrap_or(0)),
     };
-    let gltf = octolod::gltf::GltfOptions { quantize, compress, texture: None };
+    let gltf = octolod::gltf::GltfOptions { quantize, compress, textures: Vec::new() };
     let (nv, nf) = octolod::pipeline::extract_as(&s, spec, &output, !no_weld, force, &gltf)?;
     out!("extract: {}: {nv} vertices, {nf} triangles -> {}", spec.describe(), output.display());
     Ok(ExitCode::SUCCESS)

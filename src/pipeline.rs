@@ -172,12 +172,14 @@ pub fn extract(store: &Store, spec: CutSpec, out: &Path, weld: bool, force: bool
 }
 
 /// [`extract`] with the glTF options (`--quantize`, `--compress`), which
-/// are refused for a PLY output. A store with a PNG or JPEG texture (and
-/// uvs) gets it embedded in the glTF's buffer unless `gltf.texture` names
-/// another (an image of another kind is left out, with a warning: glTF
-/// core takes only those two). A glTF is written from the welded cut in
-/// memory as one primitive, or, with `weld` false, streamed in two passes
-/// over the nodes with one primitive per run of whole nodes of at most
+/// are refused for a PLY output. A store with PNG or JPEG textures (and
+/// uvs) gets every one embedded in the glTF's buffer, each face drawing
+/// its material's ([`crate::gltf`]), unless `gltf.textures` names others
+/// (an image of another kind is left out, with a warning, and its faces
+/// drawn untextured: glTF core takes only those two). A glTF is written
+/// from the welded cut in memory as one primitive per material, or, with
+/// `weld` false, streamed in two passes over the nodes with one primitive
+/// per material per run of whole nodes of at most
 /// [`crate::gltf::STREAM_GROUP_VERTICES`] vertices (only that run in memory).
 pub fn extract_as(store: &Store, spec: CutSpec, out: &Path, weld: bool, force: bool, gltf: &GltfOptions) -> Result<(u64, u64)> {
     if crate::gltf::Container::of(out).is_none() {
@@ -193,20 +195,22 @@ pub fn extract_as(store: &Store, spec: CutSpec, out: &Path, weld: bool, force: b
     let cut = spec.cut(store)?;
     let name = format!("octolod {} of {}", spec.describe(), store.dir.display());
     let attrs = store.header.attrs;
-    // The store's texture goes inside the glTF: one self-contained output.
+    // The store's textures go inside the glTF: one self-contained output.
     let embedded;
-    let gltf = match (&gltf.texture, crate::manifest::store_texture(&store.dir)) {
-        (None, Some((file, path))) if attrs.uv() => match crate::gltf::GltfTexture::embed_file(&path, file.rsplit_once('.').map_or(&file[..], |p| p.0)) {
-            Ok(t) => {
-                embedded = GltfOptions { texture: Some(t), ..gltf.clone() };
-                &embedded
-            }
-            Err(e) => {
-                eprintln!("warning: {e}; {} is written without its texture", out.display());
-                gltf
-            }
-        },
-        _ => gltf,
+    let gltf = if gltf.textures.is_empty() && attrs.uv() {
+        let textures = crate::manifest::store_textures(&store.dir)
+            .into_iter()
+            .map(|slot| {
+                let (file, path) = slot?;
+                crate::gltf::GltfTexture::embed_file(&path, file.rsplit_once('.').map_or(&file[..], |p| p.0))
+                    .map_err(|e| eprintln!("warning: {e}; {} is written without that texture", out.display()))
+                    .ok()
+            })
+            .collect();
+        embedded = GltfOptions { textures, ..gltf.clone() };
+        &embedded
+    } else {
+        gltf
     };
     if weld {
         let parts = store.cut_meshes(&cut).collect::<Result<Vec<_>>>()?;

@@ -3,7 +3,8 @@
 //!
 //! Takes: [`IndexedMesh`]es (whole, or node by node in two passes), the
 //! [`AttrSet`] saying which attributes are real, and [`GltfOptions`].
-//! Gives: one scene, one node, one mesh of triangle primitives. POSITION
+//! Gives: one scene, one node, one mesh of triangle primitives (one per
+//! material, see below). POSITION
 //! always; NORMAL (made unit length), COLOR_0 and TEXCOORD_0 only when the
 //! set has them; optionally `quantize` (KHR_mesh_quantization) and
 //! `compress` (EXT_meshopt_compression, which the file then requires).
@@ -16,16 +17,32 @@
 //! * Colours: octolod's sRGB-encoded [`Vertex::color`] bytes become linear
 //!   COLOR_0 through the exact transfer function, as normalized `u16`, which
 //!   keeps every sRGB byte apart and converts back to the same byte.
-//! * One material for every primitive: not metallic, fully rough, double-sided;
-//!   with [`GltfOptions::texture`] (and uvs), its base colour is that
-//!   image, referenced by URI or embedded in the buffer, sampled with
-//!   mipmaps and repeat.
+//! * Materials: not metallic, fully rough, double-sided. A mesh with
+//!   [`AttrSet::MATERIAL`] (and uvs) has a primitive per material its
+//!   triangles use (a triangle's material is its corner 0's
+//!   [`Vertex::material`]), whose glTF material's base colour is texture
+//!   slot `material` of [`GltfOptions::textures`]; [`Vertex::NO_TEXTURE`]
+//!   or a slot without an image gets one untextured material (white under
+//!   vertex colours, else octolod's grey). Without MATERIAL every face
+//!   draws the first slot with an image. Each image is written once,
+//!   referenced by URI or embedded in the buffer, sampled with mipmaps and
+//!   repeat.
+//! * A primitive per material has its own vertices (the part's vertices
+//!   its triangles use, in the part's order) rather than index ranges
+//!   into shared vertex accessors: materials already split vertices where
+//!   they meet, so nothing is stored twice, and a reader that takes each
+//!   primitive's accessors whole (octolod's own, Blender's) gets no
+//!   unused vertices and each primitive tight bounds for culling; the
+//!   cost, one vertex bufferView and accessors per primitive, is a few
+//!   hundred bytes of JSON.
 //! * uvs: octolod's are MeshLab's and OpenGL's (v = 0 at the image's bottom
 //!   row), glTF's have v = 0 at the top: TEXCOORD_0 is (u, 1 − v), and the
 //!   glTF reader turns it back.
-//! * A whole mesh is one primitive ([`encode_glb`], [`write_mesh`]); a cut
-//!   streamed ([`write_parts`]) is one primitive per run of whole nodes of at
-//!   most [`STREAM_GROUP_VERTICES`] vertices, only one run in memory.
+//! * A whole mesh is one primitive per material ([`encode_glb`],
+//!   [`write_mesh`]); a cut streamed ([`write_parts`]) is one primitive per
+//!   material per run of whole nodes of at most [`STREAM_GROUP_VERTICES`]
+//!   vertices, only one run in memory. Quantization and compression apply
+//!   to each primitive's views.
 //! * Every output carries `asset.extras.octolod = "output"`
 //!   ([`is_octolod_gltf`]) and is written as every octolod output is
 //!   ([`crate::io`], [`OutputKind::Gltf`]): a `.glb` through an
@@ -54,8 +71,10 @@ pub struct GltfOptions {
     pub quantize: bool,
     /// EXT_meshopt_compression on every vertex and index bufferView.
     pub compress: bool,
-    /// The material's base colour texture (used when the mesh has uvs).
-    pub texture: Option<GltfTexture>,
+    /// The base colour textures by material id ([`Vertex::material`]:
+    /// index = id, the store's texture slots, [`crate::manifest::store_textures`]);
+    /// `None` for a slot without an image. Used when the mesh has uvs.
+    pub textures: Vec<Option<GltfTexture>>,
 }
 
 /// A base colour texture: its image and name (the glTF image's `name`,
@@ -152,14 +171,77 @@ const FLOAT: u32 = 5126;
 
 // ------------------------------------------------------------------ survey
 
-/// A primitive: a run of whole parts (those with triangles).
+/// A primitive: the triangles of one material in a run of whole parts,
+/// with the vertices they use.
 #[derive(Clone, Debug)]
-struct Group {
-    parts: usize,
+struct Prim {
+    material: u16,
     vertices: u64,
     triangles: u64,
     lo: [f64; 3],
     hi: [f64; 3],
+}
+
+/// A run of whole parts (those with triangles): one primitive per
+/// material its triangles use, in material order.
+#[derive(Clone, Debug)]
+struct Group {
+    parts: usize,
+    vertices: u64,
+    prims: Vec<Prim>,
+}
+
+impl Group {
+    fn prim(&self, material: u16) -> Option<usize> {
+        self.prims.binary_search_by_key(&material, |p| p.material).ok()
+    }
+}
+
+/// One material's share of a part: the part's vertices it uses (in the
+/// part's order) and its triangles, indexing that list.
+struct Piece {
+    material: u16,
+    vertices: Vec<u32>,
+    triangles: Vec<[u32; 3]>,
+}
+
+/// A triangle's material: corner 0's (the corners agree: vertices are
+/// split where materials meet); 0 for every triangle without `materials`.
+fn material_of(m: &IndexedMesh, t: &[u32; 3], materials: bool) -> u16 {
+    if materials {
+        m.vertices[t[0] as usize].material
+    } else {
+        0
+    }
+}
+
+/// A part split by material, in material order. A part of one material
+/// is one piece of all its vertices, in order (as a mesh without
+/// materials always is); with several, each piece takes the vertices its
+/// triangles use (a vertex no triangle uses is left out).
+fn split_part(m: &IndexedMesh, materials: bool) -> Vec<Piece> {
+    let first = m.triangles.first().map_or(0, |t| material_of(m, t, materials));
+    if m.triangles.iter().all(|t| material_of(m, t, materials) == first) {
+        return vec![Piece { material: first, vertices: (0..m.vertices.len() as u32).collect(), triangles: m.triangles.clone() }];
+    }
+    let mut order: Vec<u32> = (0..m.triangles.len() as u32).collect();
+    order.sort_by_key(|&k| material_of(m, &m.triangles[k as usize], materials));
+    let mut local = vec![u32::MAX; m.vertices.len()];
+    let mut pieces = Vec::new();
+    for run in order.chunk_by(|&a, &b| material_of(m, &m.triangles[a as usize], materials) == material_of(m, &m.triangles[b as usize], materials)) {
+        let material = material_of(m, &m.triangles[run[0] as usize], materials);
+        let mut vertices: Vec<u32> = run.iter().flat_map(|&k| m.triangles[k as usize]).filter(|&v| std::mem::replace(&mut local[v as usize], 0) != 0).collect();
+        vertices.sort_unstable();
+        for (k, &v) in vertices.iter().enumerate() {
+            local[v as usize] = k as u32;
+        }
+        let triangles = run.iter().map(|&k| m.triangles[k as usize].map(|v| local[v as usize])).collect();
+        for &v in &vertices {
+            local[v as usize] = u32::MAX;
+        }
+        pieces.push(Piece { material, vertices, triangles });
+    }
+    pieces
 }
 
 /// What the first pass over the parts learns: counts, bounds, uv range
@@ -167,6 +249,8 @@ struct Group {
 #[derive(Clone, Debug)]
 struct Survey {
     limit: u64,
+    /// Triangles are grouped by material ([`AttrSet::MATERIAL`]).
+    materials: bool,
     groups: Vec<Group>,
     vertices: u64,
     triangles: u64,
@@ -177,8 +261,30 @@ struct Survey {
 }
 
 impl Survey {
-    fn new(limit: u64) -> Survey {
-        Survey { limit: limit.max(1), groups: Vec::new(), vertices: 0, triangles: 0, lo: [f64::INFINITY; 3], hi: [f64::NEG_INFINITY; 3], uv_unit: true }
+    fn new(limit: u64, attrs: AttrSet) -> Survey {
+        Survey {
+            limit: limit.max(1),
+            materials: attrs.material(),
+            groups: Vec::new(),
+            vertices: 0,
+            triangles: 0,
+            lo: [f64::INFINITY; 3],
+            hi: [f64::NEG_INFINITY; 3],
+            uv_unit: true,
+        }
+    }
+
+    /// The materials the primitives use, each once, in order.
+    fn materials_used(&self) -> Vec<u16> {
+        let mut v: Vec<u16> = self.groups.iter().flat_map(|g| g.prims.iter().map(|p| p.material)).collect();
+        v.sort_unstable();
+        v.dedup();
+        v
+    }
+
+    /// Every primitive, in buffer order.
+    fn prims(&self) -> impl Iterator<Item = &Prim> {
+        self.groups.iter().flat_map(|g| &g.prims)
     }
 
     fn add(&mut self, m: &IndexedMesh) -> Result<()> {
@@ -209,19 +315,36 @@ impl Survey {
             self.lo[a] = self.lo[a].min(lo[a]);
             self.hi[a] = self.hi[a].max(hi[a]);
         }
-        let join = self.groups.last().is_some_and(|g| g.vertices + nv <= self.limit.min(u32::MAX as u64));
+        let pieces = split_part(m, self.materials);
+        let kept: u64 = pieces.iter().map(|p| p.vertices.len() as u64).sum();
+        let join = self.groups.last().is_some_and(|g| g.vertices + kept <= self.limit.min(u32::MAX as u64));
         if !join {
-            self.groups.push(Group { parts: 0, vertices: 0, triangles: 0, lo, hi });
+            self.groups.push(Group { parts: 0, vertices: 0, prims: Vec::new() });
         }
         let g = self.groups.last_mut().expect("a group");
         g.parts += 1;
-        g.vertices += nv;
-        g.triangles += m.triangles.len() as u64;
-        for a in 0..3 {
-            g.lo[a] = g.lo[a].min(lo[a]);
-            g.hi[a] = g.hi[a].max(hi[a]);
+        g.vertices += kept;
+        for piece in &pieces {
+            let k = match g.prim(piece.material) {
+                Some(k) => k,
+                None => {
+                    let k = g.prims.partition_point(|p| p.material < piece.material);
+                    g.prims.insert(k, Prim { material: piece.material, vertices: 0, triangles: 0, lo: [f64::INFINITY; 3], hi: [f64::NEG_INFINITY; 3] });
+                    k
+                }
+            };
+            let p = &mut g.prims[k];
+            p.vertices += piece.vertices.len() as u64;
+            p.triangles += piece.triangles.len() as u64;
+            for &v in &piece.vertices {
+                let pos = m.vertices[v as usize].pos;
+                for a in 0..3 {
+                    p.lo[a] = p.lo[a].min(pos[a]);
+                    p.hi[a] = p.hi[a].max(pos[a]);
+                }
+            }
         }
-        self.vertices += nv;
+        self.vertices += kept;
         self.triangles += m.triangles.len() as u64;
         Ok(())
     }
@@ -388,7 +511,7 @@ fn align4(x: u64) -> u64 {
 }
 
 /// Where one primitive's two bufferViews lie in a buffer.
-#[derive(Clone, Copy, Debug, Default)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 struct Placed {
     vertex: (u64, u64),
     index: (u64, u64),
@@ -399,12 +522,11 @@ struct Placed {
 fn raw_layout(s: &Survey, l: &Layout) -> (Vec<Placed>, u64) {
     let mut at = 0u64;
     let placed = s
-        .groups
-        .iter()
-        .map(|g| {
-            let v = (at, g.vertices * l.stride as u64);
+        .prims()
+        .map(|p| {
+            let v = (at, p.vertices * l.stride as u64);
             at = align4(v.0 + v.1);
-            let i = (at, 3 * g.triangles * index_width(g.vertices) as u64);
+            let i = (at, 3 * p.triangles * index_width(p.vertices) as u64);
             at = align4(i.0 + i.1);
             Placed { vertex: v, index: i }
         })
@@ -432,12 +554,12 @@ impl<W: Write> Counted<W> {
     }
 }
 
-/// One primitive's data as it is gathered.
-struct GroupBuf {
+/// One primitive's data as its group is gathered.
+#[derive(Default)]
+struct PrimBuf {
     vertices: Vec<u8>,
     indices: Vec<u32>,
     base: u32,
-    parts: usize,
 }
 
 /// meshopt's vertex codec, version 0 (the only one EXT_meshopt_compression
@@ -454,8 +576,9 @@ fn compress_vertices(bytes: &[u8], stride: usize) -> Result<Vec<u8>> {
     by_stride!(4 8 12 16 20 24 28 32 36 40 44 48).map_err(|e| Error::Usage(format!("meshopt vertex encoding failed: {e:?}")))
 }
 
-/// Streams the primitives of `parts` (the survey's groups, in order) into
-/// `w`, compressed or not; gives where each primitive's views landed.
+/// Streams the primitives of `parts` (the survey's groups, in order, each
+/// group's primitives in material order) into `w`, compressed or not;
+/// gives where each primitive's views landed.
 fn write_bin<W: Write, M: Borrow<IndexedMesh>>(
     w: &mut Counted<W>,
     path: &Path,
@@ -464,14 +587,16 @@ fn write_bin<W: Write, M: Borrow<IndexedMesh>>(
     compress: bool,
     parts: impl Iterator<Item = Result<M>>,
 ) -> Result<Vec<Placed>> {
-    let mut placed = Vec::with_capacity(s.groups.len());
-    let mut buf = GroupBuf { vertices: Vec::new(), indices: Vec::new(), base: 0, parts: 0 };
+    let mut placed = Vec::with_capacity(s.prims().count());
+    let mut bufs: Vec<PrimBuf> = Vec::new();
+    let mut group = 0usize;
+    let mut parts_in = 0usize;
     let changed = || Error::Usage(format!("{}: the meshes changed between the two passes over them", path.display()));
-    let flush = |buf: &mut GroupBuf, g: &Group, w: &mut Counted<W>| -> Result<Placed> {
-        if buf.base as u64 != g.vertices || buf.indices.len() as u64 != 3 * g.triangles {
+    let flush = |buf: &mut PrimBuf, p: &Prim, w: &mut Counted<W>| -> Result<Placed> {
+        if buf.base as u64 != p.vertices || buf.indices.len() as u64 != 3 * p.triangles {
             return Err(changed());
         }
-        let mut p = Placed::default();
+        let mut out = Placed::default();
         let vstart = w.at;
         if compress {
             let c = compress_vertices(&buf.vertices, l.stride)?;
@@ -479,15 +604,15 @@ fn write_bin<W: Write, M: Borrow<IndexedMesh>>(
         } else {
             w.put(&buf.vertices).ctx(path, "write")?;
         }
-        p.vertex = (vstart, w.at - vstart);
+        out.vertex = (vstart, w.at - vstart);
         w.pad4().ctx(path, "write")?;
         let istart = w.at;
         if compress {
-            let c = meshopt::encoding::encode_index_buffer(&buf.indices, g.vertices as usize)
+            let c = meshopt::encoding::encode_index_buffer(&buf.indices, p.vertices as usize)
                 .map_err(|e| Error::Usage(format!("meshopt index encoding failed: {e:?}")))?;
             w.put(&c).ctx(path, "write")?;
         } else {
-            let width = index_width(g.vertices);
+            let width = index_width(p.vertices);
             let mut b = Vec::with_capacity(buf.indices.len() * width);
             for &i in &buf.indices {
                 if width == 2 {
@@ -498,13 +623,9 @@ fn write_bin<W: Write, M: Borrow<IndexedMesh>>(
             }
             w.put(&b).ctx(path, "write")?;
         }
-        p.index = (istart, w.at - istart);
+        out.index = (istart, w.at - istart);
         w.pad4().ctx(path, "write")?;
-        buf.vertices.clear();
-        buf.indices.clear();
-        buf.base = 0;
-        buf.parts = 0;
-        Ok(p)
+        Ok(out)
     };
     let mut record = vec![0u8; l.stride];
     for m in parts {
@@ -513,26 +634,41 @@ fn write_bin<W: Write, M: Borrow<IndexedMesh>>(
         if m.triangles.is_empty() {
             continue;
         }
-        let g = s.groups.get(placed.len()).ok_or_else(changed)?;
-        if buf.parts == 0 {
-            buf.vertices.reserve((g.vertices as usize).saturating_mul(l.stride));
-            buf.indices.reserve(3 * g.triangles as usize);
+        let g = s.groups.get(group).ok_or_else(changed)?;
+        if parts_in == 0 {
+            bufs = g
+                .prims
+                .iter()
+                .map(|p| PrimBuf {
+                    vertices: Vec::with_capacity((p.vertices as usize).saturating_mul(l.stride)),
+                    indices: Vec::with_capacity(3 * p.triangles as usize),
+                    base: 0,
+                })
+                .collect();
         }
-        for v in &m.vertices {
-            l.encode(v, &mut record);
-            buf.vertices.extend_from_slice(&record);
+        for piece in split_part(m, s.materials) {
+            let buf = &mut bufs[g.prim(piece.material).ok_or_else(changed)?];
+            for &v in &piece.vertices {
+                l.encode(&m.vertices[v as usize], &mut record);
+                buf.vertices.extend_from_slice(&record);
+            }
+            let base = buf.base;
+            for t in &piece.triangles {
+                buf.indices.extend(t.iter().map(|&i| base + i));
+            }
+            buf.base = u32::try_from(base as u64 + piece.vertices.len() as u64).map_err(|_| changed())?;
         }
-        let base = buf.base;
-        for t in &m.triangles {
-            buf.indices.extend(t.iter().map(|&i| base + i));
-        }
-        buf.base = u32::try_from(base as u64 + m.vertices.len() as u64).map_err(|_| changed())?;
-        buf.parts += 1;
-        if buf.parts == g.parts {
-            placed.push(flush(&mut buf, g, w)?);
+        parts_in += 1;
+        if parts_in == g.parts {
+            for (buf, p) in bufs.iter_mut().zip(&g.prims) {
+                placed.push(flush(buf, p, w)?);
+                *buf = PrimBuf::default();
+            }
+            group += 1;
+            parts_in = 0;
         }
     }
-    if placed.len() != s.groups.len() || buf.parts != 0 {
+    if group != s.groups.len() || parts_in != 0 {
         return Err(changed());
     }
     Ok(placed)
@@ -543,8 +679,8 @@ fn write_bin<W: Write, M: Borrow<IndexedMesh>>(
 /// The glTF document. `placed`: where the primitives' views are in buffer
 /// 0 (for `compress`, the compressed streams; the uncompressed layout then
 /// goes to the fallback buffer 1). `uri`: buffer 0's, for `.gltf`.
-/// `image_at`: where an embedded texture image starts in buffer 0 (it
-/// ends the buffer).
+/// `image_at`: where each embedded texture image starts in buffer 0, by
+/// material id (they end the buffer).
 #[allow(clippy::too_many_arguments)]
 fn document(
     s: &Survey,
@@ -554,14 +690,25 @@ fn document(
     placed: &[Placed],
     bin_len: u64,
     uri: Option<&str>,
-    image_at: Option<u64>,
+    image_at: &[(u16, u64)],
 ) -> Value {
     let (raw, raw_len) = raw_layout(s, l);
+    // The glTF materials: one per textured material id used (its image
+    // once), then one untextured shared by the ids without an image.
+    let used: Vec<(u16, Option<&GltfTexture>)> = s.materials_used().into_iter().map(|id| (id, texture_of(opts, l, s.materials, id))).collect();
+    let textured = used.iter().filter(|u| u.1.is_some()).count();
+    let mut material_index = Vec::with_capacity(used.len());
+    let mut k = 0;
+    for (id, t) in &used {
+        material_index.push((*id, if t.is_some() { k } else { textured }));
+        k += t.is_some() as usize;
+    }
+    let material_of = |id: u16| material_index.iter().find(|m| m.0 == id).map_or(textured, |m| m.1);
     let mut views = Vec::new();
     let mut accessors = Vec::new();
     let mut primitives = Vec::new();
-    for (k, g) in s.groups.iter().enumerate() {
-        let width = index_width(g.vertices);
+    for (k, p) in s.prims().enumerate() {
+        let width = index_width(p.vertices);
         let view = |raw: (u64, u64), stored: (u64, u64), stride: usize, target: u32, mode: &str, count: u64, with_stride: bool| {
             let mut v = Map::new();
             v.insert("buffer".into(), json!(if opts.compress { 1 } else { 0 }));
@@ -583,9 +730,9 @@ fn document(
             Value::Object(v)
         };
         let vview = views.len();
-        views.push(view(raw[k].vertex, placed[k].vertex, l.stride, ARRAY_BUFFER, "ATTRIBUTES", g.vertices, true));
+        views.push(view(raw[k].vertex, placed[k].vertex, l.stride, ARRAY_BUFFER, "ATTRIBUTES", p.vertices, true));
         let iview = views.len();
-        views.push(view(raw[k].index, placed[k].index, width, ELEMENT_ARRAY_BUFFER, "TRIANGLES", 3 * g.triangles, false));
+        views.push(view(raw[k].index, placed[k].index, width, ELEMENT_ARRAY_BUFFER, "TRIANGLES", 3 * p.triangles, false));
         let mut attributes = Map::new();
         for (semantic, offset, ctype, ty, normalized) in l.attributes() {
             let mut a = Map::new();
@@ -595,10 +742,10 @@ fn document(
             if normalized {
                 a.insert("normalized".into(), json!(true));
             }
-            a.insert("count".into(), json!(g.vertices));
+            a.insert("count".into(), json!(p.vertices));
             a.insert("type".into(), json!(ty));
             if semantic == "POSITION" {
-                let (lo, hi) = l.pos_bounds(g.lo, g.hi);
+                let (lo, hi) = l.pos_bounds(p.lo, p.hi);
                 a.insert("min".into(), lo);
                 a.insert("max".into(), hi);
             }
@@ -608,9 +755,9 @@ fn document(
         let indices = accessors.len();
         accessors.push(json!({
             "bufferView": iview, "componentType": if width == 2 { UNSIGNED_SHORT } else { UNSIGNED_INT },
-            "count": 3 * g.triangles, "type": "SCALAR",
+            "count": 3 * p.triangles, "type": "SCALAR",
         }));
-        primitives.push(json!({"attributes": attributes, "indices": indices, "material": 0, "mode": 4}));
+        primitives.push(json!({"attributes": attributes, "indices": indices, "material": material_of(p.material), "mode": 4}));
     }
     let mut buffer0 = Map::new();
     if let Some(u) = uri {
@@ -650,36 +797,66 @@ fn document(
     doc.insert("scenes".into(), json!([{"nodes": [0]}]));
     doc.insert("nodes".into(), json!([node]));
     doc.insert("meshes".into(), json!([mesh]));
-    let mut material = material(l.attrs.color());
-    if let Some(t) = opts.texture.as_ref().filter(|_| l.uv_at.is_some()) {
+    let mut materials = Vec::new();
+    let (mut images, mut textures) = (Vec::new(), Vec::new());
+    for (id, t) in &used {
+        let Some(t) = t else { continue };
         let mut image = Map::new();
         image.insert("name".into(), json!(t.name));
-        match (&t.image, image_at) {
+        match (&t.image, image_at.iter().find(|a| a.0 == *id)) {
             (TextureImage::Uri(u), _) => {
                 image.insert("uri".into(), json!(u));
             }
-            (TextureImage::Embedded { bytes, mime }, Some(at)) => {
+            (TextureImage::Embedded { bytes, mime }, Some(&(_, at))) => {
                 image.insert("bufferView".into(), json!(views.len()));
                 image.insert("mimeType".into(), json!(mime));
                 views.push(json!({"buffer": 0, "byteOffset": at, "byteLength": bytes.len()}));
             }
             (TextureImage::Embedded { .. }, None) => unreachable!("an embedded image is placed in the buffer"),
         }
-        doc.insert("images".into(), json!([image]));
+        let k = images.len();
+        images.push(Value::Object(image));
+        textures.push(json!({"source": k, "sampler": 0, "name": t.name}));
+        let mut m = material(l.attrs.color());
+        m["pbrMetallicRoughness"]["baseColorFactor"] = json!([1.0, 1.0, 1.0, 1.0]);
+        m["pbrMetallicRoughness"]["baseColorTexture"] = json!({"index": k});
+        materials.push(m);
+    }
+    if materials.len() < used.len() || used.is_empty() {
+        materials.push(material(l.attrs.color()));
+    }
+    if !images.is_empty() {
+        doc.insert("images".into(), Value::Array(images));
         // Linear filtering with trilinear mipmaps, repeating (uvs may tile).
         doc.insert("samplers".into(), json!([{"magFilter": 9729, "minFilter": 9987, "wrapS": 10497, "wrapT": 10497}]));
-        doc.insert("textures".into(), json!([{"source": 0, "sampler": 0, "name": t.name}]));
-        material["pbrMetallicRoughness"]["baseColorFactor"] = json!([1.0, 1.0, 1.0, 1.0]);
-        material["pbrMetallicRoughness"]["baseColorTexture"] = json!({"index": 0});
+        doc.insert("textures".into(), Value::Array(textures));
     }
-    doc.insert("materials".into(), json!([material]));
+    doc.insert("materials".into(), Value::Array(materials));
     doc.insert("accessors".into(), Value::Array(accessors));
     doc.insert("bufferViews".into(), Value::Array(views));
     doc.insert("buffers".into(), Value::Array(buffers));
     Value::Object(doc)
 }
 
-/// The one material: not metallic, fully rough, double-sided (why:
+/// The texture material `id`'s faces draw, when the mesh has uvs: with
+/// per-face materials, slot `id` (none for [`Vertex::NO_TEXTURE`] or a
+/// slot without an image); without, the first slot with an image, on
+/// every face.
+fn texture_of<'a>(opts: &'a GltfOptions, l: &Layout, materials: bool, id: u16) -> Option<&'a GltfTexture> {
+    l.uv_at?;
+    if materials {
+        opts.textures.get(id as usize)?.as_ref()
+    } else {
+        opts.textures.iter().flatten().next()
+    }
+}
+
+/// The images to embed (each once), by material id, in material order.
+fn embedded_images<'a>(s: &Survey, l: &Layout, opts: &'a GltfOptions) -> Vec<(u16, &'a [u8])> {
+    s.materials_used().into_iter().filter_map(|id| Some((id, texture_of(opts, l, s.materials, id)?.embedded()?))).collect()
+}
+
+/// An untextured material: not metallic, fully rough, double-sided (why:
 /// `docs/web.md`, "glTF output"); white under vertex colours, else octolod's own grey
 /// ([`crate::view::DEFAULT_COLOR`], linear), so a mesh without colours
 /// looks in any client as it does in `view` and `render`.
@@ -724,9 +901,10 @@ fn glb_total(json_len: u64, bin_len: u64) -> u64 {
 
 // ------------------------------------------------------------- in memory
 
-/// Encodes one mesh as a complete GLB (one scene, one node, one mesh, one triangle primitive).
+/// Encodes one mesh as a complete GLB (one scene, one node, one mesh: one
+/// triangle primitive per material).
 pub fn encode_glb(mesh: &IndexedMesh, attrs: AttrSet, opts: &GltfOptions, out: &mut Vec<u8>) -> Result<()> {
-    let mut s = Survey::new(u64::MAX);
+    let mut s = Survey::new(u64::MAX, attrs);
     s.add(mesh)?;
     if s.triangles == 0 {
         return Err(empty("the mesh"));
@@ -734,8 +912,8 @@ pub fn encode_glb(mesh: &IndexedMesh, attrs: AttrSet, opts: &GltfOptions, out: &
     let l = Layout::new(attrs, opts, &s);
     let mut bin = Counted { w: Vec::new(), at: 0 };
     let placed = write_bin(&mut bin, Path::new("glb"), &s, &l, opts.compress, std::iter::once(Ok(mesh)))?;
-    let image_at = put_image(&mut bin, Path::new("glb"), opts, &l)?;
-    let doc = document(&s, &l, opts, None, &placed, bin.at, None, image_at);
+    let image_at = put_images(&mut bin, Path::new("glb"), &embedded_images(&s, &l, opts))?;
+    let doc = document(&s, &l, opts, None, &placed, bin.at, None, &image_at);
     let head = glb_head(&json_bytes(&doc), bin.at, "the mesh")?;
     out.reserve(head.len() + bin.w.len());
     out.extend_from_slice(&head);
@@ -743,20 +921,31 @@ pub fn encode_glb(mesh: &IndexedMesh, attrs: AttrSet, opts: &GltfOptions, out: &
     Ok(())
 }
 
-/// The embedded texture image to write, when the mesh has uvs.
-fn image_bytes<'a>(opts: &'a GltfOptions, l: &Layout) -> Option<&'a [u8]> {
-    opts.texture.as_ref().filter(|_| l.uv_at.is_some()).and_then(|t| t.embedded())
+/// Where the embedded images will start when the geometry ends at
+/// `geometry`, and where the buffer then ends ([`put_images`]' layout).
+fn image_layout(images: &[(u16, &[u8])], geometry: u64) -> (Vec<(u16, u64)>, u64) {
+    let mut at = geometry;
+    let mut out = Vec::with_capacity(images.len());
+    for (id, img) in images {
+        at = align4(at);
+        out.push((*id, at));
+        at += img.len() as u64;
+    }
+    (out, if images.is_empty() { geometry } else { align4(at) })
 }
 
-/// Appends the embedded image (if any) behind the geometry, both ends
-/// 4-aligned (a GLB's BIN chunk is); gives where it starts.
-fn put_image<W: Write>(bin: &mut Counted<W>, path: &Path, opts: &GltfOptions, l: &Layout) -> Result<Option<u64>> {
-    let Some(img) = image_bytes(opts, l) else { return Ok(None) };
+/// Appends the embedded images behind the geometry, each starting at a
+/// multiple of 4 and the buffer padded to one (a GLB's BIN chunk is);
+/// gives where each starts, by material id.
+fn put_images<W: Write>(bin: &mut Counted<W>, path: &Path, images: &[(u16, &[u8])]) -> Result<Vec<(u16, u64)>> {
+    let mut out = Vec::with_capacity(images.len());
+    for (id, img) in images {
+        bin.pad4().ctx(path, "write")?;
+        out.push((*id, bin.at));
+        bin.put(img).ctx(path, "write")?;
+    }
     bin.pad4().ctx(path, "write")?;
-    let at = bin.at;
-    bin.put(img).ctx(path, "write")?;
-    bin.pad4().ctx(path, "write")?;
-    Ok(Some(at))
+    Ok(out)
 }
 
 fn empty(what: &str) -> Error {
@@ -787,7 +976,7 @@ where
 {
     let container = Container::of(out).ok_or_else(|| Error::Usage(format!("{}: a glTF output ends in .glb or .gltf", out.display())))?;
     check_output(out, force)?;
-    let mut s = Survey::new(group_vertices);
+    let mut s = Survey::new(group_vertices, attrs);
     for m in parts() {
         s.add(m?.borrow())?;
     }
@@ -802,17 +991,15 @@ where
             // the buffer streamed straight behind it.
             let mut file = AtomicFile::create(out, OutputKind::Gltf, force)?;
             let (raw, geometry) = raw_layout(&s, &l);
-            let image_at = image_bytes(opts, &l).map(|img| (align4(geometry), img.len() as u64));
-            let len = image_at.map_or(geometry, |(at, n)| at + n);
-            let image_at = image_at.map(|(at, _)| at);
-            let head = glb_head(&json_bytes(&document(&s, &l, opts, Some(name), &raw, len, None, image_at)), len, &what)?;
+            let images = embedded_images(&s, &l, opts);
+            let (image_at, len) = image_layout(&images, geometry);
+            let head = glb_head(&json_bytes(&document(&s, &l, opts, Some(name), &raw, len, None, &image_at)), len, &what)?;
             file.writer().write_all(&head).ctx(out, "write")?;
             let mut bin = Counted { w: file.writer(), at: 0 };
             let placed = write_bin(&mut bin, out, &s, &l, false, parts())?;
-            if bin.at != geometry || placed.iter().zip(&raw).any(|(a, b)| a.vertex.1 != b.vertex.1 || a.index.1 != b.index.1) {
+            if bin.at != geometry || placed != raw || put_images(&mut bin, out, &images)? != image_at || bin.at != len {
                 return Err(Error::Usage(format!("{what}: the buffer's size changed while it was written")));
             }
-            put_image(&mut bin, out, opts, &l)?;
             file.commit()?;
         }
         Container::Glb => {
@@ -824,10 +1011,10 @@ where
             let f = File::create(&spool).ctx(&spool, "create")?;
             let mut bin = Counted { w: BufWriter::with_capacity(crate::io::SEQ_BUF, f), at: 0 };
             let placed = write_bin(&mut bin, &spool, &s, &l, true, parts())?;
-            let image_at = put_image(&mut bin, &spool, opts, &l)?;
+            let image_at = put_images(&mut bin, &spool, &embedded_images(&s, &l, opts))?;
             let len = bin.at;
             drop(bin.w.into_inner().map_err(|e| e.into_error()).ctx(&spool, "write")?);
-            let head = glb_head(&json_bytes(&document(&s, &l, opts, Some(name), &placed, len, None, image_at)), len, &what)?;
+            let head = glb_head(&json_bytes(&document(&s, &l, opts, Some(name), &placed, len, None, &image_at)), len, &what)?;
             let w = file.writer();
             w.write_all(&head).ctx(out, "write")?;
             let mut f = File::open(&spool).ctx(&spool, "open")?;
@@ -845,10 +1032,10 @@ where
             let bin_path = pair.bin_dest().to_path_buf();
             let mut bin = Counted { w: pair.bin(), at: 0 };
             let placed = write_bin(&mut bin, &bin_path, &s, &l, opts.compress, parts())?;
-            let image_at = put_image(&mut bin, &bin_path, opts, &l)?;
+            let image_at = put_images(&mut bin, &bin_path, &embedded_images(&s, &l, opts))?;
             let len = bin.at;
             let uri = uri_of(&bin_path);
-            let doc = document(&s, &l, opts, Some(name), &placed, len, Some(&uri), image_at);
+            let doc = document(&s, &l, opts, Some(name), &placed, len, Some(&uri), &image_at);
             let mut text = serde_json::to_vec_pretty(&doc).expect("JSON of plain values");
             text.push(b'\n');
             pair.json().write_all(&text).ctx(out, "write")?;
@@ -899,9 +1086,9 @@ mod tests {
 
     #[test]
     fn strides_and_attribute_offsets_are_multiples_of_four() {
-        let mut s = Survey::new(u64::MAX);
+        let mut s = Survey::new(u64::MAX, AttrSet(0));
         s.add(&tri()).unwrap();
-        for bits in 0..32 {
+        for bits in 0..64 {
             let Some(attrs) = AttrSet::from_bits(bits) else { continue };
             for quantize in [false, true] {
                 let l = Layout::new(attrs, &GltfOptions { quantize, ..Default::default() }, &s);
@@ -936,5 +1123,192 @@ mod tests {
         encode_glb(&tri(), AttrSet(0), &GltfOptions::default(), &mut out).unwrap();
         assert_eq!(&out[..4], b"glTF");
         assert_eq!(u32::from_le_bytes(out[8..12].try_into().unwrap()) as usize, out.len());
+    }
+
+    /// A strip of 12 triangles, each with its own three vertices (so
+    /// materials never share one), triangle k of material `mats[k]`.
+    fn strip(mats: &[u16]) -> IndexedMesh {
+        let mut m = IndexedMesh::default();
+        for (k, &mat) in mats.iter().enumerate() {
+            let x = k as f64;
+            for (p, uv) in [([x, 0.0, 0.5 * x], [0.1, 0.2]), ([x + 1.0, 0.0, 0.0], [0.9, 0.2]), ([x, 1.0, 0.25], [0.1, 0.8])] {
+                m.vertices.push(Vertex { pos: p, normal: [0.0, 0.0, 1.0], color: [9, 8, 7, 255], uv, material: mat });
+            }
+            let b = 3 * k as u32;
+            m.triangles.push([b, b + 1, b + 2]);
+        }
+        m
+    }
+
+    /// The JSON and BIN chunks of a GLB.
+    fn chunks(glb: &[u8]) -> (Value, Vec<u8>) {
+        let u = |k: usize| u32::from_le_bytes(glb[k..k + 4].try_into().unwrap()) as usize;
+        assert_eq!(&glb[..4], b"glTF");
+        assert_eq!(u(8), glb.len());
+        let jl = u(12);
+        let json = serde_json::from_slice(&glb[20..20 + jl]).unwrap();
+        let bl = u(20 + jl);
+        (json, glb[28 + jl..28 + jl + bl].to_vec())
+    }
+
+    fn png(tag: u8) -> GltfTexture {
+        let mut bytes = b"\x89PNG\r\n\x1a\n".to_vec();
+        bytes.extend(std::iter::repeat_n(tag, 5 + tag as usize));
+        GltfTexture { name: format!("img{tag}"), image: TextureImage::Embedded { bytes: std::sync::Arc::new(bytes), mime: "image/png" } }
+    }
+
+    const T: u16 = Vertex::NO_TEXTURE;
+    /// 5 triangles of material 0, 3 of 2, 4 untextured, interleaved.
+    const MATS: [u16; 12] = [0, 2, T, 0, 0, T, 2, T, 0, 2, T, 0];
+    const UVM: u32 = AttrSet::UV | AttrSet::NORMAL | AttrSet::COLOR | AttrSet::MATERIAL;
+
+    /// Slots 0 and 2 have images, 1 has none, 3's is used by no face.
+    fn slots() -> GltfOptions {
+        GltfOptions { textures: vec![Some(png(1)), None, Some(png(2)), Some(png(3))], ..Default::default() }
+    }
+
+    /// Checks a GLB of [`MATS`] drawn with [`slots`]: a primitive per
+    /// material, in material order, with its triangles' indices; each
+    /// textured material's image is its slot's, written once; the
+    /// untextured one has no texture. Gives the JSON.
+    fn check_materials(glb: &[u8], compressed: bool) -> Value {
+        let (j, bin) = chunks(glb);
+        let prims = j["meshes"][0]["primitives"].as_array().unwrap();
+        assert_eq!(prims.len(), 3);
+        let want = [(0u16, 5u64), (2, 3), (T, 4)];
+        let opts = slots();
+        for (p, (mat, tris)) in prims.iter().zip(want) {
+            let ind = &j["accessors"][p["indices"].as_u64().unwrap() as usize];
+            assert_eq!(ind["count"], 3 * tris, "material {mat}");
+            // Its own vertices: the ones its triangles use.
+            assert_eq!(j["accessors"][p["attributes"]["POSITION"].as_u64().unwrap() as usize]["count"], 3 * tris);
+            let m = &j["materials"][p["material"].as_u64().unwrap() as usize]["pbrMetallicRoughness"];
+            if mat == T {
+                assert!(m.get("baseColorTexture").is_none(), "{m}");
+                continue;
+            }
+            let tex = &j["textures"][m["baseColorTexture"]["index"].as_u64().unwrap() as usize];
+            let img = &j["images"][tex["source"].as_u64().unwrap() as usize];
+            let want = opts.textures[mat as usize].as_ref().unwrap();
+            assert_eq!(img["name"], want.name.as_str());
+            let view = &j["bufferViews"][img["bufferView"].as_u64().unwrap() as usize];
+            let (at, len) = (view["byteOffset"].as_u64().unwrap() as usize, view["byteLength"].as_u64().unwrap() as usize);
+            assert_eq!(&bin[at..at + len], want.embedded().unwrap(), "material {mat}'s image");
+        }
+        assert_eq!(j["materials"].as_array().unwrap().len(), 3);
+        assert_eq!(j["images"].as_array().unwrap().len(), 2, "each used image once, the unused slot's not at all");
+        assert_eq!(j["textures"].as_array().unwrap().len(), 2);
+        let unused = png(3);
+        assert!(!bin.windows(unused.embedded().unwrap().len()).any(|w| w == unused.embedded().unwrap()));
+        let views = j["bufferViews"].as_array().unwrap();
+        assert_eq!(views.len(), 3 * 2 + 2, "a vertex and an index view per primitive, one per image");
+        assert_eq!(views.iter().filter(|v| v.get("extensions").is_some()).count(), if compressed { 6 } else { 0 });
+        j
+    }
+
+    /// The reader's triangles (corner positions, rotated to start at the
+    /// smallest x) in the file's order.
+    fn read_back(path: &Path) -> Vec<[[i64; 3]; 3]> {
+        let (_, sink, _) = crate::input::read_all(path, 1 << 26).unwrap();
+        sink.triangles.iter().map(|t| rotated(t.map(|i| sink.vertices[i as usize].pos))).collect()
+    }
+
+    fn rotated(t: [[f64; 3]; 3]) -> [[i64; 3]; 3] {
+        let q = t.map(|p| p.map(|x| (x * 1000.0).round() as i64));
+        let k = (0..3).min_by_key(|&k| q[k]).unwrap();
+        [q[k], q[(k + 1) % 3], q[(k + 2) % 3]]
+    }
+
+    #[test]
+    fn each_material_is_a_primitive_drawing_its_own_texture() {
+        let m = strip(&MATS);
+        let dir = tempfile::tempdir().unwrap();
+        // The triangles in material order, as the primitives hold them.
+        let mut want: Vec<(u16, [[i64; 3]; 3])> =
+            m.triangles.iter().map(|t| (m.vertices[t[0] as usize].material, rotated(t.map(|i| m.vertices[i as usize].pos)))).collect();
+        want.sort_by_key(|w| w.0);
+        let want: Vec<[[i64; 3]; 3]> = want.into_iter().map(|w| w.1).collect();
+        for (quantize, compress) in [(false, false), (true, true), (false, true), (true, false)] {
+            let opts = GltfOptions { quantize, compress, ..slots() };
+            let mut glb = Vec::new();
+            encode_glb(&m, AttrSet(UVM), &opts, &mut glb).unwrap();
+            let j = check_materials(&glb, compress);
+            assert_eq!(j["extensionsUsed"].as_array().map_or(0, |e| e.len()), quantize as usize + compress as usize);
+            // octolod's reader decodes it (meshopt too): every triangle, in
+            // the primitives' order, at its place.
+            let p = dir.path().join(format!("m-{quantize}-{compress}.glb"));
+            std::fs::write(&p, &glb).unwrap();
+            assert_eq!(read_back(&p), want, "quantize {quantize}, compress {compress}");
+            // Written to files the same way, whichever path writes them.
+            for ext in ["glb", "gltf"] {
+                let out = dir.path().join(format!("w-{quantize}-{compress}.{ext}"));
+                assert_eq!(write_mesh(&out, &m, AttrSet(UVM), &opts, false, "m").unwrap(), (36, 12));
+                assert_eq!(read_back(&out), want, "{}", out.display());
+                if ext == "glb" {
+                    check_materials(&std::fs::read(&out).unwrap(), compress);
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn a_streamed_run_of_parts_merges_each_materials_triangles() {
+        let dir = tempfile::tempdir().unwrap();
+        let a = strip(&MATS[..6]);
+        let b = strip(&MATS[6..]);
+        for compress in [false, true] {
+            let out = dir.path().join(format!("s-{compress}.glb"));
+            let opts = GltfOptions { compress, ..slots() };
+            // One run: the two parts' triangles of each material together.
+            write_parts(&out, AttrSet(UVM), &opts, false, "s", u64::MAX, || [Ok(&a), Ok(&b)].into_iter()).unwrap();
+            check_materials(&std::fs::read(&out).unwrap(), compress);
+            // A run per part: each its own primitives, images still once.
+            let out = dir.path().join(format!("r-{compress}.glb"));
+            write_parts(&out, AttrSet(UVM), &opts, false, "s", 18, || [Ok(&a), Ok(&b)].into_iter()).unwrap();
+            let (j, _) = chunks(&std::fs::read(&out).unwrap());
+            let prims = j["meshes"][0]["primitives"].as_array().unwrap();
+            let counts: Vec<u64> = prims.iter().map(|p| j["accessors"][p["indices"].as_u64().unwrap() as usize]["count"].as_u64().unwrap() / 3).collect();
+            // Part a: 0 ×3, 2 ×1, untextured ×2; part b: 0 ×2, 2 ×2, untextured ×2.
+            assert_eq!(counts, [3, 1, 2, 2, 2, 2]);
+            let mats: Vec<u64> = prims.iter().map(|p| p["material"].as_u64().unwrap()).collect();
+            assert_eq!(mats, [0, 1, 2, 0, 1, 2]);
+            assert_eq!(j["images"].as_array().unwrap().len(), 2);
+        }
+    }
+
+    #[test]
+    fn without_materials_every_face_draws_the_first_image() {
+        let mut m = strip(&MATS);
+        // Material ids are not read without MATERIAL.
+        let attrs = AttrSet(UVM & !AttrSet::MATERIAL);
+        let opts = GltfOptions { textures: vec![None, Some(png(2)), Some(png(3))], ..Default::default() };
+        let mut glb = Vec::new();
+        encode_glb(&m, attrs, &opts, &mut glb).unwrap();
+        let (j, _) = chunks(&glb);
+        assert_eq!(j["meshes"][0]["primitives"].as_array().unwrap().len(), 1);
+        assert_eq!(j["images"].as_array().unwrap().len(), 1);
+        assert_eq!(j["images"][0]["name"], "img2");
+        assert_eq!(j["materials"][0]["pbrMetallicRoughness"]["baseColorTexture"]["index"], 0);
+        // Nor without uvs, any texture; nor with no textures.
+        for (attrs, opts) in [(AttrSet(AttrSet::MATERIAL), slots()), (AttrSet(UVM), GltfOptions::default())] {
+            glb.clear();
+            encode_glb(&m, attrs, &opts, &mut glb).unwrap();
+            let (j, _) = chunks(&glb);
+            assert!(j.get("images").is_none() && j.get("textures").is_none() && j.get("samplers").is_none());
+            assert_eq!(j["materials"].as_array().unwrap().len(), 1);
+            let n = j["meshes"][0]["primitives"].as_array().unwrap().len();
+            assert_eq!(n, 3, "primitives stay per material even when all draw untextured");
+        }
+        // One material everywhere: one primitive, every vertex kept in order.
+        for v in &mut m.vertices {
+            v.material = 2;
+        }
+        m.vertices.push(m.vertices[0]);
+        glb.clear();
+        encode_glb(&m, AttrSet(UVM), &slots(), &mut glb).unwrap();
+        let (j, _) = chunks(&glb);
+        assert_eq!(j["meshes"][0]["primitives"].as_array().unwrap().len(), 1);
+        assert_eq!(j["accessors"][0]["count"], 37, "an unused vertex is kept when the part has one material");
+        assert_eq!(j["images"][0]["name"], "img2");
     }
 }

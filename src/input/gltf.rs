@@ -1364,7 +1364,7 @@ mod tests {
         let cases = [("a.glb", false, false), ("b.gltf", false, false), ("c.glb", true, false), ("d.glb", false, true), ("e.gltf", true, true)];
         for (name, quantize, compress) in cases {
             let p = dir.path().join(name);
-            let opts = crate::gltf::GltfOptions { quantize, compress, texture: None };
+            let opts = crate::gltf::GltfOptions { quantize, compress, textures: Vec::new() };
             crate::gltf::write_mesh(&p, &mesh, attrs, &opts, false, "m").unwrap();
             let (h, sink, stats) = super::super::read_all(&p, 1 << 30).unwrap();
             assert_eq!(h.format, super::super::Format::Gltf);
@@ -1390,7 +1390,7 @@ mod tests {
         }
         // A corrupt meshopt stream is an error naming the extension.
         let p = dir.path().join("f.glb");
-        crate::gltf::write_mesh(&p, &mesh, attrs, &crate::gltf::GltfOptions { quantize: false, compress: true, texture: None }, false, "m").unwrap();
+        crate::gltf::write_mesh(&p, &mesh, attrs, &crate::gltf::GltfOptions { quantize: false, compress: true, textures: Vec::new() }, false, "m").unwrap();
         let mut bytes = std::fs::read(&p).unwrap();
         let jlen = u32::from_le_bytes(bytes[12..16].try_into().unwrap()) as usize;
         let bin = 20 + jlen + 8;

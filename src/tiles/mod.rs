@@ -27,12 +27,14 @@
 //! * Out of core: one counting and one writing pass over each level, a few
 //!   nodes per thread in memory whatever the store's size.
 //!
-//! * Textures: a store with a texture (and uvs) gets copies of it in `t/`
-//!   at the resolution each level needs ([`level_texture_side`]: the
-//!   full image at levels 0 and 1, halved every two levels, as a level's
-//!   triangles halve, down to 64 texels), each GLB's material naming its
-//!   level's copy by URI, so a far view fetches a small image and tiles
-//!   of a level share one (browsers cache it; CesiumJS shares it).
+//! * Textures: a store with textures (and uvs) gets copies of each in
+//!   `t/` (`texture-K-SIDE`, K its slot) at the resolution each level
+//!   needs ([`level_texture_side`]: the full image at levels 0 and 1,
+//!   halved every two levels, as a level's triangles halve, down to 64
+//!   texels), each GLB having a primitive per material whose glTF material
+//!   names its level's copy of that material's texture by URI
+//!   ([`tile_glb`]), so a far view fetches small images and tiles of a
+//!   level share them (browsers cache them; CesiumJS shares them).
 //!
 //! Why a tree of cells, the skirts, frames, textures and costs: `docs/web.md`.
 
@@ -483,8 +485,10 @@ pub fn export(store: &Store, out: &Path, o: &TilesOptions) -> Result<TilesReport
     let top = store.top_level();
     let attrs = store.payload_layout.attrs;
     let mut rep_texture_bytes = 0u64;
-    let textures = level_textures(store, dir.path(), top, &mut rep_texture_bytes)?;
-    let gopts = GltfOptions { quantize: o.quantize, compress: o.compress, texture: None };
+    let slots = crate::manifest::store_textures(&store.dir);
+    let textures = level_textures(&slots, attrs, dir.path(), top, &mut rep_texture_bytes)?;
+    // Each level's glTF options: its copies of every texture slot.
+    let level_opts: Vec<GltfOptions> = textures.into_iter().map(|textures| GltfOptions { quantize: o.quantize, compress: o.compress, textures }).collect();
     let mut rep = TilesReport { store_triangles: (0..=top).map(|l| store.level_triangles(l)).sum(), texture_bytes: rep_texture_bytes, ..Default::default() };
     rep.tileset_bytes += rep.texture_bytes;
     let n = plan.tiles.len();
@@ -505,16 +509,8 @@ pub fn export(store: &Store, out: &Path, o: &TilesOptions) -> Result<TilesReport
             .map(|&t| {
                 crate::io::signal::check()?;
                 let Some(tm) = tile_content_cached(store, &plan, t, &cache)? else { return Ok((t, None)) };
-                let mut g = tm.mesh.clone();
-                face_their_normals(&mut g);
-                for v in &mut g.vertices {
-                    v.pos = to_gltf(v.pos);
-                    v.normal = to_gltf(v.normal.map(|x| x as f64)).map(|x| x as f32);
-                }
-                let mut glb = Vec::new();
                 let level = plan.tiles[t].level as usize;
-                let opts = GltfOptions { texture: textures.as_ref().map(|v| v[level.min(v.len() - 1)].clone()), ..gopts.clone() };
-                encode_glb(&g, attrs, &opts, &mut glb)?;
+                let glb = tile_glb(&tm.mesh, attrs, &level_opts[level.min(level_opts.len() - 1)])?;
                 Ok((t, Some((glb, tm))))
             })
             .collect();
@@ -582,55 +578,87 @@ pub fn level_texture_side(side: u32, level: u8) -> u32 {
     shrunk.max(64).min(side)
 }
 
-/// Writes each level's copy of the store's first texture into `dir/t/`
-/// (`texture-0-SIDE.EXT`; levels of one size share a file; the full size
-/// is the store's own file, unchanged) and gives each level's glTF
-/// texture; none when the store has no texture or no uvs, or (with a
-/// warning) when the image does not decode. Copies of a PNG are PNG, of
-/// anything else JPEG (quality 90).
-fn level_textures(store: &Store, dir: &Path, top: u8, bytes_written: &mut u64) -> Result<Option<Vec<crate::gltf::GltfTexture>>> {
+/// A tile's GLB: its mesh (in the store's frame) turned to glTF's Y-up
+/// frame, its folds facing their normals ([`face_their_normals`]), one
+/// primitive per material drawing its level's copy of the material's
+/// texture (`opts`: the level's [`GltfOptions`]).
+pub fn tile_glb(mesh: &IndexedMesh, attrs: crate::mesh::AttrSet, opts: &GltfOptions) -> Result<Vec<u8>> {
+    let mut g = mesh.clone();
+    face_their_normals(&mut g);
+    for v in &mut g.vertices {
+        v.pos = to_gltf(v.pos);
+        v.normal = to_gltf(v.normal.map(|x| x as f64)).map(|x| x as f32);
+    }
+    let mut glb = Vec::new();
+    encode_glb(&g, attrs, opts, &mut glb)?;
+    Ok(glb)
+}
+
+/// Writes each level's copy of the store's textures `slots` (by material
+/// id, [`crate::manifest::store_textures`]) into `dir/t/`
+/// (`texture-K-SIDE.EXT` for slot K; levels of one size share a file; the
+/// full size is the store's own file, unchanged) and gives each level's
+/// glTF textures by material id (levels `0..=top`); none when `attrs` has
+/// no uvs. Without [`crate::mesh::AttrSet::MATERIAL`] every face draws the
+/// first slot with an image, so only that one is copied. A slot without an
+/// image, or (with a warning) whose image does not decode, is `None`: its
+/// faces are drawn untextured. One image is decoded at a time. Copies of a
+/// PNG are PNG, of anything else JPEG (quality 90).
+fn level_textures(
+    slots: &[Option<(String, std::path::PathBuf)>],
+    attrs: crate::mesh::AttrSet,
+    dir: &Path,
+    top: u8,
+    bytes_written: &mut u64,
+) -> Result<Vec<Vec<Option<crate::gltf::GltfTexture>>>> {
     use crate::gltf::{GltfTexture, TextureImage};
-    if !store.payload_layout.attrs.uv() {
-        return Ok(None);
+    let mut out: Vec<Vec<Option<GltfTexture>>> = vec![vec![None; slots.len()]; top as usize + 1];
+    if !attrs.uv() {
+        return Ok(out);
     }
-    let Some((file, src)) = crate::manifest::store_texture(&store.dir) else { return Ok(None) };
-    let bytes = std::fs::read(&src).map_err(|e| Error::io(&src, "read texture", e))?;
-    let bad = |what: String| Error::input(crate::error::Location { file: src.clone(), ..Default::default() }, what);
-    let mime = crate::gltf::image_mime(&bytes);
-    let png = mime == Some("image/png");
-    let img = match ::image::load_from_memory(&bytes) {
-        Ok(i) => i.into_rgba8(),
-        Err(e) => {
-            // The geometry is the tileset; a texture it cannot carry is left out.
-            eprintln!("warning: {}; the tiles are written without it", bad(format!("cannot decode the texture: {e}")));
-            return Ok(None);
+    let first = slots.iter().position(|s| s.is_some());
+    for (k, slot) in slots.iter().enumerate() {
+        let Some((file, src)) = slot else { continue };
+        if !attrs.material() && Some(k) != first {
+            continue;
         }
-    };
-    let (w, h) = img.dimensions();
-    let chain = crate::view::texture::MipChain::new(&file, w, h, img.into_raw());
-    let ext = if png { "png" } else { "jpg" };
-    // Mip levels already written (levels of one size share a file).
-    let mut written: Vec<usize> = Vec::new();
-    let mut out = Vec::new();
-    for level in 0..=top {
-        let side = level_texture_side(w.max(h), level);
-        let mip = chain.levels.iter().position(|l| l.width.max(l.height) <= side).unwrap_or(chain.levels.len() - 1);
-        let l = &chain.levels[mip];
-        let stem = format!("texture-0-{}", l.width.max(l.height));
-        let name = format!("{stem}.{ext}");
-        if !written.contains(&mip) {
-            let path = dir.join("t").join(&name);
-            if mip == 0 && mime.is_some() {
-                std::fs::write(&path, &bytes).map_err(|e| Error::io(&path, "write", e))?;
-            } else {
-                encode_image(&path, l, png)?;
+        let bytes = std::fs::read(src).map_err(|e| Error::io(src, "read texture", e))?;
+        let bad = |what: String| Error::input(crate::error::Location { file: src.clone(), ..Default::default() }, what);
+        let mime = crate::gltf::image_mime(&bytes);
+        let png = mime == Some("image/png");
+        let img = match ::image::load_from_memory(&bytes) {
+            Ok(i) => i.into_rgba8(),
+            Err(e) => {
+                // The geometry is the tileset; a texture it cannot carry is left out.
+                eprintln!("warning: {}; the tiles draw its faces without it", bad(format!("cannot decode the texture: {e}")));
+                continue;
             }
-            *bytes_written += std::fs::metadata(&path).map_err(|e| Error::io(&path, "stat", e))?.len();
-            written.push(mip);
+        };
+        let (w, h) = img.dimensions();
+        let chain = crate::view::texture::MipChain::new(file, w, h, img.into_raw());
+        let ext = if png { "png" } else { "jpg" };
+        // Mip levels already written (levels of one size share a file).
+        let mut written: Vec<usize> = Vec::new();
+        for level in 0..=top {
+            let side = level_texture_side(w.max(h), level);
+            let mip = chain.levels.iter().position(|l| l.width.max(l.height) <= side).unwrap_or(chain.levels.len() - 1);
+            let l = &chain.levels[mip];
+            let stem = format!("texture-{k}-{}", l.width.max(l.height));
+            let name = format!("{stem}.{ext}");
+            if !written.contains(&mip) {
+                let path = dir.join("t").join(&name);
+                if mip == 0 && mime.is_some() {
+                    std::fs::write(&path, &bytes).map_err(|e| Error::io(&path, "write", e))?;
+                } else {
+                    encode_image(&path, l, png)?;
+                }
+                *bytes_written += std::fs::metadata(&path).map_err(|e| Error::io(&path, "stat", e))?.len();
+                written.push(mip);
+            }
+            out[level as usize][k] = Some(GltfTexture { name: stem, image: TextureImage::Uri(name) });
         }
-        out.push(GltfTexture { name: stem, image: TextureImage::Uri(name) });
     }
-    Ok(Some(out))
+    Ok(out)
 }
 
 /// Writes one mip level as PNG or JPEG (quality 90, alpha dropped).
@@ -880,5 +908,106 @@ mod tests {
         let p = [1.0, 2.0, 3.0];
         let g = to_gltf(p);
         assert_eq!([g[0], -g[2], g[1]], p);
+    }
+
+    /// The file names in `d`, sorted.
+    fn names(d: &Path) -> Vec<String> {
+        let mut v: Vec<String> = std::fs::read_dir(d).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+        v.sort();
+        v
+    }
+
+    /// A `side`² PNG at `path`.
+    fn png(path: &Path, side: u32) {
+        ::image::RgbaImage::from_fn(side, side, |x, y| ::image::Rgba([x as u8, y as u8, 7, 255])).save(path).unwrap();
+    }
+
+    /// Issue 32: every texture slot gets its per-level copies, named by
+    /// slot; a slot without an image or whose image does not decode draws
+    /// untextured; without per-face materials only the first image is copied.
+    #[test]
+    fn each_texture_slot_gets_its_level_copies() {
+        use crate::gltf::TextureImage;
+        use crate::mesh::AttrSet;
+        let d = tempfile::tempdir().unwrap();
+        let (src, out) = (d.path().join("store"), d.path().join("out"));
+        std::fs::create_dir_all(&src).unwrap();
+        std::fs::create_dir_all(out.join("t")).unwrap();
+        png(&src.join("texture-0.png"), 256);
+        png(&src.join("texture-2.png"), 128);
+        std::fs::write(src.join("texture-3.png"), b"not an image").unwrap();
+        let slot = |f: &str| Some((f.to_string(), src.join(f)));
+        let slots = vec![slot("texture-0.png"), None, slot("texture-2.png"), slot("texture-3.png")];
+        let uris = |v: &[Option<crate::gltf::GltfTexture>]| -> Vec<Option<String>> {
+            v.iter()
+                .map(|t| {
+                    t.as_ref().map(|t| match &t.image {
+                        TextureImage::Uri(u) => u.clone(),
+                        TextureImage::Embedded { .. } => panic!("tiles name their images"),
+                    })
+                })
+                .collect()
+        };
+        let mut bytes = 0;
+        let attrs = AttrSet(AttrSet::UV | AttrSet::MATERIAL);
+        let levels = level_textures(&slots, attrs, &out, 4, &mut bytes).unwrap();
+        assert_eq!(levels.len(), 5);
+        let s = |x: &str| Some(x.to_string());
+        assert_eq!(uris(&levels[0]), [s("texture-0-256.png"), None, s("texture-2-128.png"), None]);
+        assert_eq!(uris(&levels[1]), [s("texture-0-256.png"), None, s("texture-2-128.png"), None]);
+        assert_eq!(uris(&levels[2]), [s("texture-0-128.png"), None, s("texture-2-64.png"), None]);
+        assert_eq!(uris(&levels[4]), [s("texture-0-64.png"), None, s("texture-2-64.png"), None]);
+        let files = names(&out.join("t"));
+        assert_eq!(files, ["texture-0-128.png", "texture-0-256.png", "texture-0-64.png", "texture-2-128.png", "texture-2-64.png"]);
+        let total: u64 = files.iter().map(|f| std::fs::metadata(out.join("t").join(f)).unwrap().len()).sum();
+        assert_eq!(bytes, total);
+        assert_eq!(std::fs::read(out.join("t/texture-2-128.png")).unwrap(), std::fs::read(src.join("texture-2.png")).unwrap(), "full size: the store's file");
+        // Without MATERIAL: the first slot with an image only.
+        let out2 = d.path().join("out2");
+        std::fs::create_dir_all(out2.join("t")).unwrap();
+        let levels = level_textures(&slots[1..], AttrSet(AttrSet::UV), &out2, 1, &mut 0).unwrap();
+        assert_eq!(uris(&levels[1]), [None, s("texture-1-128.png"), None]);
+        assert_eq!(names(&out2.join("t")), ["texture-1-128.png"]);
+        // Without uvs: nothing.
+        let levels = level_textures(&slots, AttrSet(AttrSet::MATERIAL), &out2, 1, &mut 0).unwrap();
+        assert!(levels.iter().flatten().all(|t| t.is_none()));
+    }
+
+    /// A tile of a mesh with materials: a primitive per material, each
+    /// drawing its level's copy of its texture by URI.
+    #[test]
+    fn a_tile_draws_each_material_with_its_levels_copy() {
+        use crate::gltf::{GltfTexture, TextureImage};
+        use crate::mesh::AttrSet;
+        let mats = [1u16, 0, Vertex::NO_TEXTURE, 1, 1];
+        let mut m = IndexedMesh::default();
+        for (k, &material) in mats.iter().enumerate() {
+            let x = k as f64;
+            for p in [[x, 0.0, 0.0], [x + 1.0, 0.0, 0.0], [x, 1.0, 0.0]] {
+                m.vertices.push(Vertex { pos: p, normal: [0.0, 0.0, 1.0], uv: [0.5, 0.5], material, ..Default::default() });
+            }
+            m.triangles.push([3 * k as u32, 3 * k as u32 + 1, 3 * k as u32 + 2]);
+        }
+        let uri = |u: &str| Some(GltfTexture { name: u.trim_end_matches(".jpg").into(), image: TextureImage::Uri(u.into()) });
+        for compress in [false, true] {
+            let opts = GltfOptions { quantize: compress, compress, textures: vec![uri("texture-0-64.jpg"), uri("texture-1-128.jpg")] };
+            let glb = tile_glb(&m, AttrSet(AttrSet::UV | AttrSet::NORMAL | AttrSet::MATERIAL), &opts).unwrap();
+            let jl = u32::from_le_bytes(glb[12..16].try_into().unwrap()) as usize;
+            let j: serde_json::Value = serde_json::from_slice(&glb[20..20 + jl]).unwrap();
+            let prims = j["meshes"][0]["primitives"].as_array().unwrap();
+            let got: Vec<(u64, Option<&str>)> = prims
+                .iter()
+                .map(|p| {
+                    let n = j["accessors"][p["indices"].as_u64().unwrap() as usize]["count"].as_u64().unwrap() / 3;
+                    let mat = &j["materials"][p["material"].as_u64().unwrap() as usize]["pbrMetallicRoughness"];
+                    let img = mat["baseColorTexture"]["index"]
+                        .as_u64()
+                        .map(|t| j["images"][j["textures"][t as usize]["source"].as_u64().unwrap() as usize]["uri"].as_str().unwrap());
+                    (n, img)
+                })
+                .collect();
+            assert_eq!(got, [(1, Some("texture-0-64.jpg")), (3, Some("texture-1-128.jpg")), (1, None)]);
+            assert_eq!(j["images"].as_array().unwrap().len(), 2);
+        }
     }
 }

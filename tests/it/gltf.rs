@@ -17,10 +17,10 @@ use std::path::{Path, PathBuf};
 const ALL: u32 = AttrSet::NORMAL | AttrSet::COLOR | AttrSet::ALPHA | AttrSet::UV;
 
 const VARIANTS: [GltfOptions; 4] = [
-    GltfOptions { quantize: false, compress: false, texture: None },
-    GltfOptions { quantize: true, compress: false, texture: None },
-    GltfOptions { quantize: false, compress: true, texture: None },
-    GltfOptions { quantize: true, compress: true, texture: None },
+    GltfOptions { quantize: false, compress: false, textures: Vec::new() },
+    GltfOptions { quantize: true, compress: false, textures: Vec::new() },
+    GltfOptions { quantize: false, compress: true, textures: Vec::new() },
+    GltfOptions { quantize: true, compress: true, textures: Vec::new() },
 ];
 
 fn tag(o: &GltfOptions) -> &'static str {
@@ -596,10 +596,10 @@ fn big_meshes_get_32_bit_indices_and_odd_uvs_stay_float() {
     // 255 × 257 = 65535 vertices: still u16.
     let m = grid(255, 257, [0.0; 3], false);
     let mut b = Vec::new();
-    encode_glb(&m, AttrSet(0), &GltfOptions { quantize: true, compress: true, texture: None }, &mut b).unwrap();
+    encode_glb(&m, AttrSet(0), &GltfOptions { quantize: true, compress: true, textures: Vec::new() }, &mut b).unwrap();
     let dec = decode(&parse_glb(&b));
     assert_eq!(dec.prims, vec![(65535, 5123)]);
-    check(&dec, &m, AttrSet(0), &GltfOptions { quantize: true, compress: true, texture: None }, "65535");
+    check(&dec, &m, AttrSet(0), &GltfOptions { quantize: true, compress: true, textures: Vec::new() }, "65535");
 }
 
 #[test]
@@ -633,13 +633,13 @@ fn only_our_own_gltf_is_replaced_and_only_with_force() {
     extract_as(&s, spec, &glb, true, false, &opts).unwrap();
     let e = extract_as(&s, spec, &glb, true, false, &opts).unwrap_err().to_string();
     assert!(e.contains("--force"), "{e}");
-    extract_as(&s, spec, &glb, true, true, &GltfOptions { quantize: true, compress: false, texture: None }).unwrap();
+    extract_as(&s, spec, &glb, true, true, &GltfOptions { quantize: true, compress: false, textures: Vec::new() }).unwrap();
     assert!(read(&glb).extensions("extensionsUsed").contains(&"KHR_mesh_quantization".to_string()));
 
     // A pair, replaced as a pair.
     let gltf = dir.join("b.gltf");
     extract_as(&s, spec, &gltf, true, false, &opts).unwrap();
-    extract_as(&s, spec, &gltf, false, true, &GltfOptions { quantize: false, compress: true, texture: None }).unwrap();
+    extract_as(&s, spec, &gltf, false, true, &GltfOptions { quantize: false, compress: true, textures: Vec::new() }).unwrap();
     assert_eq!(decode(&read(&gltf)).tris.len() as u64, s.level_triangles(1));
     assert_eq!(names(&dir), ["a.glb", "b.bin", "b.gltf"]);
 
@@ -681,7 +681,7 @@ fn only_our_own_gltf_is_replaced_and_only_with_force() {
 fn errors_leave_nothing_behind() {
     let d = tempfile::tempdir().unwrap();
     let out = d.path().join("x.gltf");
-    let opts = GltfOptions { quantize: true, compress: true, texture: None };
+    let opts = GltfOptions { quantize: true, compress: true, textures: Vec::new() };
     // Empty: an error, not an empty file.
     let e = write_parts(&out, AttrSet(0), &opts, false, "e", 100, || std::iter::once(Ok(IndexedMesh::default()))).unwrap_err().to_string();
     assert!(e.contains("no triangles"), "{e}");
@@ -696,7 +696,7 @@ fn errors_leave_nothing_behind() {
         let out = d.path().join(format!("y.{ext}"));
         for compress in [false, true] {
             let mut pass = 0;
-            let e = write_parts(&out, AttrSet(ALL), &GltfOptions { quantize: false, compress, texture: None }, false, "e", 20, || {
+            let e = write_parts(&out, AttrSet(ALL), &GltfOptions { quantize: false, compress, textures: Vec::new() }, false, "e", 20, || {
                 pass += 1;
                 let p = pass;
                 (0..4).map(move |k| if p == 2 && k == 2 { Err(octolod::Error::Usage("gone".into())) } else { Ok(grid(4, 4, [k as f64; 3], false)) })
@@ -791,7 +791,7 @@ fn every_primitive_uses_one_rough_double_sided_dielectric_material() {
         docs.push(read(&out).json);
     }
     let mut b = Vec::new();
-    encode_glb(&grid(3, 3, [0.0; 3], false), AttrSet(0), &GltfOptions { quantize: true, compress: true, texture: None }, &mut b).unwrap();
+    encode_glb(&grid(3, 3, [0.0; 3], false), AttrSet(0), &GltfOptions { quantize: true, compress: true, textures: Vec::new() }, &mut b).unwrap();
     docs.push(parse_glb(&b).json);
     for (k, j) in docs.iter().enumerate() {
         let mats = j["materials"].as_array().unwrap();
