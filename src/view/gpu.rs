@@ -22,11 +22,18 @@
 //!   bytes and read back unchanged where fully lit; [`DrawParams::clear`] is
 //!   linear like `wgpu::Color` and reads back sRGB-encoded ([`clear_rgba8`]).
 //!   Lighting is computed in linear space.
-//! * Texture ([`Renderer::set_texture`], drawn when
-//!   [`DrawParams::textured`]): one RGBA8 sRGB texture with its mip chain,
-//!   sampled trilinearly (anisotropic where the device can), repeating,
-//!   at (u, 1 − v); lit like the shaded view. Meshes carry uvs in a second
-//!   vertex buffer, so untextured meshes keep 28 bytes per vertex.
+//! * Textures ([`Renderer::set_textures`], drawn when
+//!   [`DrawParams::textured`]): one RGBA8 sRGB texture per material slot,
+//!   each with its mip chain and bind group, sampled trilinearly
+//!   (anisotropic where the device can), repeating, at (u, 1 − v); lit
+//!   like the shaded view. Meshes carry uvs in a second vertex buffer, so
+//!   untextured meshes keep 28 bytes per vertex, and their triangles'
+//!   materials as runs ([`crate::view::MaterialRun`], made off the render
+//!   thread when the node is decoded), not per vertex: each drawn range
+//!   is split at the runs' bounds, one draw per (mesh, run) with that
+//!   slot's bind group. A run whose slot has no texture (or
+//!   [`crate::mesh::Vertex::NO_TEXTURE`]) is drawn shaded, as a store
+//!   without textures is. A mesh without runs uses slot 0 throughout.
 //! * Wireframe: `PolygonMode::Line` when the device has
 //!   `Features::POLYGON_MODE_LINE` (Vulkan incl. lavapipe, Metal, DX12).
 //!   Otherwise (GL, or [`RendererOptions::line_list_wireframe`]) every
@@ -35,7 +42,8 @@
 
 use crate::error::{Error, Result};
 use crate::view::overlay::OverlayImage;
-use crate::view::{DrawItem, DrawMesh, GpuBytes, GpuVertex};
+use crate::view::texture::MipChain;
+use crate::view::{DrawItem, DrawMesh, GpuBytes, GpuVertex, MaterialRun};
 use glam::{Mat4, Vec3};
 use std::sync::Arc;
 use wgpu::util::DeviceExt;
@@ -111,6 +119,8 @@ pub struct GpuMesh {
     uvs: Option<wgpu::Buffer>,
     indices: Option<wgpu::Buffer>,
     lines: Option<wgpu::Buffer>,
+    /// Triangle runs by material (empty: all texture 0).
+    materials: Vec<MaterialRun>,
     index_count: u32,
     line_index_count: u32,
     bytes: u64,
@@ -197,8 +207,10 @@ pub struct Renderer {
     textured: wgpu::RenderPipeline,
     texture_layout: wgpu::BindGroupLayout,
     sampler: wgpu::Sampler,
-    /// The texture set, its bind group, and whether vertex colours tint it.
-    texture: Option<(wgpu::Texture, wgpu::BindGroup, bool)>,
+    /// The textures set, by material slot, with their bind groups.
+    textures: Vec<Option<(wgpu::Texture, wgpu::BindGroup)>>,
+    /// Vertex colours tint the textures.
+    tint: bool,
     overlay: OverlayGpu,
     readback: Option<(wgpu::Buffer, u64)>,
 }
@@ -458,7 +470,8 @@ impl Renderer {
             textured,
             texture_layout,
             sampler,
-            texture: None,
+            textures: Vec::new(),
+            tint: false,
             overlay,
             readback: None,
         })
@@ -522,11 +535,36 @@ impl Renderer {
         self.vsync
     }
 
-    /// Sets the texture meshes with uvs are drawn with (see the module
-    /// doc): every level of `chain` whose sides the device allows (finer
-    /// ones are skipped). `tint`: vertex colours multiply it. Gives the
-    /// bytes the GPU holds for it.
-    pub fn set_texture(&mut self, chain: &crate::view::texture::MipChain, tint: bool) -> Result<u64> {
+    /// Sets the textures meshes with uvs are drawn with, by material slot
+    /// (see the module doc; an empty slot draws its triangles shaded):
+    /// every level of each chain whose sides the device allows (finer
+    /// ones are skipped). `tint`: vertex colours multiply them. Gives the
+    /// bytes the GPU holds for them.
+    pub fn set_textures<'a>(&mut self, slots: impl IntoIterator<Item = Option<&'a MipChain>>, tint: bool) -> Result<u64> {
+        let mut textures = Vec::new();
+        let mut bytes = 0;
+        for chain in slots {
+            textures.push(match chain {
+                Some(c) => {
+                    let (t, b) = self.upload_texture(c)?;
+                    bytes += b;
+                    Some(t)
+                }
+                None => None,
+            });
+        }
+        self.textures = textures;
+        self.tint = tint;
+        Ok(bytes)
+    }
+
+    /// [`Renderer::set_textures`] with one texture, slot 0.
+    pub fn set_texture(&mut self, chain: &MipChain, tint: bool) -> Result<u64> {
+        self.set_textures([Some(chain)], tint)
+    }
+
+    /// One texture on the GPU and its bind group, and its bytes.
+    fn upload_texture(&self, chain: &MipChain) -> Result<((wgpu::Texture, wgpu::BindGroup), u64)> {
         let max = self.device.limits().max_texture_dimension_2d;
         let levels: Vec<&crate::view::texture::MipLevel> = chain.levels.iter().skip_while(|l| l.width > max || l.height > max).collect();
         let Some(first) = levels.first() else {
@@ -560,19 +598,18 @@ impl Renderer {
             ],
         });
         let bytes = levels.iter().map(|l| l.rgba.len() as u64).sum();
-        self.texture = Some((texture, bind, tint));
-        Ok(bytes)
+        Ok(((texture, bind), bytes))
     }
 
-    /// Whether a texture is set.
+    /// Whether any texture is set.
     pub fn has_texture(&self) -> bool {
-        self.texture.is_some()
+        self.textures.iter().any(Option::is_some)
     }
 
     /// Uploads a mesh. Empty meshes own no buffers and draw nothing.
     pub fn upload(&self, m: &DrawMesh) -> GpuMesh {
         if m.indices.is_empty() || m.vertices.is_empty() {
-            return GpuMesh { vertices: None, uvs: None, indices: None, lines: None, index_count: 0, line_index_count: 0, bytes: 0 };
+            return GpuMesh { vertices: None, uvs: None, indices: None, lines: None, materials: Vec::new(), index_count: 0, line_index_count: 0, bytes: 0 };
         }
         let vertices = self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("vertices"),
@@ -605,7 +642,8 @@ impl Renderer {
             })
         });
         let bytes = vertices.size() + indices.size() + lines.as_ref().map_or(0, |b| b.size()) + uvs.as_ref().map_or(0, |b| b.size());
-        GpuMesh { vertices: Some(vertices), uvs, indices: Some(indices), lines, index_count, line_index_count, bytes }
+        let materials = if uvs.is_some() { m.materials.clone() } else { Vec::new() };
+        GpuMesh { vertices: Some(vertices), uvs, indices: Some(indices), lines, materials, index_count, line_index_count, bytes }
     }
 
     fn write_globals(&self, p: &DrawParams) {
@@ -614,7 +652,7 @@ impl Renderer {
             view_proj: p.view_proj.to_cols_array_2d(),
             eye: p.eye.extend(1.0).to_array(),
             light: light.to_array(),
-            params: [AMBIENT, if self.format.is_srgb() { 0.0 } else { 1.0 }, if self.texture.as_ref().is_some_and(|t| t.2) { 1.0 } else { 0.0 }, 0.0],
+            params: [AMBIENT, if self.format.is_srgb() { 0.0 } else { 1.0 }, if self.tint { 1.0 } else { 0.0 }, 0.0],
         };
         self.queue.write_buffer(&self.globals, 0, bytemuck::bytes_of(&g));
     }
@@ -652,27 +690,13 @@ impl Renderer {
             occlusion_query_set: None,
         });
         pass.set_bind_group(0, &self.globals_bind, &[]);
-        let texture = self.texture.as_ref().filter(|_| p.textured && !p.wireframe);
-        if let Some((_, bind, _)) = texture {
-            pass.set_bind_group(1, bind, &[]);
-        }
-        // The pipeline set: textured or not.
-        let mut current: Option<bool> = None;
+        let textured = p.textured && !p.wireframe && self.has_texture();
+        let mut current: Option<Pipe> = None;
+        let mut bound: Option<usize> = None;
         for item in meshes {
             let m = item.mesh;
             let (Some(vb), Some(ib)) = (&m.vertices, &m.indices) else { continue };
-            let uvs = m.uvs.as_ref().filter(|_| texture.is_some());
-            if current != Some(uvs.is_some()) {
-                pass.set_pipeline(match (uvs.is_some(), p.wireframe) {
-                    (true, _) => &self.textured,
-                    (false, true) => &self.wire,
-                    (false, false) => &self.fill,
-                });
-                current = Some(uvs.is_some());
-            }
-            if let Some(ub) = uvs {
-                pass.set_vertex_buffer(1, ub.slice(..));
-            }
+            let uvs = m.uvs.as_ref().filter(|_| textured);
             // Indices per triangle: 3, or 6 in a line list (three edges).
             let (ib, count, per) = match (p.wireframe, self.wire_mode, &m.lines) {
                 (true, WireframeMode::LineList, Some(lb)) => (lb, m.line_index_count, 6),
@@ -683,10 +707,40 @@ impl Renderer {
                 continue;
             }
             pass.set_vertex_buffer(0, vb.slice(..));
+            if let Some(ub) = uvs {
+                pass.set_vertex_buffer(1, ub.slice(..));
+            }
             pass.set_index_buffer(ib.slice(..), wgpu::IndexFormat::Uint32);
+            let whole = [MaterialRun { first: 0, count: u32::MAX, material: 0 }];
+            // Shaded, a mesh's ranges are drawn whole.
+            let runs: &[MaterialRun] = if m.materials.is_empty() || uvs.is_none() { &whole } else { &m.materials };
             for r in &item.ranges {
-                let (a, b) = ((r.start * per).min(count), (r.end * per).min(count));
-                if a < b {
+                for (tris, material) in split_by_runs(r.clone(), runs) {
+                    let (a, b) = ((tris.start * per).min(count), (tris.end * per).min(count));
+                    if a >= b {
+                        continue;
+                    }
+                    let slot = uvs.and_then(|_| self.textures.get(material as usize)?.as_ref().map(|(_, bind)| (material as usize, bind)));
+                    let pipe = match (slot.is_some(), p.wireframe) {
+                        (true, _) => Pipe::Textured,
+                        (false, true) => Pipe::Wire,
+                        (false, false) => Pipe::Fill,
+                    };
+                    if current != Some(pipe) {
+                        pass.set_pipeline(match pipe {
+                            Pipe::Textured => &self.textured,
+                            Pipe::Wire => &self.wire,
+                            Pipe::Fill => &self.fill,
+                        });
+                        current = Some(pipe);
+                        bound = None;
+                    }
+                    if let Some((k, bind)) = slot {
+                        if bound != Some(k) {
+                            pass.set_bind_group(1, bind, &[]);
+                            bound = Some(k);
+                        }
+                    }
                     pass.draw_indexed(a..b, 0, 0..1);
                 }
             }
@@ -884,6 +938,25 @@ fn present_mode(modes: &[wgpu::PresentMode], vsync: bool) -> wgpu::PresentMode {
     [wgpu::PresentMode::Mailbox, wgpu::PresentMode::Immediate].into_iter().find(|m| modes.contains(m)).unwrap_or(wgpu::PresentMode::Fifo)
 }
 
+/// A mesh pipeline.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Pipe {
+    Fill,
+    Wire,
+    Textured,
+}
+
+/// The parts of triangle range `r` in each of `runs` (sorted, disjoint),
+/// with their material; parts of `r` outside every run are dropped.
+fn split_by_runs(r: std::ops::Range<u32>, runs: &[MaterialRun]) -> impl Iterator<Item = (std::ops::Range<u32>, u16)> + '_ {
+    // The first run that ends after r starts.
+    let from = runs.partition_point(|x| x.first.saturating_add(x.count) <= r.start);
+    runs[from..].iter().take_while(move |x| x.first < r.end).filter_map(move |x| {
+        let (a, b) = (x.first.max(r.start), x.first.saturating_add(x.count).min(r.end));
+        (a < b).then_some((a..b, x.material))
+    })
+}
+
 /// Edges of each triangle as a line list (shared edges appear twice; the
 /// cost of deduplicating is not worth it for a fallback path).
 fn line_list(tris: &[u32]) -> Vec<u32> {
@@ -1026,6 +1099,22 @@ mod tests {
     #[test]
     fn line_list_has_three_edges_per_triangle() {
         assert_eq!(line_list(&[0, 1, 2, 2, 1, 3]), vec![0, 1, 1, 2, 2, 0, 2, 1, 1, 3, 3, 2]);
+    }
+
+    #[test]
+    fn drawn_ranges_split_at_material_runs() {
+        let r = |first, count, material| MaterialRun { first, count, material };
+        let runs = [r(0, 4, 0), r(4, 2, 1), r(6, 3, 0), r(9, 1, 7)];
+        let parts = |range: std::ops::Range<u32>| split_by_runs(range, &runs).collect::<Vec<_>>();
+        assert_eq!(parts(0..10), vec![(0..4, 0), (4..6, 1), (6..9, 0), (9..10, 7)]);
+        assert_eq!(parts(3..7), vec![(3..4, 0), (4..6, 1), (6..7, 0)]);
+        assert_eq!(parts(4..6), vec![(4..6, 1)]);
+        assert_eq!(parts(5..5), vec![]);
+        // Beyond the runs: nothing.
+        assert_eq!(parts(9..20), vec![(9..10, 7)]);
+        assert_eq!(parts(10..20), vec![]);
+        let whole = [r(0, u32::MAX, 0)];
+        assert_eq!(split_by_runs(7..9, &whole).collect::<Vec<_>>(), vec![(7..9, 0)]);
     }
 
     #[test]

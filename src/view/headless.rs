@@ -99,13 +99,14 @@ struct StatsFile<'a> {
     final_psnr_db: Option<f64>,
     final_diff_fraction: Option<f64>,
     load_failures: u64,
-    /// The texture drawn (none: the store has none, or `--no-texture`).
-    texture: Option<TextureSummary>,
+    /// The textures drawn, by material slot (null: the store lacks that
+    /// image); empty when the store has none, or `--no-texture`.
+    textures: Vec<Option<TextureSummary>>,
     frames: &'a [FrameRecord],
 }
 
-/// The texture a render drew: the store's file, the finest level kept
-/// and how many finer ones `--ram` dropped, and the bytes it held.
+/// A texture a render drew: the store's file, the finest level kept and
+/// how many finer ones `--ram` dropped, and the bytes it held.
 #[derive(serde::Serialize)]
 struct TextureSummary {
     file: String,
@@ -113,6 +114,12 @@ struct TextureSummary {
     height: u32,
     levels_dropped: u32,
     bytes: u64,
+}
+
+impl TextureSummary {
+    fn of(t: &super::texture::MipChain) -> TextureSummary {
+        TextureSummary { file: t.name.clone(), width: t.size().0, height: t.size().1, levels_dropped: t.dropped, bytes: t.bytes() }
+    }
 }
 
 /// What a run produced.
@@ -176,10 +183,11 @@ pub fn render(o: &RenderOptions) -> Result<RenderReport> {
     let out = AtomicDir::create(&o.out, crate::io::OutputKind::Frames, o.force)?;
     let mut renderer = Renderer::headless(o.width, o.height)?;
     let mut view = o.view.clone();
-    let texture = super::texture::prepare(&o.store, &mut view, o.texture)?;
-    let mut viewer: Viewer<GpuMesh> = Viewer::open(&o.store, view)?;
-    if let Some(t) = &texture {
-        renderer.set_texture(t, viewer.store.payload_layout.attrs.color())?;
+    let store = crate::store::Store::open(&o.store)?;
+    let textures = super::texture::prepare(&store, &mut view, o.texture)?;
+    let mut viewer: Viewer<GpuMesh> = Viewer::with_store(store, view)?;
+    if !textures.is_empty() {
+        renderer.set_textures(textures.slots.iter().map(Option::as_ref), viewer.store.payload_layout.attrs.color())?;
     }
     let bounds = viewer.bounds();
     let origin = viewer.origin();
@@ -231,7 +239,7 @@ pub fn render(o: &RenderOptions) -> Result<RenderReport> {
             (s, viewer.draw_list())
         };
         let mut p = draw_params(&cam, origin, o.width, o.height, o.wireframe);
-        p.textured = texture.is_some();
+        p.textured = !textures.is_empty();
         let t = Instant::now();
         let img = renderer.render_offscreen(&p, &meshes)?;
         stats.draw_ms = t.elapsed().as_secs_f64() * 1e3;
@@ -260,7 +268,7 @@ pub fn render(o: &RenderOptions) -> Result<RenderReport> {
     if frames.is_empty() {
         return Err(crate::error::Error::Usage("render: no frame was rendered; nothing is kept".into()));
     }
-    write_stats(out.path(), &frames, o, texture.as_ref())?;
+    write_stats(out.path(), &frames, o, &textures)?;
     // Frames drawn while nodes failed to load are not what was asked:
     // nothing is kept and the run fails, naming the first failures.
     let (failed, msgs) = viewer.load_failures();
@@ -318,7 +326,7 @@ fn csv_cell(v: &serde_json::Value) -> String {
     }
 }
 
-fn write_stats(dir: &Path, frames: &[FrameRecord], o: &RenderOptions, texture: Option<&super::texture::MipChain>) -> Result<()> {
+fn write_stats(dir: &Path, frames: &[FrameRecord], o: &RenderOptions, textures: &super::texture::TextureSet) -> Result<()> {
     let csv = dir.join("stats.csv");
     let mut f = std::io::BufWriter::new(std::fs::File::create(&csv).ctx(&csv, "create")?);
     for (i, r) in frames.iter().enumerate() {
@@ -346,7 +354,7 @@ fn write_stats(dir: &Path, frames: &[FrameRecord], o: &RenderOptions, texture: O
         final_psnr_db: last.and_then(|r| r.psnr_db),
         final_diff_fraction: last.and_then(|r| r.diff_fraction),
         load_failures: last.map_or(0, |r| r.stats.load_failures),
-        texture: texture.map(|t| TextureSummary { file: t.name.clone(), width: t.size().0, height: t.size().1, levels_dropped: t.dropped, bytes: t.bytes() }),
+        textures: if textures.is_empty() { Vec::new() } else { textures.slots.iter().map(|t| t.as_ref().map(TextureSummary::of)).collect() },
         frames,
     };
     let text = serde_json::to_string_pretty(&file).expect("the stats serialize");

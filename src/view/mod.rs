@@ -68,6 +68,51 @@ pub struct DrawMesh {
     /// Texture coordinates per vertex, when a texture is shown (else
     /// empty): a second vertex buffer, so untextured stores pay nothing.
     pub uvs: Vec<[f32; 2]>,
+    /// The triangles' materials as runs in index order, when they choose
+    /// among textures (see [`order_by_material`]); empty: every triangle
+    /// uses texture 0.
+    pub materials: Vec<MaterialRun>,
+}
+
+/// Consecutive triangles `first..first + count` that share `material` (a
+/// texture slot, or [`crate::mesh::Vertex::NO_TEXTURE`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct MaterialRun {
+    pub first: u32,
+    pub count: u32,
+    pub material: u16,
+}
+
+/// Orders the triangles of `indices` (three per triangle) by material
+/// (`material` of a triangle's first corner: a triangle's corners agree)
+/// and gives the runs, so a mesh is drawn with one draw per material.
+/// The order changes only inside each of `keep`'s triangle ranges (a
+/// node's patches, drawn or skipped as a whole) and between them, never
+/// across their bounds, and is stable: triangles of one material keep
+/// their order. Adjacent runs of one material are merged.
+pub fn order_by_material(indices: &mut [u32], keep: &[crate::store::Patch], material: impl Fn(u32) -> u16) -> Vec<MaterialRun> {
+    let n = indices.len() / 3;
+    let tris: &mut [[u32; 3]] = bytemuck::cast_slice_mut(&mut indices[..n * 3]);
+    let mut bounds: Vec<usize> = vec![0, n];
+    for p in keep {
+        bounds.push((p.first as usize).min(n));
+        bounds.push((p.first as usize).saturating_add(p.count as usize).min(n));
+    }
+    bounds.sort_unstable();
+    bounds.dedup();
+    let mut runs: Vec<MaterialRun> = Vec::new();
+    for w in bounds.windows(2) {
+        let span = &mut tris[w[0]..w[1]];
+        span.sort_by_key(|t| material(t[0]));
+        for (k, t) in span.iter().enumerate() {
+            let (at, m) = ((w[0] + k) as u32, material(t[0]));
+            match runs.last_mut() {
+                Some(r) if r.material == m && r.first + r.count == at => r.count += 1,
+                _ => runs.push(MaterialRun { first: at, count: 1, material: m }),
+            }
+        }
+    }
+    runs
 }
 
 /// One mesh to draw and the triangle ranges of it to draw.
@@ -104,8 +149,15 @@ impl DrawMesh {
 /// build time from each vertex's whole neighbourhood, so both sides of a
 /// node seam shade alike), else area-weighted vertex normals of this mesh;
 /// colors the input's, else [`DEFAULT_COLOR`]; uvs when `attrs` has them
-/// (the viewer drops them from `attrs` unless it shows a texture).
+/// (the viewer drops them from `attrs` unless it shows a texture), and
+/// with them, when `attrs` has [`AttrSet::MATERIAL`], the triangles
+/// ordered by material ([`order_by_material`]).
 pub fn draw_mesh(m: &IndexedMesh, attrs: AttrSet, origin: [f64; 3]) -> DrawMesh {
+    draw_mesh_keeping(m, &[], attrs, origin)
+}
+
+/// [`draw_mesh`], ordering triangles by material only within `patches`.
+fn draw_mesh_keeping(m: &IndexedMesh, patches: &[crate::store::Patch], attrs: AttrSet, origin: [f64; 3]) -> DrawMesh {
     let mut vertices: Vec<GpuVertex> = m
         .vertices
         .iter()
@@ -148,16 +200,20 @@ pub fn draw_mesh(m: &IndexedMesh, attrs: AttrSet, origin: [f64; 3]) -> DrawMesh 
             v.normal = normalize(v.normal.map(|x| x as f64));
         }
     }
-    let indices = m.triangles.iter().flat_map(|t| t.iter().copied()).collect();
+    let mut indices: Vec<u32> = m.triangles.iter().flat_map(|t| t.iter().copied()).collect();
     let uvs = if attrs.uv() { m.vertices.iter().map(|v| v.uv).collect() } else { Vec::new() };
-    DrawMesh { vertices, indices, patches: Vec::new(), uvs }
+    let materials = if attrs.uv() && attrs.material() {
+        order_by_material(&mut indices, patches, |i| m.vertices.get(i as usize).map_or(0, |v| v.material))
+    } else {
+        Vec::new()
+    };
+    DrawMesh { vertices, indices, patches: patches.to_vec(), uvs, materials }
 }
 
-/// [`draw_mesh`] of a decoded node payload, keeping its patches.
+/// [`draw_mesh`] of a decoded node payload, keeping its patches (its
+/// triangles are ordered by material within each patch).
 pub fn draw_node(nm: &crate::store::NodeMesh, attrs: AttrSet, origin: [f64; 3]) -> DrawMesh {
-    let mut d = draw_mesh(&nm.mesh, attrs, origin);
-    d.patches = nm.patches.clone();
-    d
+    draw_mesh_keeping(&nm.mesh, &nm.patches, attrs, origin)
 }
 
 fn normalize(a: [f64; 3]) -> [f32; 3] {
@@ -205,5 +261,70 @@ mod tests {
         assert!(((n[0] * n[0] + n[1] * n[1] + n[2] * n[2]) - 1.0).abs() < 1e-6);
         assert_eq!(d.indices, vec![0, 1, 2]);
         assert_eq!(d.bytes(), 3 * 28 + 12);
+    }
+
+    /// Issue 32: triangles are ordered by material inside each patch (a
+    /// patch is drawn or skipped whole, so its range must hold the same
+    /// triangles), stably, and the runs name each triangle's material.
+    #[test]
+    fn triangles_are_ordered_by_material_within_patches() {
+        use crate::store::Patch;
+        // Vertex k's material (a triangle's corners agree; corner 0 decides).
+        let mat = [2u16, 0, 0, 1, 1, Vertex::NO_TEXTURE, 2, 0];
+        // Triangles named by their first corner; the other corners repeat it.
+        let first = [0u32, 1, 3, 2, /* patch 2 */ 5, 4, 6, 7, /* outside */ 3, 1];
+        let mut idx: Vec<u32> = first.iter().flat_map(|&v| [v, v, v]).collect();
+        let keep = [Patch { child: 10, first: 0, count: 4 }, Patch { child: 11, first: 4, count: 4 }];
+        let runs = order_by_material(&mut idx, &keep, |v| mat[v as usize]);
+        let order: Vec<u32> = idx.chunks(3).map(|t| t[0]).collect();
+        // Patch 1: materials 2,0,1,0 -> 0,0,1,2 (the two 0s keep their order);
+        // patch 2: NO_TEXTURE,1,2,0 -> 0,1,2,NO_TEXTURE; then 1,0 -> 0,1.
+        assert_eq!(order, vec![1, 2, 3, 0, 7, 4, 6, 5, 1, 3]);
+        let r = |first, count, material| MaterialRun { first, count, material };
+        assert_eq!(runs, vec![r(0, 2, 0), r(2, 1, 1), r(3, 1, 2), r(4, 1, 0), r(5, 1, 1), r(6, 1, 2), r(7, 1, Vertex::NO_TEXTURE), r(8, 1, 0), r(9, 1, 1)]);
+        // Every patch holds the same triangles as before.
+        for p in &keep {
+            let mut was: Vec<u32> = first[p.first as usize..][..p.count as usize].to_vec();
+            let mut now: Vec<u32> = order[p.first as usize..][..p.count as usize].to_vec();
+            was.sort();
+            now.sort();
+            assert_eq!(was, now);
+        }
+        // Runs cover every triangle once, in order, and match its material.
+        let mut at = 0;
+        for x in &runs {
+            assert_eq!(x.first, at);
+            for t in x.first..x.first + x.count {
+                assert_eq!(mat[order[t as usize] as usize], x.material);
+            }
+            at += x.count;
+        }
+        assert_eq!(at as usize, first.len());
+        // Without patches, one order over all: runs of one material merge.
+        let mut idx: Vec<u32> = first.iter().flat_map(|&v| [v, v, v]).collect();
+        let runs = order_by_material(&mut idx, &[], |v| mat[v as usize]);
+        assert_eq!(runs, vec![r(0, 4, 0), r(4, 3, 1), r(7, 2, 2), r(9, 1, Vertex::NO_TEXTURE)]);
+    }
+
+    #[test]
+    fn draw_node_orders_by_material_only_when_textured_materials_are_drawn() {
+        let v = |x: f64, material: u16| Vertex { pos: [x, 0.0, x * x], material, ..Vertex::default() };
+        let vertices = vec![v(0.0, 1), v(1.0, 1), v(2.0, 1), v(3.0, 0), v(4.0, 0), v(5.0, 0)];
+        let nm = crate::store::NodeMesh {
+            mesh: IndexedMesh { vertices, triangles: vec![[0, 1, 2], [3, 4, 5]] },
+            patches: vec![crate::store::Patch { child: 3, first: 0, count: 2 }],
+        };
+        let attrs = AttrSet::POSITION_ONLY.with(AttrSet::UV, true).with(AttrSet::MATERIAL, true);
+        let d = draw_node(&nm, attrs, [0.0; 3]);
+        assert_eq!(d.indices, vec![3, 4, 5, 0, 1, 2]);
+        assert_eq!(d.materials, vec![MaterialRun { first: 0, count: 1, material: 0 }, MaterialRun { first: 1, count: 1, material: 1 }]);
+        assert_eq!(d.patches, nm.patches);
+        assert_eq!(d.uvs.len(), 6);
+        // Shaded (no uvs), or a store without materials: as stored, no runs.
+        for attrs in [AttrSet::POSITION_ONLY.with(AttrSet::MATERIAL, true), AttrSet::POSITION_ONLY.with(AttrSet::UV, true)] {
+            let d = draw_node(&nm, attrs, [0.0; 3]);
+            assert_eq!(d.indices, vec![0, 1, 2, 3, 4, 5]);
+            assert!(d.materials.is_empty());
+        }
     }
 }

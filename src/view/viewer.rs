@@ -29,9 +29,9 @@ pub struct ViewOptions {
     pub upload_per_frame: u64,
     /// Pin (load at start, never evict) top levels up to this share of the budget.
     pub pin_share: f64,
-    /// Bytes of the texture shown (its mip chain on the GPU), counted
+    /// Bytes of the textures shown (their mip chains on the GPU), counted
     /// against `ram` like the node index; 0 when none is shown, and then
-    /// uvs are not loaded either.
+    /// uvs (and materials) are not loaded either.
     pub texture_bytes: u64,
 }
 
@@ -67,7 +67,7 @@ pub struct FrameStats {
     pub resident_bytes: u64,
     pub peak_resident_bytes: u64,
     pub budget_bytes: u64,
-    /// Bytes of the texture shown (included in `resident_bytes`).
+    /// Bytes of the textures shown, all together (included in `resident_bytes`).
     pub texture_bytes: u64,
     /// Loads in flight plus wanted loads not issued yet.
     pub pending_loads: u32,
@@ -153,7 +153,13 @@ impl<M: GpuBytes> Viewer<M> {
     /// Opens a store, starts the I/O threads and loads the pinned top
     /// levels (the only synchronous reads, before the first frame).
     pub fn open(dir: &Path, opts: ViewOptions) -> Result<Viewer<M>> {
-        let store = Store::open(dir)?;
+        Viewer::with_store(Store::open(dir)?, opts)
+    }
+
+    /// [`Viewer::open`] of a store already opened (to size its textures
+    /// first: [`super::texture::prepare`]).
+    pub fn with_store(store: Store, opts: ViewOptions) -> Result<Viewer<M>> {
+        let dir = store.dir.clone();
         if store.level_triangles(0) == 0 {
             return Err(Error::Usage(format!("{}: the store holds no triangles", dir.display())));
         }
@@ -162,7 +168,8 @@ impl<M: GpuBytes> Viewer<M> {
         if opts.texture_bytes > 0 && ctx.attrs.uv() {
             hierarchy.vertex_bytes += 8;
         } else {
-            ctx.attrs = ctx.attrs.with(crate::mesh::AttrSet::UV, false);
+            // Materials choose textures: without one shown, neither matters.
+            ctx.attrs = ctx.attrs.with(crate::mesh::AttrSet::UV, false).with(crate::mesh::AttrSet::MATERIAL, false);
         }
         let origin = store.header.bbox.center();
         // The texture is held for the whole session, as the index is.
@@ -175,7 +182,7 @@ impl<M: GpuBytes> Viewer<M> {
             )));
         }
         let budget = opts.ram - index_bytes;
-        let mut cache = Cache::new(dir, ctx, budget, opts.io_threads, opts.io_delay);
+        let mut cache = Cache::new(&dir, ctx, budget, opts.io_threads, opts.io_delay);
         // Pin whole top levels of the hierarchy while they fit the share.
         let mut pinned: Vec<Unit> = hierarchy.roots.clone();
         let mut tier = pinned.clone();
@@ -193,7 +200,7 @@ impl<M: GpuBytes> Viewer<M> {
             pinned.extend(&next);
             tier = next;
         }
-        cache.pin(&hierarchy, dir, ctx, &pinned)?;
+        cache.pin(&hierarchy, &dir, ctx, &pinned)?;
         Ok(Viewer { store, hierarchy, cache, selector: Selector::new(opts.select.clone()), opts, origin, index_bytes, frame: 0, last: Selection::default() })
     }
 

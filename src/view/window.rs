@@ -14,8 +14,8 @@
 //! * walk (3): fly with forward/sideways motion kept perpendicular to the up
 //!   axis (Q/E still change height explicitly);
 //! * Tab cycles the modes; R resets the view, F frames everything from the
-//!   current direction; Z toggles wireframe; T toggles the texture (when
-//!   the store has one) and the shaded view; + / - or ] / [ change the field
+//!   current direction; Z toggles wireframe; T toggles the textures (when
+//!   the store has any; every material's at once) and the shaded view; + / - or ] / [ change the field
 //!   of view; F1 or H toggles the overlay; V toggles vsync; U cycles the up
 //!   axis (+Z, +Y, +X; the start is `--up`, by default guessed: Y up, or
 //!   the thin axis of a height field, see [`super::camera::guess_up`]);
@@ -57,8 +57,9 @@ pub struct WindowOptions {
     pub up: Up,
     pub fov_deg: f64,
     pub wireframe: bool,
-    /// Show the store's texture (if it has one; T toggles). Off: the
-    /// texture is not even loaded, and its bytes stay free for nodes.
+    /// Show the store's textures (if it has any, each face with its own;
+    /// T toggles all of them). Off: no texture is even loaded, and their
+    /// bytes stay free for nodes.
     pub texture: bool,
     /// Show the statistics overlay at start.
     pub overlay: bool,
@@ -94,13 +95,14 @@ impl Mode {
 /// Opens the store and runs the window until it is closed (or Esc).
 pub fn run_window(opts: WindowOptions) -> Result<()> {
     let mut view = opts.view.clone();
-    let texture = super::texture::prepare(&opts.store, &mut view, opts.texture)?;
-    let viewer: Viewer<GpuMesh> = Viewer::open(&opts.store, view)?;
+    let store = crate::store::Store::open(&opts.store)?;
+    let textures = super::texture::prepare(&store, &mut view, opts.texture)?;
+    let viewer: Viewer<GpuMesh> = Viewer::with_store(store, view)?;
     let event_loop =
         EventLoop::new().map_err(|e| Error::Usage(format!("cannot open a window ({e}); without a display use `octolod render` to render offscreen")))?;
     event_loop.set_control_flow(ControlFlow::Poll);
     let mut app = App::new(opts, viewer);
-    app.texture = texture;
+    app.textures = textures;
     event_loop.run_app(&mut app).map_err(|e| Error::Usage(format!("window event loop failed: {e}")))?;
     match app.error.take() {
         Some(e) => Err(e),
@@ -319,9 +321,9 @@ struct App {
     error: Option<Error>,
     nav: Navigator,
     wireframe: bool,
-    /// The texture, until the renderer takes it.
-    texture: Option<super::texture::MipChain>,
-    /// Draw with the texture (when the renderer has one).
+    /// The textures, until the renderer takes them.
+    textures: super::texture::TextureSet,
+    /// Draw with the textures (when the renderer has any).
     textured: bool,
     show_overlay: bool,
     last_frame: Instant,
@@ -341,7 +343,7 @@ impl App {
         App {
             nav: Navigator::new(viewer.bounds(), opts.up.resolve(&viewer.bounds()), opts.fov_deg),
             wireframe: opts.wireframe,
-            texture: None,
+            textures: Default::default(),
             textured: opts.texture,
             show_overlay: opts.overlay,
             opts,
@@ -512,8 +514,9 @@ impl ApplicationHandler for App {
         let opts = RendererOptions { vsync: self.opts.vsync, ..Default::default() };
         match Renderer::for_window_with(window.clone(), opts) {
             Ok(mut r) => {
-                if let Some(t) = self.texture.take() {
-                    if let Err(e) = r.set_texture(&t, self.viewer.store.payload_layout.attrs.color()) {
+                let textures = std::mem::take(&mut self.textures);
+                if !textures.is_empty() {
+                    if let Err(e) = r.set_textures(textures.slots.iter().map(Option::as_ref), self.viewer.store.payload_layout.attrs.color()) {
                         return self.fail(event_loop, e);
                     }
                 }

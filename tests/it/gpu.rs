@@ -39,7 +39,7 @@ fn grid(n: u32, s: f32, z: f32, normal: [f32; 3], color: [u8; 4]) -> DrawMesh {
             indices.extend_from_slice(&[a, b, d, a, d, c]);
         }
     }
-    DrawMesh { vertices, indices, patches: Vec::new(), uvs: Vec::new() }
+    DrawMesh { vertices, indices, ..DrawMesh::default() }
 }
 
 /// Camera on the z axis at `eye_z` looking at the origin, 60° vertical field of view.
@@ -370,4 +370,110 @@ fn textures_are_sampled_upright_lit_and_mipmapped() {
         let c = px(&img2, w, x, y);
         assert!(near(c, [188, 188, 188, 255], 12), "pixel {x},{y}: {c:?}");
     }
+}
+
+/// Issue 32: each face is drawn with its own material's texture. A plane
+/// of four vertical strips, quads emitted row by row so the materials
+/// interleave: red texture (slot 0), blue texture (slot 1), a slot whose
+/// image the store lacks (2) and `NO_TEXTURE`; the last two draw shaded
+/// in the vertex colour. Two patches (top and bottom rows) keep their
+/// triangles when the node is ordered by material, so drawing one patch
+/// draws exactly its half; T (not textured) draws every strip shaded.
+#[test]
+fn each_material_is_drawn_with_its_own_texture() {
+    use octolod::mesh::{AttrSet, IndexedMesh, Vertex};
+    use octolod::store::{NodeMesh, Patch};
+    use octolod::view::texture::MipChain;
+    use octolod::view::MaterialRun;
+    let (w, h) = (96, 96);
+    let Some(mut r) = renderer(w, h) else { return };
+    let (red, blue) = ([230, 20, 20, 255], [20, 20, 230, 255]);
+    let solid = |name: &str, c: [u8; 4]| MipChain::new(name, 4, 4, c.repeat(16));
+    let (t0, t1) = (solid("red", red), solid("blue", blue));
+    assert_eq!(r.set_textures([Some(&t0), Some(&t1), None], false).unwrap(), t0.bytes() + t1.bytes());
+    assert!(r.has_texture());
+    // 8 x 8 quads over [-1, 1]²; column i is in strip i / 2.
+    let strip_material = [0u16, 1, 2, Vertex::NO_TEXTURE];
+    let n = 8u32;
+    let mut mesh = IndexedMesh::default();
+    for j in 0..n {
+        for i in 0..n {
+            let material = strip_material[(i / 2) as usize];
+            let base = mesh.vertices.len() as u32;
+            for (di, dj) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                let (u, v) = ((i + di) as f32 / n as f32, (j + dj) as f32 / n as f32);
+                mesh.vertices.push(Vertex { pos: [2.0 * u as f64 - 1.0, 2.0 * v as f64 - 1.0, 0.0], color: COLOR, uv: [u, v], material, ..Vertex::default() });
+            }
+            mesh.triangles.extend([[base, base + 1, base + 3], [base, base + 3, base + 2]]);
+        }
+    }
+    // Rows 0..4 (bottom, y < 0) are patch 0, rows 4..8 patch 1.
+    let half = n * n; // triangles per half: 4 rows of 8 quads of 2
+    let patches = vec![Patch { child: 1, first: 0, count: half }, Patch { child: 2, first: half, count: half }];
+    let attrs = AttrSet::POSITION_ONLY.with(AttrSet::COLOR, true).with(AttrSet::UV, true).with(AttrSet::MATERIAL, true);
+    let d = octolod::view::draw_node(&NodeMesh { mesh, patches: patches.clone() }, attrs, [0.0; 3]);
+    // Per patch one run per material (16 triangles each), none merged across.
+    let runs: Vec<(u32, u32, u16)> = d.materials.iter().map(|m: &MaterialRun| (m.first, m.count, m.material)).collect();
+    let want: Vec<(u32, u32, u16)> = (0..8).map(|k| (16 * k, 16, strip_material[k as usize % 4])).collect();
+    assert_eq!(runs, want);
+    assert_eq!(d.patches, patches);
+    // GPU bytes per vertex are unchanged: 28 + 8 for the uvs.
+    assert_eq!(d.bytes(), d.vertices.len() as u64 * 36 + d.indices.len() as u64 * 4);
+    let m = r.upload(&d);
+    assert_eq!(m.gpu_bytes(), d.bytes());
+    let mut p = params(w, h, 3.0);
+    p.light_dir = Vec3::Z;
+    p.textured = true;
+    // The pixel showing world point (x, y, 0).
+    let at = |x: f32, y: f32| {
+        let c = p.view_proj * glam::Vec4::new(x, y, 0.0, 1.0);
+        let (nx, ny) = (c.x / c.w, c.y / c.w);
+        (((nx + 1.0) / 2.0 * w as f32) as u32, ((1.0 - ny) / 2.0 * h as f32) as u32)
+    };
+    let strips = [(-0.75, red, "slot 0 (red)"), (-0.25, blue, "slot 1 (blue)"), (0.25, COLOR, "slot 2 (no image)"), (0.75, COLOR, "NO_TEXTURE")];
+    let check = |img: &[u8], y: f32, textured: bool, what: &str| {
+        for (x, want, strip) in strips {
+            let want = if textured { want } else { COLOR };
+            let (px_x, px_y) = at(x, y);
+            let c = px(img, w, px_x, px_y);
+            assert!(near(c, want, 3), "{what}, {strip} at {x},{y} (pixel {px_x},{px_y}): {c:?}, want {want:?}");
+        }
+    };
+    let img = r.render_offscreen(&p, &whole(&[&m])).unwrap();
+    for y in [-0.6, 0.6] {
+        check(&img, y, true, "textured");
+    }
+    // One patch: its half only, still per material.
+    let top = vec![octolod::view::DrawItem { mesh: &m, ranges: vec![half..2 * half] }];
+    let img = r.render_offscreen(&p, &top).unwrap();
+    check(&img, 0.6, true, "top patch alone");
+    for (x, ..) in strips {
+        let (px_x, px_y) = at(x, -0.6);
+        assert_eq!(px(&img, w, px_x, px_y), clear_rgba8(clear()), "bottom half drawn at {x}");
+    }
+    // A range across both patches' runs: the bottom patch's last two runs
+    // (its strips 2 and 3, ordered last) and the top patch's first two.
+    let mid = vec![octolod::view::DrawItem { mesh: &m, ranges: vec![half / 2..half + half / 2] }];
+    let img = r.render_offscreen(&p, &mid).unwrap();
+    let bg = clear_rgba8(clear());
+    for ((x, want, strip), (bottom, top)) in strips.into_iter().zip([(false, true), (false, true), (true, false), (true, false)]) {
+        for (y, drawn) in [(-0.6, bottom), (0.6, top)] {
+            let c = px(&img, w, at(x, y).0, at(x, y).1);
+            assert!(if drawn { near(c, want, 3) } else { c == bg }, "range across runs, {strip} at y {y}: {c:?}");
+        }
+    }
+    // The T toggle: shaded, every strip in the vertex colour.
+    p.textured = false;
+    let img = r.render_offscreen(&p, &whole(&[&m])).unwrap();
+    for y in [-0.6, 0.6] {
+        check(&img, y, false, "shaded");
+    }
+    // Only slot 0 set: slot 1's faces draw shaded, as a missing image does.
+    r.set_textures([Some(&t0)], false).unwrap();
+    p.textured = true;
+    let img = r.render_offscreen(&p, &whole(&[&m])).unwrap();
+    let (bx, by) = at(-0.25, 0.6);
+    assert!(near(px(&img, w, bx, by), COLOR, 3), "{:?}", px(&img, w, bx, by));
+    let (rx, ry) = at(-0.75, 0.6);
+    assert!(near(px(&img, w, rx, ry), red, 3), "{:?}", px(&img, w, rx, ry));
 }

@@ -325,8 +325,9 @@ fn textured_store_renders_like_its_input_within_budget() {
     // The whole chain: 256² and its mips, 4/3 of the finest level.
     let (fine, js) = run("fine", ram, 1.0, true);
     let chain = 4 * (256 * 256 + 128 * 128 + 64 * 64 + 32 * 32 + 16 * 16 + 64 + 16 + 4 + 1);
-    assert_eq!(js["texture"]["bytes"], chain);
-    assert_eq!(js["texture"]["levels_dropped"], 0);
+    assert_eq!(js["textures"].as_array().unwrap().len(), 1, "one texture, no materials: slot 0 only");
+    assert_eq!(js["textures"][0]["bytes"], chain);
+    assert_eq!(js["textures"][0]["levels_dropped"], 0);
     let last = fine.frames.last().unwrap();
     assert!(last.stats.settled);
     assert_eq!(last.stats.texture_bytes, chain);
@@ -342,7 +343,7 @@ fn textured_store_renders_like_its_input_within_budget() {
     // Shaded, against the textured reference: the texture is what the PSNR sees.
     let shaded = octolod::view::image::read_png(dir.path().join("coarse/frame-00000.png")).unwrap();
     let (_, js) = run("shaded", ram, 1e6, false);
-    assert!(js["texture"].is_null());
+    assert!(js["textures"].as_array().unwrap().is_empty());
     assert_eq!(js["frames"][0]["texture_bytes"], 0);
     let plain = octolod::view::image::read_png(dir.path().join("shaded/frame-00000.png")).unwrap();
     let d = octolod::view::image::compare(&shaded.2, &plain.2, shaded.0, shaded.1, 16);
@@ -350,8 +351,8 @@ fn textured_store_renders_like_its_input_within_budget() {
     // A quarter of 1 MiB cannot hold the 256² chain: its finest level goes.
     let small = 1 << 20;
     let (r, js) = run("small", small, 1.0, true);
-    assert_eq!(js["texture"]["levels_dropped"], 1);
-    assert_eq!(js["texture"]["width"], 128);
+    assert_eq!(js["textures"][0]["levels_dropped"], 1);
+    assert_eq!(js["textures"][0]["width"], 128);
     assert_eq!(r.frames[0].stats.texture_bytes, 4 * (128 * 128 + 64 * 64 + 32 * 32 + 16 * 16 + 64 + 16 + 4 + 1));
     // A damaged texture: the error names it and the way around it.
     std::fs::write(s.join("texture-0.png"), b"not a png").unwrap();
