@@ -46,7 +46,15 @@ pub struct Manifest {
 #[derive(Clone, Debug, PartialEq)]
 pub enum TextureSource {
     File(String),
-    Embedded { name: String, ext: &'static str, bytes: Vec<u8> },
+    Embedded {
+        name: String,
+        ext: &'static str,
+        bytes: Vec<u8>,
+    },
+    /// A slot whose image cannot be had (a glTF's embedded image that is
+    /// neither PNG nor JPEG, already reported): kept without a copy so the
+    /// later slots keep their material ids.
+    Missing(String),
 }
 
 /// A texture the input names and its copy next to the store's payloads.
@@ -108,6 +116,7 @@ impl TextureRef {
                     let bytes = std::fs::copy(&src, store.join(&file)).ctx(&src, "copy texture")?;
                     out.push(TextureRef { name: name.clone(), file: Some(file), bytes });
                 }
+                TextureSource::Missing(name) => out.push(TextureRef { name: name.clone(), file: None, bytes: 0 }),
                 TextureSource::Embedded { name, ext, bytes } => {
                     let file = format!("texture-{k}.{ext}");
                     let dest = store.join(&file);

@@ -92,14 +92,14 @@ pub fn build_store(input: &Path, output: &Path, opts: &BuildOptions) -> Result<B
         Err(_) => Vec::new(),
     };
     let textures = crate::manifest::TextureRef::copy_all(input, &names, out.path())?;
-    for t in textures.iter().filter(|t| t.file.is_none()) {
-        if !opts.quiet {
+    for (t, source) in textures.iter().zip(&names) {
+        if t.file.is_none() && !opts.quiet && matches!(source, crate::manifest::TextureSource::File(_)) {
             eprintln!("warning: {}: texture '{}' not found beside the input; the store keeps its uvs without it", input.display(), t.name);
         }
     }
-    if textures.len() > 1 && !opts.quiet {
+    if textures.len() > 1 && !built.header.attrs.material() && !opts.quiet {
         eprintln!(
-            "warning: {}: {} textures named; which face uses which (texnumber, usemtl) is not carried yet: view, glTF and tiles draw '{}' on every face",
+            "warning: {}: {} textures named but no face says which it uses (a PLY's face `texnumber`, an OBJ's `usemtl`, a glTF's materials): every face draws '{}'",
             input.display(),
             textures.len(),
             textures.iter().find(|t| t.file.is_some()).map_or(textures[0].name.as_str(), |t| t.name.as_str())

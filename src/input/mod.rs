@@ -143,12 +143,9 @@ impl InputHeader {
         use crate::manifest::TextureSource;
         let files = |names: Vec<String>| names.into_iter().map(TextureSource::File).collect::<Vec<_>>();
         match &self.details {
-            Details::Ply(h) => {
-                let mut names = crate::ply::texture_files(&h.comments);
-                let mut seen = std::collections::HashSet::new();
-                names.retain(|n| seen.insert(n.clone()));
-                files(names)
-            }
+            // Not deduplicated: a face's `texnumber` indexes the comments
+            // as written (a name given twice is two slots, two copies).
+            Details::Ply(h) => files(crate::ply::texture_files(&h.comments)),
             // Listed once each by the reader, which numbers the materials
             // by this list.
             Details::Obj(i) => files(i.textures.clone()),
@@ -170,8 +167,8 @@ impl InputHeader {
                                     eprintln!("warning: {e}; the store keeps its uvs without that texture");
                                 }
                                 // Its slot stays, without a copy, so later slots keep their
-                                // material ids: a file name no folder holds.
-                                TextureSource::File(unreadable_image_name(&name, *index))
+                                // material ids.
+                                TextureSource::Missing(format!("{name} (images[{index}], unreadable)"))
                             }
                         }
                     }
@@ -180,13 +177,6 @@ impl InputHeader {
             Details::Stl(_) => Vec::new(),
         }
     }
-}
-
-/// The texture-list name of a glTF's embedded image `images[index]` that
-/// cannot be read: a name that is never a regular file (it ends in `/`),
-/// so the build records its slot without a copy.
-fn unreadable_image_name(name: &str, index: usize) -> String {
-    format!("{name} (images[{index}], unreadable)/")
 }
 
 /// Reads what the input says of itself: a PLY's header, an STL's header
