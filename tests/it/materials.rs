@@ -131,3 +131,30 @@ fn three_textures_survive_every_level() {
         assert!(l.locked_fraction < 0.10, "level {}: {:.3} of positions locked", l.level, l.locked_fraction);
     }
 }
+
+/// Both soup paths give every corner its face's texnumber, byte for byte
+/// alike: in memory, and external under a small budget (materials written
+/// in triangle order in phase 1, patched in phase 3).
+#[test]
+fn both_soup_paths_carry_each_face_texnumber() {
+    use octolod::soup::{build_soup, format::SoupReader, SoupOptions};
+    let d = tempfile::tempdir().unwrap();
+    let ply = d.path().join("scan.ply");
+    gen_with("scan", 20_000, &ply, &["--atlas", "3", "--texture", "16", "--textures", "3", "--format", "ascii"]);
+    let input = read(&ply);
+    let want: Vec<u16> = faces(&input).iter().map(|f| f.0).collect();
+    let mut soups = Vec::new();
+    for (name, external) in [("mem.soup", false), ("ext.soup", true)] {
+        let out = d.path().join(name);
+        let rep = build_soup(&ply, &out, &SoupOptions { mem: 4 << 20, force_external: external, ..Default::default() }).unwrap();
+        assert_eq!(rep.external, external);
+        let (h, tris) = SoupReader::read_all(&out).unwrap();
+        assert!(h.attrs.material(), "{}", h.attrs.describe());
+        let got: Vec<u16> = tris.iter().map(|t| t[0].material).collect();
+        assert!(tris.iter().all(|t| t.iter().all(|v| v.material == t[0].material)));
+        // The soup keeps the faces' order: the same materials as the input's triangles.
+        assert_eq!(got, want, "{name}");
+        soups.push(std::fs::read(&out).unwrap());
+    }
+    assert!(soups[0] == soups[1], "the two paths' soups differ");
+}
