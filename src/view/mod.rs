@@ -12,8 +12,10 @@
 //! * [`viewer`] — one frame's CPU work (poll, upload, select, request) and statistics;
 //! * [`gpu`] — the wgpu renderer (offscreen and window surface);
 //! * [`image`] — PNG output and image comparison (PSNR, differing pixels);
-//! * [`texture`] — the store's texture, mipmapped and fitted to the budget
-//!   (CPU only: `tiles` makes its per-level copies with it too);
+//! * [`texture`] — the store's textures (one per material slot), mipmapped
+//!   and fitted to the budget together (CPU only: `tiles` makes its
+//!   per-level copies with it too); [`order_by_material`] groups a node's
+//!   triangles by material so each draw binds one texture;
 //! * [`headless`] — `octolod render`: camera paths, statistics, reference renders;
 //! * [`window`] — `octolod view`: the interactive window;
 //! * [`quiet`] — keeps libwayland's "no desktop session" line out of successful runs.

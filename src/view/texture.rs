@@ -365,15 +365,18 @@ mod tests {
             Some((name.to_string(), p))
         };
         let slots = vec![png("texture-0.png", 64, [255, 0, 0, 255]), None, png("texture-2.png", 16, [0, 0, 255, 255])];
+        // Each slot's finest size, levels dropped and levels kept.
+        type Shape = Option<((u32, u32), u32, usize)>;
+        let shapes = |set: &TextureSet| -> Vec<Shape> { set.slots.iter().map(|c| c.as_ref().map(|c| (c.size(), c.dropped, c.levels.len()))).collect() };
         let full = chain_bytes((64, 64)) + chain_bytes((16, 16));
         let set = load(&slots, full).unwrap();
         assert_eq!(set.bytes(), full);
-        let sizes: Vec<Option<((u32, u32), u32, usize)>> = set.slots.iter().map(|c| c.as_ref().map(|c| (c.size(), c.dropped, c.levels.len()))).collect();
+        let sizes = shapes(&set);
         assert_eq!(sizes, vec![Some(((64, 64), 0, 7)), None, Some(((16, 16), 0, 5))]);
         // One byte less: the 64² level goes, the 16² texture keeps all.
         let set = load(&slots, full - 1).unwrap();
         assert_eq!(set.bytes(), full - 64 * 64 * 4);
-        let sizes: Vec<Option<((u32, u32), u32, usize)>> = set.slots.iter().map(|c| c.as_ref().map(|c| (c.size(), c.dropped, c.levels.len()))).collect();
+        let sizes = shapes(&set);
         assert_eq!(sizes, vec![Some(((32, 32), 1, 6)), None, Some(((16, 16), 0, 5))]);
         let red = set.slots[0].as_ref().unwrap();
         assert_eq!(red.name, "texture-0.png");

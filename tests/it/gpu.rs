@@ -444,7 +444,7 @@ fn each_material_is_drawn_with_its_own_texture() {
         check(&img, y, true, "textured");
     }
     // One patch: its half only, still per material.
-    let top = vec![octolod::view::DrawItem { mesh: &m, ranges: vec![half..2 * half] }];
+    let top = vec![octolod::view::DrawItem { mesh: &m, ranges: std::iter::once(half..2 * half).collect() }];
     let img = r.render_offscreen(&p, &top).unwrap();
     check(&img, 0.6, true, "top patch alone");
     for (x, ..) in strips {
@@ -453,7 +453,7 @@ fn each_material_is_drawn_with_its_own_texture() {
     }
     // A range across both patches' runs: the bottom patch's last two runs
     // (its strips 2 and 3, ordered last) and the top patch's first two.
-    let mid = vec![octolod::view::DrawItem { mesh: &m, ranges: vec![half / 2..half + half / 2] }];
+    let mid = vec![octolod::view::DrawItem { mesh: &m, ranges: std::iter::once(half / 2..half + half / 2).collect() }];
     let img = r.render_offscreen(&p, &mid).unwrap();
     let bg = clear_rgba8(clear());
     for ((x, want, strip), (bottom, top)) in strips.into_iter().zip([(false, true), (false, true), (true, false), (true, false)]) {
