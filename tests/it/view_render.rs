@@ -363,3 +363,59 @@ fn textured_store_renders_like_its_input_within_budget() {
     o.texture = false;
     render(&o).unwrap();
 }
+
+/// Several textures (issue 32): a scan whose atlas islands are spread over
+/// three textures tinted red, green and blue (`octolod-gen --textures 3`,
+/// MeshLab's face `texnumber`) renders every slot, within the budget, like
+/// its input; each tint shows, which it cannot when every face samples
+/// texture 0 (that image holds only its own, red, islands).
+#[test]
+fn a_store_with_three_textures_draws_each_face_with_its_own() {
+    if skip() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let ply = dir.path().join("scan.ply");
+    common::cli::gen_with("scan", 40_000, &ply, &["--atlas", "4", "--texture", "128", "--textures", "3"]);
+    let params = octolod::manifest::BuildParams { mem: 16 << 20, leaf_tris: 4096, ..Default::default() };
+    let s = common::build_store_at(dir.path(), &ply, &common::build_options(params));
+    let ram = 8 << 20;
+    let mut o = opts(&s, &dir.path().join("fine"), None, ram);
+    o.full_res = true;
+    o.orbit_frames = 2;
+    let r = render(&o).unwrap();
+    check_budget(&r, ram);
+    let js: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.path().join("fine/stats.json")).unwrap()).unwrap();
+    let slots = js["textures"].as_array().unwrap();
+    assert_eq!(slots.len(), 3, "{slots:?}");
+    let chain = 4 * (128 * 128 + 64 * 64 + 32 * 32 + 16 * 16 + 64 + 16 + 4 + 1);
+    for (k, t) in slots.iter().enumerate() {
+        assert_eq!(t["file"], format!("texture-{k}.png"));
+        assert_eq!(t["bytes"], chain, "slot {k}");
+    }
+    let last = r.frames.last().unwrap();
+    assert!(last.stats.settled);
+    assert_eq!(last.stats.texture_bytes, 3 * chain);
+    assert!(last.psnr_db.unwrap() > 40.0, "1 px cut against the input: PSNR {:?}", last.psnr_db);
+    // Dominant hues of the covered pixels: each texture's tint is seen.
+    let (w, h, px) = octolod::view::image::read_png(dir.path().join(format!("fine/frame-{:05}.png", r.frames.len() - 1))).unwrap();
+    let bg = [px[0], px[1], px[2]];
+    let mut hue = [0usize; 3];
+    let mut covered = 0usize;
+    for p in px.chunks_exact(4).take((w * h) as usize) {
+        let c = [p[0] as i32, p[1] as i32, p[2] as i32];
+        if c == bg.map(|x| x as i32) {
+            continue;
+        }
+        covered += 1;
+        for k in 0..3 {
+            if c[k] > 20 + c[(k + 1) % 3].max(c[(k + 2) % 3]) {
+                hue[k] += 1;
+            }
+        }
+    }
+    assert!(covered > (w * h) as usize / 10, "covered {covered} of {}", w * h);
+    for k in 0..3 {
+        assert!(hue[k] * 20 > covered, "texture {k}'s tint on {} of {covered} covered pixels ({hue:?})", hue[k]);
+    }
+}
