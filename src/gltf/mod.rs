@@ -198,11 +198,26 @@ impl Group {
 }
 
 /// One material's share of a part: the part's vertices it uses (in the
-/// part's order) and its triangles, indexing that list.
-struct Piece {
+/// part's order; `None`: all of them, borrowed) and its triangles,
+/// indexing that list.
+struct Piece<'a> {
     material: u16,
-    vertices: Vec<u32>,
-    triangles: Vec<[u32; 3]>,
+    vertices: Option<Vec<u32>>,
+    triangles: std::borrow::Cow<'a, [[u32; 3]]>,
+}
+
+impl Piece<'_> {
+    /// The part's vertices this piece holds, in order.
+    fn vertices<'m>(&'m self, m: &'m IndexedMesh) -> Box<dyn Iterator<Item = &'m Vertex> + 'm> {
+        match &self.vertices {
+            Some(v) => Box::new(v.iter().map(|&k| &m.vertices[k as usize])),
+            None => Box::new(m.vertices.iter()),
+        }
+    }
+
+    fn vertex_count(&self, m: &IndexedMesh) -> usize {
+        self.vertices.as_ref().map_or(m.vertices.len(), |v| v.len())
+    }
 }
 
 /// A triangle's material: corner 0's (the corners agree: vertices are
@@ -219,10 +234,10 @@ fn material_of(m: &IndexedMesh, t: &[u32; 3], materials: bool) -> u16 {
 /// is one piece of all its vertices, in order (as a mesh without
 /// materials always is); with several, each piece takes the vertices its
 /// triangles use (a vertex no triangle uses is left out).
-fn split_part(m: &IndexedMesh, materials: bool) -> Vec<Piece> {
+fn split_part(m: &IndexedMesh, materials: bool) -> Vec<Piece<'_>> {
     let first = m.triangles.first().map_or(0, |t| material_of(m, t, materials));
     if m.triangles.iter().all(|t| material_of(m, t, materials) == first) {
-        return vec![Piece { material: first, vertices: (0..m.vertices.len() as u32).collect(), triangles: m.triangles.clone() }];
+        return vec![Piece { material: first, vertices: None, triangles: std::borrow::Cow::Borrowed(&m.triangles) }];
     }
     let mut order: Vec<u32> = (0..m.triangles.len() as u32).collect();
     order.sort_by_key(|&k| material_of(m, &m.triangles[k as usize], materials));
@@ -239,7 +254,7 @@ fn split_part(m: &IndexedMesh, materials: bool) -> Vec<Piece> {
         for &v in &vertices {
             local[v as usize] = u32::MAX;
         }
-        pieces.push(Piece { material, vertices, triangles });
+        pieces.push(Piece { material, vertices: Some(vertices), triangles });
     }
     pieces
 }
@@ -316,7 +331,7 @@ impl Survey {
             self.hi[a] = self.hi[a].max(hi[a]);
         }
         let pieces = split_part(m, self.materials);
-        let kept: u64 = pieces.iter().map(|p| p.vertices.len() as u64).sum();
+        let kept: u64 = pieces.iter().map(|p| p.vertex_count(m) as u64).sum();
         let join = self.groups.last().is_some_and(|g| g.vertices + kept <= self.limit.min(u32::MAX as u64));
         if !join {
             self.groups.push(Group { parts: 0, vertices: 0, prims: Vec::new() });
@@ -334,14 +349,18 @@ impl Survey {
                 }
             };
             let p = &mut g.prims[k];
-            p.vertices += piece.vertices.len() as u64;
+            p.vertices += piece.vertex_count(m) as u64;
             p.triangles += piece.triangles.len() as u64;
-            for &v in &piece.vertices {
-                let pos = m.vertices[v as usize].pos;
-                for a in 0..3 {
-                    p.lo[a] = p.lo[a].min(pos[a]);
-                    p.hi[a] = p.hi[a].max(pos[a]);
-                }
+            // A piece of the whole part has the part's bounds.
+            let (plo, phi) = match &piece.vertices {
+                None => (lo, hi),
+                Some(_) => piece.vertices(m).fold(([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]), |(l, h), v| {
+                    (std::array::from_fn(|a| l[a].min(v.pos[a])), std::array::from_fn(|a| h[a].max(v.pos[a])))
+                }),
+            };
+            for a in 0..3 {
+                p.lo[a] = p.lo[a].min(plo[a]);
+                p.hi[a] = p.hi[a].max(phi[a]);
             }
         }
         self.vertices += kept;
@@ -648,15 +667,15 @@ fn write_bin<W: Write, M: Borrow<IndexedMesh>>(
         }
         for piece in split_part(m, s.materials) {
             let buf = &mut bufs[g.prim(piece.material).ok_or_else(changed)?];
-            for &v in &piece.vertices {
-                l.encode(&m.vertices[v as usize], &mut record);
+            for v in piece.vertices(m) {
+                l.encode(v, &mut record);
                 buf.vertices.extend_from_slice(&record);
             }
             let base = buf.base;
-            for t in &piece.triangles {
+            for t in piece.triangles.iter() {
                 buf.indices.extend(t.iter().map(|&i| base + i));
             }
-            buf.base = u32::try_from(base as u64 + piece.vertices.len() as u64).map_err(|_| changed())?;
+            buf.base = u32::try_from(base as u64 + piece.vertex_count(m) as u64).map_err(|_| changed())?;
         }
         parts_in += 1;
         if parts_in == g.parts {
