@@ -72,7 +72,16 @@ impl Nearest {
 }
 
 #[test]
-fn three_textures_survive_every_level() {
+fn three_textures_survive_every_clustered_level() {
+    three_textures_survive_every_level("cluster");
+}
+
+#[test]
+fn three_textures_survive_every_collapsed_level() {
+    three_textures_survive_every_level("collapse");
+}
+
+fn three_textures_survive_every_level(simplifier: &str) {
     let d = tempfile::tempdir().unwrap();
     let ply = d.path().join("scan.ply");
     gen_with("scan", 40_000, &ply, &["--atlas", "4", "--texture", "64", "--textures", "3"]);
@@ -89,7 +98,7 @@ fn three_textures_survive_every_level() {
     let in_open = edge_counts(&weld_positions(std::iter::once((&input.vertices[..], &input.triangles[..]))).1).values().filter(|&&n| n == 1).count();
 
     let store = d.path().join("store");
-    octolod_ok(&["build", s(&ply), "-o", s(&store), "--quiet", "--leaf-tris", "4000"]);
+    octolod_ok(&["build", s(&ply), "-o", s(&store), "--quiet", "--leaf-tris", "4000", "--simplifier", simplifier]);
     let m = octolod::manifest::Manifest::read(&store).unwrap();
     assert!(m.attributes.contains("material"), "attributes {}", m.attributes);
     assert_eq!(m.textures.iter().map(|t| t.name.as_str()).collect::<Vec<_>>(), ["scan_0.png", "scan_1.png", "scan_2.png"]);
@@ -104,6 +113,25 @@ fn three_textures_survive_every_level() {
         octolod_ok(&["extract", s(&store), "--level", &l.level.to_string(), "-o", s(&out), "--quiet"]);
         let got = read(&out);
         assert_eq!(got.triangles.len() as u64, l.triangles, "level {}", l.level);
+        // The same level as glTF (quantized, meshopt-compressed): a
+        // primitive per material, read back through the glTF input, whose
+        // image slots are the store's: the same triangles per texture.
+        let glb = d.path().join(format!("level{}.glb", l.level));
+        octolod_ok(&["extract", s(&store), "--level", &l.level.to_string(), "-o", s(&glb), "--quantize", "--compress", "--quiet"]);
+        let (gh, gs, _) = octolod::input::read_all(&glb, 1 << 30).unwrap();
+        assert!(gh.attrs.material(), "level {}: glTF attributes {}", l.level, gh.attrs.describe());
+        let count = |ms: &mut dyn Iterator<Item = u16>| {
+            let mut n = [0usize; 3];
+            ms.for_each(|m| n[m as usize] += 1);
+            n
+        };
+        let want = count(&mut got.triangles.iter().map(|t| got.vertices[t[0] as usize].material));
+        assert_eq!(count(&mut gs.triangles.iter().map(|t| gs.vertices[t[0] as usize].material)), want, "level {}: triangles per texture, glTF against PLY", l.level);
+        let sources = gh.texture_sources(&glb, true);
+        for (k, src) in sources.iter().enumerate() {
+            let octolod::manifest::TextureSource::Embedded { bytes, .. } = src else { panic!("slot {k}: {src:?}") };
+            assert_eq!(bytes, &std::fs::read(store.join(format!("texture-{k}.png"))).unwrap(), "level {}: glTF image {k}", l.level);
+        }
         // Every corner of a face carries the face's material.
         assert!(got.triangles.iter().all(|t| t.iter().all(|&i| got.vertices[i as usize].material == got.vertices[t[0] as usize].material)));
         let fs = faces(&got);
@@ -115,7 +143,7 @@ fn three_textures_survive_every_level() {
         let ((pos, tris), shared) = cut_mesh_parts(&st, &CutSpec::Level(l.level).cut(&st).unwrap());
         let cracks = crack_report(&input, &pos, &tris, &shared);
         eprintln!(
-            "level {}: {} triangles, texnumber mismatches {wrong} ({:.4} %), open edges {open} (input {in_open}), cracks {}, locked {:.4}",
+            "{simplifier} level {}: {} triangles, texnumber mismatches {wrong} ({:.4} %), open edges {open} (input {in_open}), cracks {}, locked {:.4}",
             l.level,
             fs.len(),
             100.0 * frac,
@@ -129,6 +157,17 @@ fn three_textures_survive_every_level() {
         assert!(open <= in_open, "level {}: {open} open edges, the input has {in_open}", l.level);
         assert_eq!(cracks.cracks, 0, "level {}: a tear at {:?}", l.level, cracks.first);
         assert!(l.locked_fraction < 0.10, "level {}: {:.3} of positions locked", l.level, l.locked_fraction);
+    }
+    // 3D Tiles: every slot gets its per-level copies, and the tiles'
+    // primitives point at each of them.
+    let web = d.path().join("web");
+    octolod_ok(&["tiles", s(&store), "-o", s(&web), "--tile-tris", "2000", "--quiet"]);
+    let names: Vec<String> = std::fs::read_dir(web.join("t")).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    for k in 0..3 {
+        let copy = format!("texture-{k}-64.png");
+        assert!(names.contains(&copy), "no {copy} among {names:?}");
+        let used = names.iter().filter(|n| n.ends_with(".glb")).any(|n| std::fs::read(web.join("t").join(n)).unwrap().windows(copy.len()).any(|w| w == copy.as_bytes()));
+        assert!(used, "no tile draws {copy}");
     }
 }
 
