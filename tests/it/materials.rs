@@ -126,7 +126,12 @@ fn three_textures_survive_every_level(simplifier: &str) {
             n
         };
         let want = count(&mut got.triangles.iter().map(|t| got.vertices[t[0] as usize].material));
-        assert_eq!(count(&mut gs.triangles.iter().map(|t| gs.vertices[t[0] as usize].material)), want, "level {}: triangles per texture, glTF against PLY", l.level);
+        assert_eq!(
+            count(&mut gs.triangles.iter().map(|t| gs.vertices[t[0] as usize].material)),
+            want,
+            "level {}: triangles per texture, glTF against PLY",
+            l.level
+        );
         let sources = gh.texture_sources(&glb, true);
         for (k, src) in sources.iter().enumerate() {
             let octolod::manifest::TextureSource::Embedded { bytes, .. } = src else { panic!("slot {k}: {src:?}") };
@@ -166,7 +171,10 @@ fn three_textures_survive_every_level(simplifier: &str) {
     for k in 0..3 {
         let copy = format!("texture-{k}-64.png");
         assert!(names.contains(&copy), "no {copy} among {names:?}");
-        let used = names.iter().filter(|n| n.ends_with(".glb")).any(|n| std::fs::read(web.join("t").join(n)).unwrap().windows(copy.len()).any(|w| w == copy.as_bytes()));
+        let used = names
+            .iter()
+            .filter(|n| n.ends_with(".glb"))
+            .any(|n| std::fs::read(web.join("t").join(n)).unwrap().windows(copy.len()).any(|w| w == copy.as_bytes()));
         assert!(used, "no tile draws {copy}");
     }
 }
