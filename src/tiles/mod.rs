@@ -579,7 +579,7 @@ pub fn level_texture_side(side: u32, level: u8) -> u32 {
 }
 
 /// A tile's GLB: its mesh (in the store's frame) turned to glTF's Y-up
-/// frame, its folds facing their normals ([`face_their_normals`]), one
+/// frame, its folds facing their normals (`face_their_normals`), one
 /// primitive per material drawing its level's copy of the material's
 /// texture (`opts`: the level's [`GltfOptions`]).
 pub fn tile_glb(mesh: &IndexedMesh, attrs: crate::mesh::AttrSet, opts: &GltfOptions) -> Result<Vec<u8>> {
