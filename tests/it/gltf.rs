@@ -1049,20 +1049,33 @@ fn the_khronos_validator_finds_no_error_in_any_variant() {
         std::fs::write(&out, b).unwrap();
         files.push(out);
     }
-    // Textured: the image embedded (extracts) or named by URI (tiles).
+    // Textured: the image embedded (extracts) or named by URI (tiles); one
+    // texture, and three chosen per face (a primitive per material).
     let t = textured_store(d.path());
-    for opts in [&VARIANTS[0], &VARIANTS[3]] {
-        for ext in ["glb", "gltf"] {
-            let out = d.path().join(format!("textured-{}.{ext}", tag(opts)));
-            extract_as(&t, CutSpec::Level(1), &out, true, false, opts).unwrap();
-            files.push(out);
+    let mt = {
+        let dir = d.path().join("mt");
+        std::fs::create_dir_all(&dir).unwrap();
+        let ply = dir.join("tex3.ply");
+        common::cli::gen_with("scan", 8000, &ply, &["--atlas", "4", "--texture", "64", "--textures", "3"]);
+        let params = octolod::manifest::BuildParams { mem: 16 << 20, leaf_tris: 1024, ..Default::default() };
+        Store::open(&common::build_store_at(&dir, &ply, &common::build_options(params))).unwrap()
+    };
+    assert!(mt.header.attrs.material());
+    for (store, name) in [(&t, "textured"), (&mt, "materials")] {
+        for opts in [&VARIANTS[0], &VARIANTS[3]] {
+            for ext in ["glb", "gltf"] {
+                let out = d.path().join(format!("{name}-{}.{ext}", tag(opts)));
+                extract_as(store, CutSpec::Level(1), &out, true, false, opts).unwrap();
+                files.push(out);
+            }
         }
+        let tiles = d.path().join(format!("{name}-tiles"));
+        octolod::tiles::export(store, &tiles, &octolod::tiles::TilesOptions { tile_tris: 2000, ..Default::default() }).unwrap();
+        let mut glbs: Vec<PathBuf> =
+            std::fs::read_dir(tiles.join("t")).unwrap().map(|e| e.unwrap().path()).filter(|p| p.extension().unwrap() == "glb").collect();
+        glbs.sort();
+        files.extend(glbs.into_iter().step_by(3));
     }
-    let tiles = d.path().join("tiles");
-    octolod::tiles::export(&t, &tiles, &octolod::tiles::TilesOptions { tile_tris: 2000, ..Default::default() }).unwrap();
-    let mut glbs: Vec<PathBuf> = std::fs::read_dir(tiles.join("t")).unwrap().map(|e| e.unwrap().path()).filter(|p| p.extension().unwrap() == "glb").collect();
-    glbs.sort();
-    files.extend(glbs.into_iter().step_by(3));
     // The validator cannot read EXT_meshopt_compression: each compressed
     // file is also validated decompressed (its fallback filled in).
     for f in files.clone() {
