@@ -217,7 +217,13 @@ fn write_glb(path: &Path, m: &IndexedMesh) {
             {"bufferView": 1, "componentType": 5125, "count": 3 * m.triangles.len(), "type": "SCALAR"}
         ]
     });
-    let mut j = serde_json::to_vec(&json).unwrap();
+    write_glb_container(path, &json, &bin);
+}
+
+/// A GLB at `path`: `json` (space-padded to 4 bytes) and `bin` (already
+/// 4-byte aligned) in glTF's binary container.
+fn write_glb_container(path: &Path, json: &serde_json::Value, bin: &[u8]) {
+    let mut j = serde_json::to_vec(json).unwrap();
     while j.len() % 4 != 0 {
         j.push(b' ');
     }
@@ -231,7 +237,7 @@ fn write_glb(path: &Path, m: &IndexedMesh) {
     b.extend_from_slice(&j);
     b.extend_from_slice(&(bin.len() as u32).to_le_bytes());
     b.extend_from_slice(b"BIN\0");
-    b.extend_from_slice(&bin);
+    b.extend_from_slice(bin);
     std::fs::write(path, b).unwrap();
 }
 
@@ -519,22 +525,7 @@ fn write_glb_materials(path: &Path, prims: &[Option<usize>], materials: &[Option
         "bufferViews": views,
         "accessors": accessors
     });
-    let mut j = serde_json::to_vec(&json).unwrap();
-    while j.len() % 4 != 0 {
-        j.push(b' ');
-    }
-    let total = 12 + 8 + j.len() + 8 + bin.len();
-    let mut b = Vec::with_capacity(total);
-    b.extend_from_slice(b"glTF");
-    b.extend_from_slice(&2u32.to_le_bytes());
-    b.extend_from_slice(&(total as u32).to_le_bytes());
-    b.extend_from_slice(&(j.len() as u32).to_le_bytes());
-    b.extend_from_slice(b"JSON");
-    b.extend_from_slice(&j);
-    b.extend_from_slice(&(bin.len() as u32).to_le_bytes());
-    b.extend_from_slice(b"BIN\0");
-    b.extend_from_slice(&bin);
-    std::fs::write(path, b).unwrap();
+    write_glb_container(path, &json, &bin);
 }
 
 /// Issue 32: a glTF primitive's material chooses its faces' texture: the
