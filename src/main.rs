@@ -934,18 +934,43 @@ fn cmd_serve(input: &Path, port: u16, bind: std::net::IpAddr, open: bool, quiet:
     server.run().map(|()| ExitCode::SUCCESS)
 }
 
+/// `ply-info`'s decode: the bounding box, and with materials the use of
+/// each texture slot (triangles from a PLY's `texnumber`; vertices where the
+/// reader splits them by material, OBJ and glTF).
 struct BboxSink {
     bbox: Aabb,
+    /// Per material id, triangles (`face_materials`) or vertices; the last
+    /// entry counts [`octolod::mesh::Vertex::NO_TEXTURE`].
+    per_slot: Vec<u64>,
+    face_materials: bool,
+}
+
+impl BboxSink {
+    fn count(&mut self, m: u16) {
+        let k = if m == octolod::mesh::Vertex::NO_TEXTURE { self.per_slot.len() - 1 } else { (m as usize).min(self.per_slot.len() - 1) };
+        self.per_slot[k] += 1;
+    }
 }
 
 impl BodySink for BboxSink {
     fn vertices(&mut self, _first: u64, batch: &[octolod::mesh::Vertex]) -> Result<()> {
         for v in batch {
             self.bbox.add(v.pos);
+            if !self.per_slot.is_empty() && !self.face_materials {
+                self.count(v.material);
+            }
         }
         Ok(())
     }
     fn triangles(&mut self, _batch: &[[u64; 3]]) -> Result<()> {
+        Ok(())
+    }
+    fn materials(&mut self, batch: &[u16]) -> Result<()> {
+        if !self.per_slot.is_empty() {
+            for &m in batch {
+                self.count(m);
+            }
+        }
         Ok(())
     }
 }
@@ -1077,11 +1102,37 @@ fn ply_info(input: &std::path::Path, header_only: bool, quiet: bool) -> Result<(
     out!("faces: {}", h.face_count());
     out!("attributes: {}", h.attrs.describe());
     out!("quadric dimension: {}", h.attrs.quadric_dim());
+    // The texture slots a store would copy, by material id.
+    let slots = h.texture_sources(input, true);
+    if !slots.is_empty() {
+        let dir = input.parent().unwrap_or(std::path::Path::new("."));
+        out!(
+            "textures: {} ({})",
+            slots.len(),
+            if h.attrs.material() {
+                "each face names its own"
+            } else if slots.len() > 1 {
+                "no face says which: every face draws the first"
+            } else {
+                "every face draws it"
+            }
+        );
+        for (k, t) in slots.iter().enumerate() {
+            let what = match t {
+                octolod::manifest::TextureSource::File(f) => format!("{f} ({})", if dir.join(f).is_file() { "found" } else { "missing" }),
+                octolod::manifest::TextureSource::Embedded { name, bytes, .. } => format!("{name} (embedded, {} bytes)", bytes.len()),
+                octolod::manifest::TextureSource::Missing(name) => format!("{name} (missing)"),
+            };
+            out!("  texture {k}: {what}");
+        }
+    }
     if header_only {
         return Ok(());
     }
     let progress = Progress::bytes(len, "decoding", quiet);
-    let mut sink = BboxSink { bbox: Aabb::EMPTY };
+    let face_materials = matches!(h.details, Details::Ply(_));
+    let per_slot = if h.attrs.material() { vec![0; slots.len() + 1] } else { Vec::new() };
+    let mut sink = BboxSink { bbox: Aabb::EMPTY, per_slot, face_materials };
     let t0 = std::time::Instant::now();
     let st = octolod::input::read_body(input, &h, octolod::mem::DEFAULT_BUDGET, &std::env::temp_dir(), &mut sink, &progress)?;
     let secs = t0.elapsed().as_secs_f64();
@@ -1093,6 +1144,14 @@ fn ply_info(input: &std::path::Path, header_only: bool, quiet: bool) -> Result<(
     out!("triangles (after fan triangulation): {}", st.triangles);
     out!("degenerate triangles: {}", st.degenerate);
     out!("polygons (>3 corners): {}", st.polygons);
+    if let Some((none, slots)) = sink.per_slot.split_last() {
+        let what = if face_materials { "triangles" } else { "vertices" };
+        let mut parts: Vec<String> = slots.iter().enumerate().map(|(k, n)| format!("{k}: {n}")).collect();
+        if *none > 0 {
+            parts.push(format!("none: {none}"));
+        }
+        out!("{what} per texture: {}", parts.join(", "));
+    }
     out!(
         "decoded: {} bytes in {:.3} s ({:.1} MB/s, {:.2} M faces/s)",
         st.bytes,

@@ -429,6 +429,24 @@ fn an_objs_usemtl_gives_each_triangle_its_texture_slot() {
     }
 }
 
+/// `ply-info` on that OBJ: its three slots in material order, and each
+/// slot's vertices (an OBJ's are split by material), faces before any
+/// `usemtl` counted as none.
+#[test]
+fn ply_info_lists_an_objs_texture_slots_and_their_vertices() {
+    let d = tempfile::tempdir().unwrap();
+    let (p, _) = write_banded_obj(d.path(), 6);
+    let (_, sink, _) = octolod::input::read_all(&p, 1 << 30).unwrap();
+    let count = |m: u16| sink.vertices.iter().filter(|v| v.material == m).count();
+    let o = octolod(&["ply-info", s(&p)]);
+    assert!(o.status.success(), "{}", err(&o));
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(text.lines().any(|l| l == "textures: 3 (each face names its own)"), "{text}");
+    assert!(text.lines().any(|l| l == "  texture 1: mat/tex/wood.png (found)"), "{text}");
+    let want = format!("vertices per texture: 0: {}, 1: {}, 2: {}, none: {}", count(0), count(1), count(2), count(octolod::mesh::Vertex::NO_TEXTURE));
+    assert!(count(octolod::mesh::Vertex::NO_TEXTURE) > 0 && text.lines().any(|l| l == want), "no line {want:?} in:\n{text}");
+}
+
 /// `octolod build` of that OBJ: the manifest lists the three textures in
 /// slot order with their copies, the attributes name the material, and
 /// level 0's triangles keep their materials.

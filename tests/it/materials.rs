@@ -179,6 +179,29 @@ fn three_textures_survive_every_level(simplifier: &str) {
     }
 }
 
+/// `ply-info` lists the texture slots in material order, says whether
+/// each image is beside the input, and counts each slot's triangles as the
+/// decode finds them (a slot whose image is gone still counts).
+#[test]
+fn ply_info_lists_each_texture_slot_and_its_triangles() {
+    let d = tempfile::tempdir().unwrap();
+    let ply = d.path().join("scan.ply");
+    gen_with("scan", 8_000, &ply, &["--atlas", "4", "--texture", "64", "--textures", "3"]);
+    std::fs::remove_file(d.path().join("scan_1.png")).unwrap();
+    let input = read(&ply);
+    let per: Vec<usize> = (0..3u16).map(|k| input.triangles.iter().filter(|t| input.vertices[t[0] as usize].material == k).count()).collect();
+    assert_eq!(per.iter().sum::<usize>(), input.triangles.len());
+    let o = octolod_ok(&["ply-info", s(&ply)]);
+    let text = String::from_utf8_lossy(&o.stdout);
+    for line in
+        ["textures: 3 (each face names its own)", "  texture 0: scan_0.png (found)", "  texture 1: scan_1.png (missing)", "  texture 2: scan_2.png (found)"]
+    {
+        assert!(text.lines().any(|l| l == line), "no line {line:?} in:\n{text}");
+    }
+    let want = format!("triangles per texture: 0: {}, 1: {}, 2: {}", per[0], per[1], per[2]);
+    assert!(text.lines().any(|l| l == want), "no line {want:?} in:\n{text}");
+}
+
 /// Both soup paths give every corner its face's texnumber, byte for byte
 /// alike: in memory, and external under a small budget (materials written
 /// in triangle order in phase 1, patched in phase 3).
