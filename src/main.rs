@@ -74,8 +74,10 @@ enum Cmd {
         #[command(flatten)]
         params: BuildArgs,
         /// Node simplifier: cluster (generalized-quadric vertex clustering,
-        /// fast) or collapse (quadric edge collapse with attributes, accurate).
-        #[arg(long, default_value = "cluster")]
+        /// fast), collapse (quadric edge collapse with attributes, accurate)
+        /// or auto (collapse for textured inputs, whose atlas seams
+        /// clustering simplifies less well; cluster otherwise).
+        #[arg(long, default_value = "auto")]
         simplifier: octolod::manifest::Simplifier,
         /// Build one shard of a sharded build (with --shard): the plan
         /// gives the parameters, -o names the shard's directory.
@@ -108,7 +110,7 @@ enum Cmd {
         #[command(flatten)]
         params: BuildArgs,
         /// Node simplifier of the whole build (see `build`).
-        #[arg(long, default_value = "cluster")]
+        #[arg(long, default_value = "auto")]
         simplifier: octolod::manifest::Simplifier,
         /// Print the plan's summary as JSON.
         #[arg(long)]

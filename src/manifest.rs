@@ -131,6 +131,9 @@ impl TextureRef {
 
 /// How each node (or the whole mesh) is reduced: recorded in the
 /// manifest (`params.simplifier`), chosen by `build` and `simplify`.
+/// [`Simplifier::Auto`] (`build`'s default) is resolved against the
+/// input's attributes before any node is reduced
+/// ([`Simplifier::resolve`]); a manifest or plan never records it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Simplifier {
@@ -138,6 +141,9 @@ pub enum Simplifier {
     Cluster,
     /// Quadric edge collapse with attributes (accurate).
     Collapse,
+    /// The more accurate of the two for the input's attributes, as the
+    /// bench measured them ([`Simplifier::resolve`]).
+    Auto,
 }
 
 impl Simplifier {
@@ -146,6 +152,23 @@ impl Simplifier {
         match self {
             Simplifier::Cluster => "cluster",
             Simplifier::Collapse => "collapse",
+            Simplifier::Auto => "auto",
+        }
+    }
+
+    /// The simplifier to use for a mesh with `attrs`: itself, unless
+    /// [`Simplifier::Auto`]. Auto takes `collapse` for textured inputs
+    /// (uvs): on the bench's atlas scan and terrain, whose seams bound
+    /// islands of a few triangles at coarse levels, clustering's coarse
+    /// levels reached 1.9× meshoptimizer's RMS where collapse stayed below
+    /// it ([benchmarks](../docs/benchmarks.md#textured-atlases-1-m-triangles-seams-simplifying)).
+    /// Else `cluster`: as accurate or more on smooth inputs with normals
+    /// and colours, and faster.
+    pub fn resolve(self, attrs: crate::mesh::AttrSet) -> Simplifier {
+        match self {
+            Simplifier::Auto if attrs.uv() => Simplifier::Collapse,
+            Simplifier::Auto => Simplifier::Cluster,
+            s => s,
         }
     }
 }
@@ -156,7 +179,8 @@ impl std::str::FromStr for Simplifier {
         match s {
             "cluster" => Ok(Simplifier::Cluster),
             "collapse" => Ok(Simplifier::Collapse),
-            _ => Err(format!("unknown simplifier {s:?} (cluster or collapse)")),
+            "auto" => Ok(Simplifier::Auto),
+            _ => Err(format!("unknown simplifier {s:?} (auto, cluster or collapse)")),
         }
     }
 }

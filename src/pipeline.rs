@@ -116,7 +116,8 @@ pub fn build_store(input: &Path, output: &Path, opts: &BuildOptions) -> Result<B
         derived_normals: built.header.derived_normals,
         nodes: report.nodes,
         triangles: report.soup.header.triangles,
-        params: opts.params.clone(),
+        // The simplifier the levels were made with (`auto` resolved).
+        params: BuildParams { simplifier: opts.params.simplifier.resolve(built.header.attrs), ..opts.params.clone() },
         seconds: ManifestSeconds { soup: seconds[0], partition: seconds[1], levels: seconds[2], total: seconds[3] },
         disk_bytes,
         levels: report.levels.clone(),

@@ -62,7 +62,8 @@ impl Simplifier {
     pub fn bytes_per_triangle(self) -> u64 {
         match self {
             Simplifier::Collapse => 240,
-            Simplifier::Cluster => 440,
+            // Auto is resolved before any size is asked; the larger figure.
+            Simplifier::Cluster | Simplifier::Auto => 440,
         }
     }
 }
@@ -193,6 +194,7 @@ pub fn check_options(target_tris: Option<u64>, target_ratio: Option<f64>, verify
 
 /// `octolod simplify` after the build: writes the reduced mesh to `out`.
 pub fn simplify_store(store: &Store, out: &Path, o: &SimplifyOptions) -> Result<SimplifyReport> {
+    let o = &SimplifyOptions { simplifier: o.simplifier.resolve(store.header.attrs), ..o.clone() };
     let input = store.level_triangles(0);
     match o.target {
         Target::Tris(n) => check_options(Some(n), None, o.verify_samples)?,
@@ -374,7 +376,7 @@ fn reduce_to_error(store: &Store, e: f64, o: &SimplifyOptions) -> Result<(Indexe
         rep.tries += 1;
         let last = attempt == 8 || limit <= 0.0;
         let (cut, mesh) = match o.simplifier {
-            Simplifier::Cluster => {
+            Simplifier::Cluster | Simplifier::Auto => {
                 let cut = if last { store.level_cut(0) } else { store.error_cut(limit) };
                 rep.route = "store-cut".into();
                 rep.start = if last { "level 0".into() } else { format!("max error {limit:.3e}") };
@@ -752,11 +754,11 @@ fn open_edge_positions(m: &IndexedMesh) -> FxHashSet<[u64; 3]> {
 /// Reduces one mesh in memory to `goal`, keeping `locked` vertices
 /// bit-exact. Unreferenced vertices are dropped.
 pub fn reduce_mesh(mesh: &IndexedMesh, locked: &[bool], attrs: AttrSet, goal: Goal, simplifier: Simplifier) -> IndexedMesh {
-    match (simplifier, goal) {
-        (Simplifier::Cluster, Goal::Tris(n)) => cluster_to_count(mesh, locked, attrs, n.max(1)),
+    match (simplifier.resolve(attrs), goal) {
+        (Simplifier::Cluster | Simplifier::Auto, Goal::Tris(n)) => cluster_to_count(mesh, locked, attrs, n.max(1)),
         // Clustering has no error-limited mode of its own: the error route
         // takes store cuts for it.
-        (Simplifier::Cluster, Goal::Error(_)) => compact(mesh, &mesh.triangles),
+        (Simplifier::Cluster | Simplifier::Auto, Goal::Error(_)) => compact(mesh, &mesh.triangles),
         (Simplifier::Collapse, g) => collapse(mesh, locked, attrs, g),
     }
 }

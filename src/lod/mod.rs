@@ -212,8 +212,8 @@ pub trait WithSimplifier {
 /// The one place a simplifier is chosen: runs `w` with `opts`' simplifier
 /// for a mesh with `attrs` (a new simplifier is a type and a line here).
 pub fn with_simplifier<W: WithSimplifier>(opts: &LodOptions, attrs: crate::mesh::AttrSet, w: W) -> W::Out {
-    match opts.params.simplifier {
-        Simplifier::Cluster => w.run(ClusterNodes { attrs, rel_tol: opts.rel_tol }),
+    match opts.params.simplifier.resolve(attrs) {
+        Simplifier::Cluster | Simplifier::Auto => w.run(ClusterNodes { attrs, rel_tol: opts.rel_tol }),
         Simplifier::Collapse => w.run(CollapseNodes { attrs }),
     }
 }

@@ -384,7 +384,9 @@ pub fn plan(input: &Path, out: &Path, opts: &PlanOptions, force: bool) -> Result
         version: PLAN_VERSION,
         plan_id: String::new(),
         input: id,
-        params: opts.params.clone(),
+        // Every shard and the merge use the one simplifier the input's
+        // attributes choose (a plan never records `auto`).
+        params: BuildParams { simplifier: opts.params.simplifier.resolve(header.attrs), ..opts.params.clone() },
         shard_levels,
         triangles: s.triangles,
         vertices: stats.vertices,

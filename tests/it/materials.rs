@@ -228,3 +228,36 @@ fn both_soup_paths_carry_each_face_texnumber() {
     }
     assert!(soups[0] == soups[1], "the two paths' soups differ");
 }
+
+/// `build`'s default simplifier (`auto`) collapses a textured input and
+/// clusters one without uvs; the store and a sharded build's plan record
+/// the one used, never `auto`; an explicit choice is kept.
+#[test]
+fn the_default_simplifier_collapses_textured_inputs_and_clusters_the_rest() {
+    let d = tempfile::tempdir().unwrap();
+    let textured = d.path().join("atlas.ply");
+    gen_with("scan", 6_000, &textured, &["--atlas", "4", "--texture", "64"]);
+    let plain = d.path().join("plain.ply");
+    gen_with("scan", 6_000, &plain, &[]);
+    let recorded = |st: &std::path::Path| {
+        let m: serde_json::Value = serde_json::from_slice(&std::fs::read(st.join("store.json")).unwrap()).unwrap();
+        m["params"]["simplifier"].as_str().unwrap().to_string()
+    };
+    for (input, extra, want) in
+        [(&textured, None, "collapse"), (&plain, None, "cluster"), (&textured, Some("cluster"), "cluster"), (&plain, Some("auto"), "cluster")]
+    {
+        let st = d.path().join(format!("{want}-{}.octolod", extra.unwrap_or("default")));
+        let mut args = vec!["build", s(input), "-o", s(&st), "-q", "--leaf-tris", "1024"];
+        if let Some(x) = extra {
+            args.extend(["--simplifier", x]);
+        }
+        octolod_ok(&args);
+        assert_eq!(recorded(&st), want, "{args:?}");
+        let info = String::from_utf8_lossy(&octolod_ok(&["info", s(&st)]).stdout).to_string();
+        assert!(info.lines().any(|l| l == format!("simplifier: {want}")), "{info}");
+    }
+    let plan = d.path().join("plan.json");
+    octolod_ok(&["-q", "plan", s(&textured), "-o", s(&plan), "--shards", "2"]);
+    let p: serde_json::Value = serde_json::from_slice(&std::fs::read(&plan).unwrap()).unwrap();
+    assert_eq!(p["params"]["simplifier"], "collapse");
+}
