@@ -200,7 +200,7 @@ fn a_textured_scan_in_the_browser_matches_the_full_resolution_render() {
     let cameras = serde_json::json!({
         "fov_y_deg": 50, "space": "bbox", "up": [0, 0, 1],
         "frames": [
-            {"eye": [0.5, -0.45, 3.2], "target": [0.5, 0.45, 0.4]},
+            {"eye": [0.5, -0.3, 0.8], "target": [0.5, 0.7, 0.3]},
             {"eye": [0.2, 0.05, 0.9], "target": [0.6, 0.6, 0.3]}
         ]
     });
@@ -210,6 +210,34 @@ fn a_textured_scan_in_the_browser_matches_the_full_resolution_render() {
         assert!(!shared.is_empty() && shared.len() <= 6, "one texture per drawn level at most: {shared:?}");
         assert!(shared.iter().all(|n| n.as_str().unwrap().starts_with("texture-0-")), "{shared:?}");
     }
+}
+
+/// Issue 32, several textures: a scan whose atlas islands are spread over
+/// three tinted textures (MeshLab's face `texnumber`). Each tile draws a
+/// primitive per material from its level's copy of that material's image:
+/// the page loads copies of all three, and every frame matches `render`'s
+/// full-resolution frame, which draws each face with its own texture (a
+/// face drawn from another slot's image shows another tint).
+#[test]
+fn a_scan_with_three_textures_in_the_browser_draws_each_face_from_its_own() {
+    if skip() {
+        return;
+    }
+    let cameras = serde_json::json!({
+        "fov_y_deg": 50, "space": "bbox", "up": [0, 0, 1],
+        "frames": [
+            {"eye": [0.5, -0.3, 0.8], "target": [0.5, 0.7, 0.3]},
+            {"eye": [0.2, 0.05, 0.9], "target": [0.6, 0.6, 0.3]}
+        ]
+    });
+    let report = browser_matches_render_at("scan", 200_000, &["--atlas", "8", "--texture", "512", "--textures", "3"], &cameras, 1.0, 24.0);
+    let last = report["frames"].as_array().unwrap().last().unwrap();
+    let shared: Vec<&str> = last["sharedTextures"].as_array().unwrap().iter().map(|n| n.as_str().unwrap()).collect();
+    for k in 0..3 {
+        let n = shared.iter().filter(|s| s.starts_with(&format!("texture-{k}-"))).count();
+        assert!((1..=6).contains(&n), "slot {k}: {n} copies loaded, one per drawn level at most: {shared:?}");
+    }
+    assert!(shared.iter().all(|s| ["texture-0-", "texture-1-", "texture-2-"].iter().any(|p| s.starts_with(p))), "{shared:?}");
 }
 
 #[test]
