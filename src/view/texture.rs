@@ -39,6 +39,8 @@
 use crate::error::{Error, Location, Result};
 use std::path::PathBuf;
 
+pub mod decode;
+
 /// The largest share of `--ram` the textures may take, all together.
 pub const TEXTURE_SHARE: f64 = 0.25;
 
@@ -66,35 +68,51 @@ fn linear_table() -> &'static [f32; 256] {
     T.get_or_init(|| std::array::from_fn(|b| crate::color::srgb_to_linear(b as f64 / 255.0) as f32))
 }
 
+/// The source texels output index `i` of `n` covers among `src` (the
+/// spans of a side split into `n` near-equal runs; odd sides split
+/// unevenly).
+fn span(i: u32, n: u32, src: u32) -> std::ops::Range<usize> {
+    (i as u64 * src as u64 / n as u64) as usize..((i as u64 + 1) * src as u64 / n as u64) as usize
+}
+
+/// One row of the next level: `rows` are the source rows (RGBA8, `src_w`
+/// texels each) its texels cover, top first; the row's `w` texels, each
+/// the linear-light mean of the texels it covers, are appended to `out`.
+/// [`downsample`] and the streaming decoder ([`decode`]) both make their
+/// rows here, so their levels are the same bytes.
+fn downsample_row(rows: &[&[u8]], src_w: u32, w: u32, out: &mut Vec<u8>) {
+    let lin = linear_table();
+    for x in 0..w {
+        let xs = span(x, w, src_w);
+        let mut acc = [0f32; 4];
+        let mut n = 0f32;
+        for row in rows {
+            for sx in xs.clone() {
+                let p = &row[sx * 4..][..4];
+                for k in 0..3 {
+                    acc[k] += lin[p[k] as usize];
+                }
+                acc[3] += p[3] as f32 / 255.0;
+                n += 1.0;
+            }
+        }
+        for (k, a) in acc.iter().enumerate() {
+            let v = a / n;
+            let enc = if k < 3 { crate::color::linear_to_srgb(v as f64) } else { v as f64 };
+            out.push((enc * 255.0).round().clamp(0.0, 255.0) as u8);
+        }
+    }
+}
+
 /// The next level of `l`: sides halved (at least 1), each texel the
 /// linear-light mean of the texels it covers.
 fn downsample(l: &MipLevel) -> MipLevel {
-    let lin = linear_table();
-    let (w, h) = ((l.width / 2).max(1), (l.height / 2).max(1));
+    let (w, h) = halve((l.width, l.height));
     let mut rgba = Vec::with_capacity(w as usize * h as usize * 4);
-    let span = |i: u32, n: u32, src: u32| (i as u64 * src as u64 / n as u64) as usize..((i as u64 + 1) * src as u64 / n as u64) as usize;
+    let stride = l.width as usize * 4;
     for y in 0..h {
-        let ys = span(y, h, l.height);
-        for x in 0..w {
-            let xs = span(x, w, l.width);
-            let mut acc = [0f32; 4];
-            let mut n = 0f32;
-            for sy in ys.clone() {
-                for sx in xs.clone() {
-                    let p = &l.rgba[(sy * l.width as usize + sx) * 4..][..4];
-                    for k in 0..3 {
-                        acc[k] += lin[p[k] as usize];
-                    }
-                    acc[3] += p[3] as f32 / 255.0;
-                    n += 1.0;
-                }
-            }
-            for (k, a) in acc.iter().enumerate() {
-                let v = a / n;
-                let enc = if k < 3 { crate::color::linear_to_srgb(v as f64) } else { v as f64 };
-                rgba.push((enc * 255.0).round().clamp(0.0, 255.0) as u8);
-            }
-        }
+        let rows: Vec<&[u8]> = span(y, h, l.height).map(|sy| &l.rgba[sy * stride..][..stride]).collect();
+        downsample_row(&rows, l.width, w, &mut rgba);
     }
     MipLevel { width: w, height: h, rgba }
 }
