@@ -27,12 +27,13 @@
 //!   of levels each would halve a 64² label as often as an 8k² atlas), and
 //!   each step frees the most bytes. The plan is made from the images'
 //!   headers before any is decoded.
-//! * What is counted is the chains resident on the GPU; each full-size
-//!   decode is transient, one at a time, before any node is loaded, and
-//!   levels to be dropped are halved away one at a time
-//!   ([`MipChain::dropping`]), so a 16k² atlas under a small budget peaks
-//!   at its decode plus a quarter (plus the chains already made, within
-//!   the share).
+//! * What is counted is the chains resident on the GPU. Each image is
+//!   decoded straight at the finest level kept ([`decode`]), one at a
+//!   time, before any node is loaded: a PNG row by row, so it costs that
+//!   level and a few rows of the full size (a 16k² atlas kept at 4k²:
+//!   64 MiB, not the 1 GiB full-size decode); an interlaced PNG or a JPEG
+//!   is decoded whole into one buffer of its own format (an 8192² JPEG:
+//!   192 MiB of RGB) and reduced from there, transiently.
 //! * uvs follow MeshLab's (and OpenGL's) convention: v = 0 is the image's
 //!   bottom row; the shader samples (u, 1 − v), repeating outside [0, 1].
 
@@ -260,13 +261,18 @@ pub fn load(slots: &[Option<(String, PathBuf)>], max_bytes: u64) -> Result<Textu
             continue;
         };
         let (size, levels) = plan.next().expect("a plan per image");
-        let bytes = std::fs::read(path).map_err(|e| cannot_read(path, &e))?;
-        let img = ::image::load_from_memory(&bytes).map_err(|e| cannot_decode(path, &e))?.into_rgba8();
-        drop(bytes);
-        if img.dimensions() != size {
-            return Err(cannot_decode(path, &format!("it decodes to {:?} texels, its header says {size:?}", img.dimensions())));
+        // Decoded straight at the planned level: the full size never lies
+        // in memory whole (a PNG; see `decode`).
+        let r = decode::decode_reduced(path, |_| levels).map_err(|e| match e {
+            decode::DecodeError::Read(e) => cannot_read(path, &e),
+            decode::DecodeError::Decode(e) => cannot_decode(path, &e),
+        })?;
+        if r.full != size {
+            return Err(cannot_decode(path, &format!("it decodes to {:?} texels, its header says {size:?}", r.full)));
         }
-        out.push(Some(MipChain::dropping(file, size.0, size.1, img.into_raw(), levels)));
+        let mut chain = MipChain::new(file, r.level.width, r.level.height, r.level.rgba);
+        chain.dropped = r.dropped;
+        out.push(Some(chain));
     }
     Ok(TextureSet { slots: out })
 }
