@@ -34,7 +34,11 @@
 //!   texels), each GLB having a primitive per material whose glTF material
 //!   names its level's copy of that material's texture by URI
 //!   ([`tile_glb`]), so a far view fetches small images and tiles of a
-//!   level share them (browsers cache them; CesiumJS shares them).
+//!   level share them (browsers cache them; CesiumJS shares them). The
+//!   full-size copy is the store's file; the others are made without the
+//!   full image in memory: the largest is decoded straight at its size
+//!   (a PNG row by row, [`crate::view::texture::decode`]), the smaller
+//!   ones are its mip chain.
 //!
 //! Why a tree of cells, the skirts, frames, textures and costs: `docs/web.md`.
 
@@ -602,7 +606,9 @@ pub fn tile_glb(mesh: &IndexedMesh, attrs: crate::mesh::AttrSet, opts: &GltfOpti
 /// no uvs. Without [`crate::mesh::AttrSet::MATERIAL`] every face draws the
 /// first slot with an image, so only that one is copied. A slot without an
 /// image, or (with a warning) whose image does not decode, is `None`: its
-/// faces are drawn untextured. One image is decoded at a time. Copies of a
+/// faces are drawn untextured. One image is decoded at a time, straight
+/// at the size of its largest copy that is not the file itself (a PNG row
+/// by row: an 8192² atlas holds its 4096² copy, not 256 MiB). Copies of a
 /// PNG are PNG, of anything else JPEG (quality 90).
 fn level_textures(
     slots: &[Option<(String, std::path::PathBuf)>],
@@ -622,35 +628,58 @@ fn level_textures(
         if !attrs.material() && Some(k) != first {
             continue;
         }
-        let bytes = std::fs::read(src).map_err(|e| Error::io(src, "read texture", e))?;
+        // Its signature: the file itself is only copied.
+        let mut head = Vec::with_capacity(8);
+        std::fs::File::open(src)
+            .and_then(|f| std::io::Read::read_to_end(&mut std::io::Read::take(f, 8), &mut head))
+            .map_err(|e| Error::io(src, "read texture", e))?;
         let bad = |what: String| Error::input(crate::error::Location { file: src.clone(), ..Default::default() }, what);
-        let mime = crate::gltf::image_mime(&bytes);
+        let mime = crate::gltf::image_mime(&head);
         let png = mime == Some("image/png");
-        let img = match ::image::load_from_memory(&bytes) {
-            Ok(i) => i.into_rgba8(),
-            Err(e) => {
+        // The chain level each level's copy takes (the first no larger than
+        // its side), from the full size alone.
+        let mips = |(w, h): (u32, u32)| -> Vec<u32> {
+            let mut sides = vec![(w, h)];
+            while let Some(&s) = sides.last().filter(|&&s| s != (1, 1)) {
+                sides.push(crate::view::texture::halve(s));
+            }
+            let pick = |side: u32| sides.iter().position(|l| l.0.max(l.1) <= side).unwrap_or(sides.len() - 1) as u32;
+            (0..=top).map(|level| pick(level_texture_side(w.max(h), level))).collect()
+        };
+        // Decoded straight at the largest copy that is not the file itself
+        // (the full size never lies in memory whole; see
+        // `view::texture::decode`); the smaller copies are its chain. With
+        // no such copy the file is still decoded, small, to check it.
+        let first_mip = |full: (u32, u32)| match mime {
+            None => 0,
+            Some(_) => mips(full).into_iter().filter(|&m| m > 0).min().unwrap_or(1),
+        };
+        let r = match crate::view::texture::decode::decode_reduced(src, first_mip) {
+            Ok(r) => r,
+            Err(crate::view::texture::decode::DecodeError::Read(e)) => return Err(Error::io(src, "read texture", e)),
+            Err(crate::view::texture::decode::DecodeError::Decode(e)) => {
                 // The geometry is the tileset; a texture it cannot carry is left out.
                 eprintln!("warning: {}; the tiles draw its faces without it", bad(format!("cannot decode the texture: {e}")));
                 continue;
             }
         };
-        let (w, h) = img.dimensions();
-        let chain = crate::view::texture::MipChain::new(file, w, h, img.into_raw());
+        let (w, h) = r.full;
+        let chain = crate::view::texture::MipChain::new(file, r.level.width, r.level.height, r.level.rgba);
         let ext = if png { "png" } else { "jpg" };
         // Mip levels already written (levels of one size share a file).
-        let mut written: Vec<usize> = Vec::new();
-        for level in 0..=top {
-            let side = level_texture_side(w.max(h), level);
-            let mip = chain.levels.iter().position(|l| l.width.max(l.height) <= side).unwrap_or(chain.levels.len() - 1);
-            let l = &chain.levels[mip];
-            let stem = format!("texture-{k}-{}", l.width.max(l.height));
+        let mut written: Vec<u32> = Vec::new();
+        for (level, mip) in (0..=top).zip(mips((w, h))) {
+            // Level 0 is the file itself (copied), or (no PNG or JPEG
+            // signature) decoded whole.
+            let l = if mip == 0 && mime.is_some() { None } else { Some(&chain.levels[(mip - r.dropped) as usize]) };
+            let side = l.map_or(w.max(h), |l| l.width.max(l.height));
+            let stem = format!("texture-{k}-{side}");
             let name = format!("{stem}.{ext}");
             if !written.contains(&mip) {
                 let path = dir.join("t").join(&name);
-                if mip == 0 && mime.is_some() {
-                    std::fs::write(&path, &bytes).map_err(|e| Error::io(&path, "write", e))?;
-                } else {
-                    encode_image(&path, l, png)?;
+                match l {
+                    None => std::fs::copy(src, &path).map(drop).map_err(|e| Error::io(&path, "write", e))?,
+                    Some(l) => encode_image(&path, l, png)?,
                 }
                 *bytes_written += std::fs::metadata(&path).map_err(|e| Error::io(&path, "stat", e))?.len();
                 written.push(mip);

@@ -27,17 +27,20 @@
 //!   of levels each would halve a 64² label as often as an 8k² atlas), and
 //!   each step frees the most bytes. The plan is made from the images'
 //!   headers before any is decoded.
-//! * What is counted is the chains resident on the GPU; each full-size
-//!   decode is transient, one at a time, before any node is loaded, and
-//!   levels to be dropped are halved away one at a time
-//!   ([`MipChain::dropping`]), so a 16k² atlas under a small budget peaks
-//!   at its decode plus a quarter (plus the chains already made, within
-//!   the share).
+//! * What is counted is the chains resident on the GPU. Each image is
+//!   decoded straight at the finest level kept ([`decode`]), one at a
+//!   time, before any node is loaded: a PNG row by row, so it costs that
+//!   level and a few rows of the full size (a 16k² atlas kept at 4k²:
+//!   64 MiB, not the 1 GiB full-size decode); an interlaced PNG or a JPEG
+//!   is decoded whole into one buffer of its own format (an 8192² JPEG:
+//!   192 MiB of RGB) and reduced from there, transiently.
 //! * uvs follow MeshLab's (and OpenGL's) convention: v = 0 is the image's
 //!   bottom row; the shader samples (u, 1 − v), repeating outside [0, 1].
 
 use crate::error::{Error, Location, Result};
 use std::path::PathBuf;
+
+pub mod decode;
 
 /// The largest share of `--ram` the textures may take, all together.
 pub const TEXTURE_SHARE: f64 = 0.25;
@@ -66,35 +69,51 @@ fn linear_table() -> &'static [f32; 256] {
     T.get_or_init(|| std::array::from_fn(|b| crate::color::srgb_to_linear(b as f64 / 255.0) as f32))
 }
 
+/// The source texels output index `i` of `n` covers among `src` (the
+/// spans of a side split into `n` near-equal runs; odd sides split
+/// unevenly).
+fn span(i: u32, n: u32, src: u32) -> std::ops::Range<usize> {
+    (i as u64 * src as u64 / n as u64) as usize..((i as u64 + 1) * src as u64 / n as u64) as usize
+}
+
+/// One row of the next level: `rows` are the source rows (RGBA8, `src_w`
+/// texels each) its texels cover, top first; the row's `w` texels, each
+/// the linear-light mean of the texels it covers, are appended to `out`.
+/// [`downsample`] and the streaming decoder ([`decode`]) both make their
+/// rows here, so their levels are the same bytes.
+fn downsample_row(rows: &[&[u8]], src_w: u32, w: u32, out: &mut Vec<u8>) {
+    let lin = linear_table();
+    for x in 0..w {
+        let xs = span(x, w, src_w);
+        let mut acc = [0f32; 4];
+        let mut n = 0f32;
+        for row in rows {
+            for sx in xs.clone() {
+                let p = &row[sx * 4..][..4];
+                for k in 0..3 {
+                    acc[k] += lin[p[k] as usize];
+                }
+                acc[3] += p[3] as f32 / 255.0;
+                n += 1.0;
+            }
+        }
+        for (k, a) in acc.iter().enumerate() {
+            let v = a / n;
+            let enc = if k < 3 { crate::color::linear_to_srgb(v as f64) } else { v as f64 };
+            out.push((enc * 255.0).round().clamp(0.0, 255.0) as u8);
+        }
+    }
+}
+
 /// The next level of `l`: sides halved (at least 1), each texel the
 /// linear-light mean of the texels it covers.
 fn downsample(l: &MipLevel) -> MipLevel {
-    let lin = linear_table();
-    let (w, h) = ((l.width / 2).max(1), (l.height / 2).max(1));
+    let (w, h) = halve((l.width, l.height));
     let mut rgba = Vec::with_capacity(w as usize * h as usize * 4);
-    let span = |i: u32, n: u32, src: u32| (i as u64 * src as u64 / n as u64) as usize..((i as u64 + 1) * src as u64 / n as u64) as usize;
+    let stride = l.width as usize * 4;
     for y in 0..h {
-        let ys = span(y, h, l.height);
-        for x in 0..w {
-            let xs = span(x, w, l.width);
-            let mut acc = [0f32; 4];
-            let mut n = 0f32;
-            for sy in ys.clone() {
-                for sx in xs.clone() {
-                    let p = &l.rgba[(sy * l.width as usize + sx) * 4..][..4];
-                    for k in 0..3 {
-                        acc[k] += lin[p[k] as usize];
-                    }
-                    acc[3] += p[3] as f32 / 255.0;
-                    n += 1.0;
-                }
-            }
-            for (k, a) in acc.iter().enumerate() {
-                let v = a / n;
-                let enc = if k < 3 { crate::color::linear_to_srgb(v as f64) } else { v as f64 };
-                rgba.push((enc * 255.0).round().clamp(0.0, 255.0) as u8);
-            }
-        }
+        let rows: Vec<&[u8]> = span(y, h, l.height).map(|sy| &l.rgba[sy * stride..][..stride]).collect();
+        downsample_row(&rows, l.width, w, &mut rgba);
     }
     MipLevel { width: w, height: h, rgba }
 }
@@ -242,13 +261,18 @@ pub fn load(slots: &[Option<(String, PathBuf)>], max_bytes: u64) -> Result<Textu
             continue;
         };
         let (size, levels) = plan.next().expect("a plan per image");
-        let bytes = std::fs::read(path).map_err(|e| cannot_read(path, &e))?;
-        let img = ::image::load_from_memory(&bytes).map_err(|e| cannot_decode(path, &e))?.into_rgba8();
-        drop(bytes);
-        if img.dimensions() != size {
-            return Err(cannot_decode(path, &format!("it decodes to {:?} texels, its header says {size:?}", img.dimensions())));
+        // Decoded straight at the planned level: the full size never lies
+        // in memory whole (a PNG; see `decode`).
+        let r = decode::decode_reduced(path, |_| levels).map_err(|e| match e {
+            decode::DecodeError::Read(e) => cannot_read(path, &e),
+            decode::DecodeError::Decode(e) => cannot_decode(path, &e),
+        })?;
+        if r.full != size {
+            return Err(cannot_decode(path, &format!("it decodes to {:?} texels, its header says {size:?}", r.full)));
         }
-        out.push(Some(MipChain::dropping(file, size.0, size.1, img.into_raw(), levels)));
+        let mut chain = MipChain::new(file, r.level.width, r.level.height, r.level.rgba);
+        chain.dropped = r.dropped;
+        out.push(Some(chain));
     }
     Ok(TextureSet { slots: out })
 }
