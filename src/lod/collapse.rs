@@ -341,9 +341,18 @@ pub fn collapse_error(input: &IndexedMesh, locked: &[bool], output: &IndexedMesh
         let n = side.vertices.len();
         let points = side.vertices.iter().enumerate().filter(|&(v, _)| keep(v)).map(|(v, x)| (v, x.pos));
         let mut top = Farthest::default();
+        // A point nearer than `moot_below` cannot change `top`: its search
+        // ends at the first triangle that shows it (mostly the previous
+        // point's, the hint), and it is not pushed. The same `top` as
+        // pushing every exact distance.
+        let mut hint = u32::MAX;
         for (id, p) in points.chain(samples.iter().enumerate().map(|(k, s)| (n + k, s.0))) {
-            if let Some(c) = bvh.closest(p) {
-                top.push(c.dist2, id as u32);
+            let moot = top.moot_below();
+            if let Some((d2, slot)) = bvh.nearest_unless_below(p, hint, moot) {
+                hint = slot;
+                if d2 >= moot {
+                    top.push(d2, id as u32);
+                }
             }
         }
         top

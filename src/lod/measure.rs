@@ -490,6 +490,16 @@ impl Farthest {
         }
     }
 
+    /// A bound below this changes nothing pushed (it would join `rest`,
+    /// already larger): `rest` once `MAX_FAR` are kept, else none.
+    pub fn moot_below(&self) -> f64 {
+        if self.top.len() < MAX_FAR {
+            f64::NEG_INFINITY
+        } else {
+            self.rest
+        }
+    }
+
     /// What a bound must exceed to be kept (0 until `MAX_FAR` are).
     pub fn floor(&self) -> f64 {
         if self.top.len() < MAX_FAR {
