@@ -51,46 +51,9 @@ pub fn collapse(mesh: &IndexedMesh, locked: &[bool], attrs: AttrSet, target_tris
     if mesh.triangles.is_empty() {
         return Collapsed { vertices: mesh.vertices.clone(), triangles: Vec::new(), error: 0.0 };
     }
-    let mut bb = Aabb::default();
-    for t in &mesh.triangles {
-        for &v in t {
-            bb.add(mesh.vertices[v as usize].pos);
-        }
-    }
-    let c = bb.center();
-    let mut pos: Vec<[f32; 3]> = mesh.vertices.iter().map(|v| std::array::from_fn(|k| (v.pos[k] - c[k]) as f32)).collect();
-    let mut weights: Vec<f32> = Vec::new();
-    if attrs.normal() {
-        weights.extend([NORMAL_WEIGHT; 3]);
-    }
-    if attrs.color() {
-        weights.extend([COLOR_WEIGHT; 3]);
-        if attrs.alpha() {
-            weights.push(COLOR_WEIGHT);
-        }
-    }
-    if attrs.uv() {
-        weights.extend([UV_WEIGHT; 2]);
-    }
-    let na = weights.len();
-    let mut attr: Vec<f32> = Vec::with_capacity(mesh.vertices.len() * na);
-    for v in &mesh.vertices {
-        if attrs.normal() {
-            attr.extend(v.normal);
-        }
-        if attrs.color() {
-            attr.extend(v.color[..3].iter().map(|&x| x as f32 / 255.0));
-            if attrs.alpha() {
-                attr.push(v.color[3] as f32 / 255.0);
-            }
-        }
-        if attrs.uv() {
-            attr.extend(v.uv);
-        }
-    }
-    let attr0 = attr.clone();
-    let lock: Vec<meshopt::SimplifyVertex> = locked.iter().map(|&l| if l { meshopt::SimplifyVertex::Lock } else { meshopt::SimplifyVertex::None }).collect();
-    let mut idx: Vec<u32> = mesh.triangles.iter().flatten().copied().collect();
+    let input = Input::new(mesh, locked, attrs);
+    let Input { bb, c, na, .. } = input;
+    let (mut pos, mut attr, mut idx) = (input.pos.clone(), input.attr.clone(), input.idx.clone());
     // To a count (`simplify`), with meshoptimizer's light regularisation,
     // which keeps triangles well shaped: on a smooth 2 M sphere it took
     // the RMS at 186 K triangles from 5.7x MeshLab's quadric edge collapse
@@ -103,20 +66,16 @@ pub fn collapse(mesh: &IndexedMesh, locked: &[bool], attrs: AttrSet, target_tris
         None => (3 * target_tris, f32::MAX, meshopt::SimplifyOptions::RegularizeLight),
         Some(e) => (3 * target_tris, e as f32, meshopt::SimplifyOptions::ErrorAbsolute),
     };
-    let mut result_error = 0f32;
-    let mut run = |idx: &mut Vec<u32>, opts: meshopt::SimplifyOptions| {
-        let n = meshopt::simplify_with_update(idx, &mut pos, &mut attr, &weights, na * 4, Some(&lock), count, err, opts, Some(&mut result_error));
-        idx.truncate(n);
-    };
-    run(&mut idx, opts);
+    let mut result_error = input.run(&mut idx, &mut pos, &mut attr, count, err, opts);
     if max_error.is_none() {
         let n = target_tris;
         if idx.len() / 3 > n + n / 100 && !locked.iter().any(|&l| l) {
             // Topology stopped it: allow removing small disconnected parts
             // (never with locks: a part may be a piece of a seam).
-            run(&mut idx, opts | meshopt::SimplifyOptions::Prune);
+            result_error = input.run(&mut idx, &mut pos, &mut attr, count, err, opts | meshopt::SimplifyOptions::Prune);
         }
     }
+    let attr0 = &input.attr;
     // Optimal placement may step a hair outside (a convex part's chords);
     // results stay inside the input's box and attribute ranges.
     let mut lo = vec![f32::MAX; na];
@@ -171,6 +130,75 @@ pub fn collapse(mesh: &IndexedMesh, locked: &[bool], attrs: AttrSet, target_tris
     Collapsed { vertices: verts, triangles, error: result_error as f64 }
 }
 
+/// What meshoptimizer's collapse takes of a mesh, made once for several
+/// runs (a sampled node's error curve collapses it seven times): positions
+/// about the box centre in f32, weighted attributes, locks, the index.
+struct Input {
+    bb: Aabb,
+    c: [f64; 3],
+    pos: Vec<[f32; 3]>,
+    weights: Vec<f32>,
+    na: usize,
+    attr: Vec<f32>,
+    lock: Vec<meshopt::SimplifyVertex>,
+    idx: Vec<u32>,
+}
+
+impl Input {
+    fn new(mesh: &IndexedMesh, locked: &[bool], attrs: AttrSet) -> Input {
+        let mut bb = Aabb::default();
+        for t in &mesh.triangles {
+            for &v in t {
+                bb.add(mesh.vertices[v as usize].pos);
+            }
+        }
+        let c = bb.center();
+        let pos: Vec<[f32; 3]> = mesh.vertices.iter().map(|v| std::array::from_fn(|k| (v.pos[k] - c[k]) as f32)).collect();
+        let mut weights: Vec<f32> = Vec::new();
+        if attrs.normal() {
+            weights.extend([NORMAL_WEIGHT; 3]);
+        }
+        if attrs.color() {
+            weights.extend([COLOR_WEIGHT; 3]);
+            if attrs.alpha() {
+                weights.push(COLOR_WEIGHT);
+            }
+        }
+        if attrs.uv() {
+            weights.extend([UV_WEIGHT; 2]);
+        }
+        let na = weights.len();
+        let mut attr: Vec<f32> = Vec::with_capacity(mesh.vertices.len() * na);
+        for v in &mesh.vertices {
+            if attrs.normal() {
+                attr.extend(v.normal);
+            }
+            if attrs.color() {
+                attr.extend(v.color[..3].iter().map(|&x| x as f32 / 255.0));
+                if attrs.alpha() {
+                    attr.push(v.color[3] as f32 / 255.0);
+                }
+            }
+            if attrs.uv() {
+                attr.extend(v.uv);
+            }
+        }
+        let lock = locked.iter().map(|&l| if l { meshopt::SimplifyVertex::Lock } else { meshopt::SimplifyVertex::None }).collect();
+        let idx = mesh.triangles.iter().flatten().copied().collect();
+        Input { bb, c, pos, weights, na, attr, lock, idx }
+    }
+
+    /// One collapse of `idx` (truncated to what is left), `pos` and `attr`
+    /// updated in place; gives meshoptimizer's result error.
+    #[allow(clippy::too_many_arguments)]
+    fn run(&self, idx: &mut Vec<u32>, pos: &mut [[f32; 3]], attr: &mut [f32], count: usize, err: f32, opts: meshopt::SimplifyOptions) -> f32 {
+        let mut result_error = 0f32;
+        let n = meshopt::simplify_with_update(idx, pos, attr, &self.weights, self.na * 4, Some(&self.lock), count, err, opts, Some(&mut result_error));
+        idx.truncate(n);
+        result_error
+    }
+}
+
 /// A uv box: low and high corners.
 type UvBox = ([f32; 2], [f32; 2]);
 
@@ -200,14 +228,26 @@ pub struct ErrorCurve {
 const CURVE_SHARES: [f64; 7] = [0.85, 0.7, 0.58, 0.48, 0.38, 0.27, 0.15];
 
 impl ErrorCurve {
+    /// Each point is [`collapse`] to an error limit of `f32::MAX` (only the
+    /// count stops it), but the mesh is prepared once and only the count
+    /// and error are kept: the output's vertices are not made.
     pub fn of(mesh: &IndexedMesh, locked: &[bool], attrs: AttrSet) -> ErrorCurve {
         let n = mesh.triangles.len();
         let mut points: Vec<(f64, f64)> = Vec::new();
+        if n == 0 {
+            points.resize(CURVE_SHARES.len(), (0.0, 0.0));
+            return ErrorCurve { tris: 0, points };
+        }
+        let input = Input::new(mesh, locked, attrs);
+        let (mut pos, mut attr, mut idx) = (Vec::new(), Vec::new(), Vec::new());
         let mut worst = 0.0f64;
         for s in CURVE_SHARES {
-            let c = collapse(mesh, locked, attrs, (s * n as f64).round() as usize, Some(f32::MAX as f64));
-            worst = worst.max(c.error);
-            points.push((worst, c.triangles.len() as f64));
+            pos.clone_from(&input.pos);
+            attr.clone_from(&input.attr);
+            idx.clone_from(&input.idx);
+            let e = input.run(&mut idx, &mut pos, &mut attr, 3 * (s * n as f64).round() as usize, f32::MAX, meshopt::SimplifyOptions::ErrorAbsolute);
+            worst = worst.max(e as f64);
+            points.push((worst, (idx.len() / 3) as f64));
         }
         ErrorCurve { tris: n as u64, points }
     }
