@@ -454,14 +454,16 @@ impl<'a> Splits<'a> {
                 va
             }
             None => {
-                // The input's planes pass through their corners: g = 0, e = 0.
+                // The input's planes pass through their corners: g = 0, e = 0,
+                // so each triangle's matrix goes straight into its corners'
+                // rows ([`crate::quadric::triangle_matrix`]).
                 let mut va = vec![0.0f64; nv * cs];
-                let mut tq = Quadric::zero(dim);
+                let mut m = [0.0; crate::quadric::MAX_COEFFS];
                 for t in &mesh.triangles {
-                    tq.clear();
-                    tq.add_triangle(&embedded[t[0] as usize], &embedded[t[1] as usize], &embedded[t[2] as usize]);
-                    for &v in t {
-                        add(&mut va[v as usize * cs..v as usize * cs + al], tq.matrix_packed());
+                    if crate::quadric::triangle_matrix(dim, &embedded[t[0] as usize], &embedded[t[1] as usize], &embedded[t[2] as usize], &mut m) {
+                        for &v in t {
+                            add(&mut va[v as usize * cs..v as usize * cs + al], &m[..al]);
+                        }
                     }
                 }
                 add_border_planes(mesh, locked, sp.seams.as_ref().map(|s| &s.seam[..]), dim, cs, &mut va);
