@@ -443,13 +443,12 @@ impl<'a> Splits<'a> {
         let cs = carry_len(dim);
         sp.va = match vertex_a {
             Some(a) => {
-                // Carried in raw attribute units; this node weighs attributes by its size.
-                let mut va = a[..nv * cs].to_vec();
-                let d = attr_scale(&sp.space, false);
-                if d.iter().any(|&x| x != 1.0) {
-                    for v in va.chunks_exact_mut(cs) {
-                        scale_carried(v, dim, &d);
-                    }
+                // Carried in raw attribute units; this node weighs attributes
+                // by its size: copied and rescaled in one pass.
+                let f = carried_factors(dim, &attr_scale(&sp.space, false));
+                let mut va = Vec::with_capacity(nv * cs);
+                for v in a[..nv * cs].chunks_exact(cs) {
+                    extend_scaled(&mut va, v, &f);
                 }
                 va
             }
@@ -478,12 +477,16 @@ impl<'a> Splits<'a> {
     fn member_rows(&self, embedded: &[[f64; MAX_DIM]]) -> Rows {
         let (sp, mesh, cl) = (self, self.mesh, self.cl);
         let nf = sp.free.len();
-        let mut vq = vec![0.0f64; nf * cl];
-        for (i, &v) in sp.free.iter().enumerate() {
+        // Each row made on the stack and appended: the table is written
+        // once, not zeroed first.
+        let mut vq = Vec::with_capacity(nf * cl);
+        let mut row = [0.0f64; crate::quadric::MAX_COEFFS];
+        for &v in &sp.free {
             // A seam vertex's attributes are its wedge's own: only its
             // position error drives the seam's clusters.
             let seam = sp.seams.as_ref().is_some_and(|sm| sm.seam[v as usize]);
-            sp.row_into(v, &embedded[v as usize], seam, &mut vq[i * cl..(i + 1) * cl]);
+            sp.row_into(v, &embedded[v as usize], seam, &mut row[..cl]);
+            vq.extend_from_slice(&row[..cl]);
         }
         // Members' rows (quadric, local position, free index) are kept in
         // cell order, each cell's members contiguous: a split reads and
@@ -750,8 +753,7 @@ impl<'a> Splits<'a> {
         let dim = self.space.dim;
         let al = dim * (dim + 1) / 2;
         let cl = self.cl;
-        let d = attr_scale(&self.space, true);
-        let rescale = d.iter().any(|&x| x != 1.0);
+        let f = carried_factors(dim, &attr_scale(&self.space, true));
         let cs = carry_len(dim);
         let mut remap = vec![u32::MAX; nv];
         let mut rep_cell: Vec<u32> = Vec::new();
@@ -893,21 +895,19 @@ impl<'a> Splits<'a> {
         }
         st.clusters = reps.len() as u64;
         let (mesh, src) = compact(self.mesh, &remap, &reps, self.seams.as_ref().map(|sm| (sm, &rep_cell[..])));
-        let mut out_a = vec![0.0; src.len() * cs];
-        for (o, &k) in src.iter().enumerate() {
-            let dst = &mut out_a[o * cs..(o + 1) * cs];
+        // Back to raw attribute units as they are copied out.
+        let mut out_a = Vec::with_capacity(src.len() * cs);
+        for &k in &src {
             if k < nv {
-                dst.copy_from_slice(&self.va[k * cs..(k + 1) * cs]);
+                extend_scaled(&mut out_a, &self.va[k * cs..(k + 1) * cs], &f);
             } else {
                 let r = k - nv;
-                match rep_own_a[r] {
-                    u32::MAX => dst[..al].copy_from_slice(self.rep_a(rep_cell[r] as usize)),
-                    w => dst[..al].copy_from_slice(&wedge_a[w as usize * al..(w as usize + 1) * al]),
-                }
-                dst[al..].copy_from_slice(&rep_ge[r * (dim + 1)..(r + 1) * (dim + 1)]);
-            }
-            if rescale {
-                scale_carried(dst, dim, &d);
+                let a = match rep_own_a[r] {
+                    u32::MAX => self.rep_a(rep_cell[r] as usize),
+                    w => &wedge_a[w as usize * al..(w as usize + 1) * al],
+                };
+                extend_scaled(&mut out_a, a, &f[..al]);
+                extend_scaled(&mut out_a, &rep_ge[r * (dim + 1)..(r + 1) * (dim + 1)], &f[al..]);
             }
         }
         // Members of each representative (by output vertex), CSR.
@@ -1143,6 +1143,31 @@ pub fn scale_carried(c: &mut [f64], dim: usize, d: &[f64]) {
     for k in 0..dim {
         c[al + k] *= d[k];
     }
+}
+
+/// [`scale_carried`]'s factor of each carried value: `d_i d_j` for the
+/// matrix, `d_i` for the half-gradient, 1 for the residual. Made once per
+/// node: [`extend_scaled`] is then one multiplication a value, the same
+/// bits as [`scale_carried`] (which forms `d_i d_j` again for every value
+/// of every vertex: 3 % of an attribute build's instructions, with the
+/// copy it followed).
+fn carried_factors(dim: usize, d: &[f64]) -> Vec<f64> {
+    let mut f = Vec::with_capacity(carry_len(dim));
+    for i in 0..dim {
+        for j in i..dim {
+            f.push(d[i] * d[j]);
+        }
+    }
+    f.extend_from_slice(&d[..dim]);
+    f.push(1.0);
+    f
+}
+
+/// Appends `src` times `f` (per value, `f.len() ≥ src.len()`) to `out`:
+/// a copy and a rescale in one pass.
+#[inline]
+fn extend_scaled(out: &mut Vec<f64>, src: &[f64], f: &[f64]) {
+    out.extend(src.iter().zip(f).map(|(x, f)| x * f));
 }
 
 /// Cells waiting to be split: by priority (the greedy sequence) or in any
@@ -1398,4 +1423,30 @@ pub(crate) fn unfold(images: &[[usize; 3]]) -> Vec<bool> {
         i = j;
     }
     keep
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fused_rescale_is_scale_carried_bit_for_bit() {
+        let mut rng = crate::geom::Rng::from_state(7);
+        for dim in [3, 5, 6, 8, 9, 11] {
+            let cs = carry_len(dim);
+            let d: Vec<f64> = (0..dim).map(|k| if k < 3 { 1.0 } else { rng.range(0.01, 30.0) }).collect();
+            let src: Vec<f64> = (0..3 * cs).map(|_| rng.range(-5.0, 5.0)).collect();
+            let mut want = src.clone();
+            for v in want.chunks_exact_mut(cs) {
+                scale_carried(v, dim, &d);
+            }
+            let f = carried_factors(dim, &d);
+            let mut got = Vec::new();
+            for v in src.chunks_exact(cs) {
+                extend_scaled(&mut got, v, &f);
+            }
+            let bits = |s: &[f64]| s.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&got), bits(&want), "dim {dim}");
+        }
+    }
 }
