@@ -212,6 +212,25 @@ impl ChunkFile {
         let rec = vs + 4 * self.a_len + 1;
         let total_v: usize = bufs.iter().map(|b| if b.len() >= 16 { u32::from_le_bytes(b[8..12].try_into().unwrap()) as usize } else { 0 }).sum();
         let mut map = ByteIds::new(vs, total_v);
+        // Room for every record up front (shared ones merge, so at most
+        // this): growing by doubling copied the node's vertices and, for
+        // clustering, their carried quadrics (55 values a vertex with
+        // normals and colours) a few times over.
+        // (Counts bounded by the bytes read: a damaged header reserves no more.)
+        let count = |b: &Vec<u8>, at: usize, size: usize| {
+            if b.len() >= 16 {
+                (u32::from_le_bytes(b[at..at + 4].try_into().unwrap()) as usize).min(b.len() / size)
+            } else {
+                0
+            }
+        };
+        let (room_v, room_t) = bufs.iter().fold((0, 0), |(v, t), b| (v + count(b, 8, rec), t + count(b, 12, 3)));
+        g.mesh.vertices.reserve(room_v);
+        g.was_locked.reserve(room_v);
+        g.mesh.triangles.reserve(room_t);
+        if quadrics {
+            g.a.reserve(room_v * self.a_len);
+        }
         let mut ids = Vec::new();
         for (r, b) in refs.iter().zip(&bufs) {
             let bad = || Error::input(Location { file: self.path.clone(), offset: Some(r.offset), ..Default::default() }, "damaged chunk");

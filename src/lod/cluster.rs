@@ -17,6 +17,13 @@
 //! surface curves, and binary splits keep neighbours within 2× in size
 //! (octree splits: 8×). A prefix of the one sequence is chosen by threshold,
 //! or by bisection for the first triangle count at or above a target. A
+//! cell's split depends on its members alone, so the whole tree is made
+//! first from positions, each cell's quadric is then the sum of its
+//! children's, and the greedy order is replayed over the priorities
+//! (`Splits::split_cells`): a member's quadric row is added about three
+//! times in all instead of once per tree level, which made inputs with
+//! attributes (66-value rows in R^9) cost far more than their positions
+//! alone (issue 35; figures in `docs/build-costs.md`, "Attribute cost"). A
 //! representative minimises its members' summed quadrics (each the quadric
 //! of the input surface it stands for) inside its cluster box
 //! ([`crate::quadric`]); matrices are carried in raw attribute units and
@@ -74,6 +81,8 @@ struct Cell {
     /// Split step at which the box was created (0: the root).
     created: u32,
     parent: u32,
+    /// Its quadric: `cq[q * cl..(q + 1) * cl]`.
+    q: u32,
 }
 
 #[derive(PartialEq)]
@@ -101,7 +110,7 @@ pub struct Splits<'a> {
     free: Vec<u32>,
     slot: Vec<u32>,
     cells: Vec<Cell>,
-    /// Quadric of cell `c` at `cq[c * cl..]`.
+    /// Cells' quadrics ([`Cell::q`]).
     cq: Vec<f64>,
     /// Final (deepest) cell of each free vertex.
     leaf_of: Vec<u32>,
@@ -284,7 +293,8 @@ impl<'a> Splits<'a> {
                         continue;
                     }
                     let r = root_of[fx as usize] as usize;
-                    let q = Quadric::from_coeffs(dim, &self.cq[r * cl..(r + 1) * cl]);
+                    let at = self.cells[r].q as usize * cl;
+                    let q = Quadric::from_coeffs(dim, &self.cq[at..at + cl]);
                     let cost = q.error(&embedded[y as usize]);
                     if cost < best[r].0 || (cost == best[r].0 && fy < best[r].1) {
                         best[r] = (cost, fy);
@@ -342,13 +352,12 @@ impl<'a> Splits<'a> {
             first[c + 1] += first[c];
         }
         let mut next = first.clone();
-        let cl = rows.cl;
         let nf = class.len();
-        let mut out = Rows { q: vec![0.0; nf * cl], pts: vec![[0.0; 3]; nf], ids: vec![0; nf], cl };
+        // The quadric rows stay in free order (read through `ids`).
+        let mut out = Rows { q: rows.q, pts: vec![[0.0; 3]; nf], ids: vec![0; nf], cl: rows.cl };
         for i in 0..nf {
             let j = next[class[i] as usize];
             next[class[i] as usize] += 1;
-            out.q[j * cl..(j + 1) * cl].copy_from_slice(&rows.q[i * cl..(i + 1) * cl]);
             out.pts[j] = rows.pts[i];
             out.ids[j] = rows.ids[i];
         }
@@ -443,25 +452,26 @@ impl<'a> Splits<'a> {
         let cs = carry_len(dim);
         sp.va = match vertex_a {
             Some(a) => {
-                // Carried in raw attribute units; this node weighs attributes by its size.
-                let mut va = a[..nv * cs].to_vec();
-                let d = attr_scale(&sp.space, false);
-                if d.iter().any(|&x| x != 1.0) {
-                    for v in va.chunks_exact_mut(cs) {
-                        scale_carried(v, dim, &d);
-                    }
+                // Carried in raw attribute units; this node weighs attributes
+                // by its size: copied and rescaled in one pass.
+                let f = carried_factors(dim, &attr_scale(&sp.space, false));
+                let mut va = Vec::with_capacity(nv * cs);
+                for v in a[..nv * cs].chunks_exact(cs) {
+                    extend_scaled(&mut va, v, &f);
                 }
                 va
             }
             None => {
-                // The input's planes pass through their corners: g = 0, e = 0.
+                // The input's planes pass through their corners: g = 0, e = 0,
+                // so each triangle's matrix goes straight into its corners'
+                // rows ([`crate::quadric::triangle_matrix`]).
                 let mut va = vec![0.0f64; nv * cs];
-                let mut tq = Quadric::zero(dim);
+                let mut m = [0.0; crate::quadric::MAX_COEFFS];
                 for t in &mesh.triangles {
-                    tq.clear();
-                    tq.add_triangle(&embedded[t[0] as usize], &embedded[t[1] as usize], &embedded[t[2] as usize]);
-                    for &v in t {
-                        add(&mut va[v as usize * cs..v as usize * cs + al], tq.matrix_packed());
+                    if crate::quadric::triangle_matrix(dim, &embedded[t[0] as usize], &embedded[t[1] as usize], &embedded[t[2] as usize], &mut m) {
+                        for &v in t {
+                            add(&mut va[v as usize * cs..v as usize * cs + al], &m[..al]);
+                        }
                     }
                 }
                 add_border_planes(mesh, locked, sp.seams.as_ref().map(|s| &s.seam[..]), dim, cs, &mut va);
@@ -476,12 +486,16 @@ impl<'a> Splits<'a> {
     fn member_rows(&self, embedded: &[[f64; MAX_DIM]]) -> Rows {
         let (sp, mesh, cl) = (self, self.mesh, self.cl);
         let nf = sp.free.len();
-        let mut vq = vec![0.0f64; nf * cl];
-        for (i, &v) in sp.free.iter().enumerate() {
+        // Each row made on the stack and appended: the table is written
+        // once, not zeroed first.
+        let mut vq = Vec::with_capacity(nf * cl);
+        let mut row = [0.0f64; crate::quadric::MAX_COEFFS];
+        for &v in &sp.free {
             // A seam vertex's attributes are its wedge's own: only its
             // position error drives the seam's clusters.
             let seam = sp.seams.as_ref().is_some_and(|sm| sm.seam[v as usize]);
-            sp.row_into(v, &embedded[v as usize], seam, &mut vq[i * cl..(i + 1) * cl]);
+            sp.row_into(v, &embedded[v as usize], seam, &mut row[..cl]);
+            vq.extend_from_slice(&row[..cl]);
         }
         // Members' rows (quadric, local position, free index) are kept in
         // cell order, each cell's members contiguous: a split reads and
@@ -496,31 +510,80 @@ impl<'a> Splits<'a> {
     /// order when `ordered`, else every cell above `min_priority`); then
     /// each member's deepest cell.
     /// `roots`: (first row, end row, local box) of each root cell.
+    ///
+    /// How: a cell's split (its mean, axis and two halves) depends on its
+    /// members alone, never on when it is split, so the whole tree is made
+    /// first from positions (`Tree::grow`: a member's 3 coordinates and id
+    /// move per level, not its quadric row), each tree cell's quadric is
+    /// then the sum of its two children's (its members' rows at a leaf:
+    /// every sum still direct, no difference with a parent's), and the
+    /// greedy sequence is last replayed over those priorities. Summing each
+    /// member's row once per level it passes (as the splits were made) cost
+    /// a row addition per member and level: 13 % of an attribute build's
+    /// instructions (66-value rows in R^9), now about three row additions
+    /// per member in all.
     fn split_cells(&mut self, mut rows: Rows, roots: &[Root], max_clusters: usize, min_priority: f64, ordered: bool) {
         let sp = self;
         let (cl, dim, nf) = (sp.cl, sp.space.dim, sp.free.len());
-        sp.cells.reserve(2 * nf);
-        sp.cq = Vec::with_capacity(2 * nf * cl);
-        // Per cell: the sums of its members' local positions and of their
-        // squares (the split's mean and variance), kept as cells are made
-        // so a split reads its members once.
-        let mut moments: Vec<[f64; 6]> = Vec::with_capacity(2 * nf);
-        let mut split = Vec::with_capacity(2 * nf);
+        let tree = Tree::grow(&mut rows, roots);
         // The error at the members' mean: measured better than the error
         // at the optimum on the scans and terrains tried (it also favours
         // compact clusters).
         let prio = |q: &[f64]| -> f64 { crate::quadric::packed_error_at_mean(dim, q) };
-        let mut heap = if ordered { Queue::Heap(BinaryHeap::new()) } else { Queue::Stack(Vec::new()) };
-        for &(start, end, rlo, rhi) in roots {
-            let c = sp.cells.len();
-            sp.cells.push(Cell { lo: rlo, hi: rhi, start: start as u32, end: end as u32, created: 0, parent: u32::MAX });
-            sp.cq.resize((c + 1) * cl, 0.0);
-            moments.push([0.0; 6]);
-            for i in start..end {
-                rows.add_to(i, cl, &mut sp.cq[c * cl..(c + 1) * cl], &mut moments[c]);
+        // Quadrics bottom-up (children are made after their parent: in
+        // reverse, a cell's children are summed before it), stored in that
+        // order: tree cell t's quadric is at `q_at[t]`.
+        let nt = tree.nodes.len();
+        sp.cq = Vec::with_capacity(nt * cl);
+        let mut q_at = vec![0u32; nt];
+        let mut tp = vec![0.0f64; nt];
+        // Row lengths of every dimension a mesh can have: 3, 5, 6
+        // (positions; +uv; +normal or colour), 8, 9 and 11 (+two or three
+        // of them), so the sums unroll.
+        const CL3: usize = Quadric::coeff_len(3);
+        const CL5: usize = Quadric::coeff_len(5);
+        const CL6: usize = Quadric::coeff_len(6);
+        const CL8: usize = Quadric::coeff_len(8);
+        const CL9: usize = Quadric::coeff_len(9);
+        const CL11: usize = Quadric::coeff_len(11);
+        for t in (0..nt).rev() {
+            let at = sp.cq.len();
+            let n = &tree.nodes[t];
+            match n.child {
+                u32::MAX => {
+                    let ids = &rows.ids[n.start as usize..n.end as usize];
+                    match cl {
+                        CL3 => sum_rows::<CL3>(&rows.q, ids, cl, &mut sp.cq),
+                        CL5 => sum_rows::<CL5>(&rows.q, ids, cl, &mut sp.cq),
+                        CL6 => sum_rows::<CL6>(&rows.q, ids, cl, &mut sp.cq),
+                        CL8 => sum_rows::<CL8>(&rows.q, ids, cl, &mut sp.cq),
+                        CL9 => sum_rows::<CL9>(&rows.q, ids, cl, &mut sp.cq),
+                        CL11 => sum_rows::<CL11>(&rows.q, ids, cl, &mut sp.cq),
+                        _ => sum_rows::<0>(&rows.q, ids, cl, &mut sp.cq),
+                    }
+                }
+                c => {
+                    let (a, b) = (q_at[c as usize] as usize * cl, q_at[c as usize + 1] as usize * cl);
+                    sp.cq.extend_from_within(a..a + cl);
+                    let (done, new) = sp.cq.split_at_mut(at);
+                    add(new, &done[b..b + cl]);
+                }
             }
+            q_at[t] = (at / cl) as u32;
+            tp[t] = prio(&sp.cq[at..at + cl]);
+        }
+        // The greedy sequence over the tree: cells are numbered as they
+        // are made (roots first, then each split's low and high child).
+        let mut node_of: Vec<u32> = Vec::with_capacity(nt);
+        let mut split = Vec::with_capacity(nt);
+        sp.cells.reserve(nt);
+        let mut heap = if ordered { Queue::Heap(BinaryHeap::new()) } else { Queue::Stack(Vec::new()) };
+        for (r, &(start, end, rlo, rhi)) in roots.iter().enumerate() {
+            let c = sp.cells.len();
+            sp.cells.push(Cell { lo: rlo, hi: rhi, start: start as u32, end: end as u32, created: 0, parent: u32::MAX, q: q_at[r] });
+            node_of.push(r as u32);
             split.push(false);
-            heap.push(Prio(prio(&sp.cq[c * cl..(c + 1) * cl]), c as u32));
+            heap.push(Prio(tp[r], c as u32));
         }
         let mut clusters = roots.len();
         while clusters < max_clusters {
@@ -533,55 +596,15 @@ impl<'a> Splits<'a> {
                 }
                 continue;
             }
-            let cell = &sp.cells[c as usize];
-            let (lo, hi, start, end) = (cell.lo, cell.hi, cell.start as usize, cell.end as usize);
-            if end - start < 2 {
-                continue;
-            }
-            // Split at the members' mean along their axis of largest
-            // variance (a binary kd-split: clusters of one level of
-            // refinement differ by 2x in size, not 8x as octree splits do).
-            let n = (end - start) as f64;
-            let m = moments[c as usize];
-            let var = [0, 1, 2].map(|k| m[3 + k] / n - (m[k] / n).powi(2));
-            let axis = (0..3).max_by(|&a, &b| var[a].total_cmp(&var[b])).unwrap();
-            let mid = m[axis] / n;
-            // In place (Hoare): members below the mean first, each side's
-            // quadric and moments summed as its members are met (both
-            // directly: a difference with the parent's would lose the small
-            // errors of fine clusters to the parent's roundoff).
-            let at = sp.cq.len();
-            sp.cq.resize(at + 2 * cl, 0.0);
-            let (q0, q1) = sp.cq[at..].split_at_mut(cl);
-            let mut mo = [[0.0; 6]; 2];
-            // Row lengths of every dimension a mesh can have: 3, 5, 6
-            // (positions; +uv; +normal or colour), 8, 9 and 11 (+two or
-            // three of them).
-            const CL3: usize = Quadric::coeff_len(3);
-            const CL5: usize = Quadric::coeff_len(5);
-            const CL6: usize = Quadric::coeff_len(6);
-            const CL8: usize = Quadric::coeff_len(8);
-            const CL9: usize = Quadric::coeff_len(9);
-            const CL11: usize = Quadric::coeff_len(11);
-            let i = match cl {
-                CL3 => rows.partition::<CL3>(start, end, axis, mid, q0, q1, &mut mo),
-                CL5 => rows.partition::<CL5>(start, end, axis, mid, q0, q1, &mut mo),
-                CL6 => rows.partition::<CL6>(start, end, axis, mid, q0, q1, &mut mo),
-                CL8 => rows.partition::<CL8>(start, end, axis, mid, q0, q1, &mut mo),
-                CL9 => rows.partition::<CL9>(start, end, axis, mid, q0, q1, &mut mo),
-                CL11 => rows.partition::<CL11>(start, end, axis, mid, q0, q1, &mut mo),
-                _ => rows.partition::<0>(start, end, axis, mid, q0, q1, &mut mo),
-            };
-            if i == start || i == end {
-                // All members on one side: shrink the box (no new cluster).
-                sp.cq.truncate(at);
-                let Some((blo, bhi)) = rows.shrunk_box(start, end, lo, hi) else {
-                    continue; // identical points: cannot split
-                };
-                let cell = &mut sp.cells[c as usize];
-                cell.lo = blo;
-                cell.hi = bhi;
-                heap.push(Prio(p, c));
+            let n = &tree.nodes[node_of[c as usize] as usize];
+            if n.child == u32::MAX {
+                // One member, or all on one side of their mean: the box
+                // shrinks to the members' (no new cluster).
+                if let Some((blo, bhi)) = n.shrunk {
+                    let cell = &mut sp.cells[c as usize];
+                    cell.lo = blo;
+                    cell.hi = bhi;
+                }
                 continue;
             }
             sp.prio.push(p);
@@ -589,20 +612,20 @@ impl<'a> Splits<'a> {
             split[c as usize] = true;
             clusters -= 1;
             let id = sp.cells.len() as u32;
-            #[allow(clippy::needless_range_loop, reason = "o is the child (0 low, 1 high), used beyond indexing mo")]
+            let (lo, hi) = (sp.cells[c as usize].lo, sp.cells[c as usize].hi);
             for o in 0..2 {
-                let mut clo = lo;
-                let mut chi = hi;
+                let t = n.child as usize + o;
+                let (mut clo, mut chi) = (lo, hi);
                 if o == 1 {
-                    clo[axis] = mid;
+                    clo[n.axis as usize] = n.mid;
                 } else {
-                    chi[axis] = mid;
+                    chi[n.axis as usize] = n.mid;
                 }
-                let (a, b) = if o == 0 { (start, i) } else { (i, end) };
-                sp.cells.push(Cell { lo: clo, hi: chi, start: a as u32, end: b as u32, created: step, parent: c });
-                moments.push(mo[o]);
+                let k = &tree.nodes[t];
+                sp.cells.push(Cell { lo: clo, hi: chi, start: k.start, end: k.end, created: step, parent: c, q: q_at[t] });
+                node_of.push(t as u32);
                 split.push(false);
-                heap.push(Prio(prio(&sp.cq[at + o * cl..at + (o + 1) * cl]), id + o as u32));
+                heap.push(Prio(tp[t], id + o as u32));
                 clusters += 1;
             }
         }
@@ -748,8 +771,7 @@ impl<'a> Splits<'a> {
         let dim = self.space.dim;
         let al = dim * (dim + 1) / 2;
         let cl = self.cl;
-        let d = attr_scale(&self.space, true);
-        let rescale = d.iter().any(|&x| x != 1.0);
+        let f = carried_factors(dim, &attr_scale(&self.space, true));
         let cs = carry_len(dim);
         let mut remap = vec![u32::MAX; nv];
         let mut rep_cell: Vec<u32> = Vec::new();
@@ -784,7 +806,7 @@ impl<'a> Splits<'a> {
                 if rep_of_cell[c] == u32::MAX {
                     rep_cell.push(c as u32);
                     let cell = &self.cells[c];
-                    let k = &self.cq[c * cl..(c + 1) * cl];
+                    let k = &self.cq[cell.q as usize * cl..(cell.q as usize + 1) * cl];
                     let bounds = (cell.lo, cell.hi);
                     // Every dimension on arrays of its size
                     // (`solve_sized`); the general path where the box clamps.
@@ -891,21 +913,19 @@ impl<'a> Splits<'a> {
         }
         st.clusters = reps.len() as u64;
         let (mesh, src) = compact(self.mesh, &remap, &reps, self.seams.as_ref().map(|sm| (sm, &rep_cell[..])));
-        let mut out_a = vec![0.0; src.len() * cs];
-        for (o, &k) in src.iter().enumerate() {
-            let dst = &mut out_a[o * cs..(o + 1) * cs];
+        // Back to raw attribute units as they are copied out.
+        let mut out_a = Vec::with_capacity(src.len() * cs);
+        for &k in &src {
             if k < nv {
-                dst.copy_from_slice(&self.va[k * cs..(k + 1) * cs]);
+                extend_scaled(&mut out_a, &self.va[k * cs..(k + 1) * cs], &f);
             } else {
                 let r = k - nv;
-                match rep_own_a[r] {
-                    u32::MAX => dst[..al].copy_from_slice(self.rep_a(rep_cell[r] as usize)),
-                    w => dst[..al].copy_from_slice(&wedge_a[w as usize * al..(w as usize + 1) * al]),
-                }
-                dst[al..].copy_from_slice(&rep_ge[r * (dim + 1)..(r + 1) * (dim + 1)]);
-            }
-            if rescale {
-                scale_carried(dst, dim, &d);
+                let a = match rep_own_a[r] {
+                    u32::MAX => self.rep_a(rep_cell[r] as usize),
+                    w => &wedge_a[w as usize * al..(w as usize + 1) * al],
+                };
+                extend_scaled(&mut out_a, a, &f[..al]);
+                extend_scaled(&mut out_a, &rep_ge[r * (dim + 1)..(r + 1) * (dim + 1)], &f[al..]);
             }
         }
         // Members of each representative (by output vertex), CSR.
@@ -970,7 +990,8 @@ impl<'a> Splits<'a> {
 
     fn rep_a(&self, c: usize) -> &[f64] {
         let al = self.space.dim * (self.space.dim + 1) / 2;
-        &self.cq[c * self.cl..c * self.cl + al]
+        let at = self.cells[c].q as usize * self.cl;
+        &self.cq[at..at + al]
     }
 }
 
@@ -1143,6 +1164,31 @@ pub fn scale_carried(c: &mut [f64], dim: usize, d: &[f64]) {
     }
 }
 
+/// [`scale_carried`]'s factor of each carried value: `d_i d_j` for the
+/// matrix, `d_i` for the half-gradient, 1 for the residual. Made once per
+/// node: [`extend_scaled`] is then one multiplication a value, the same
+/// bits as [`scale_carried`] (which forms `d_i d_j` again for every value
+/// of every vertex: 3 % of an attribute build's instructions, with the
+/// copy it followed).
+fn carried_factors(dim: usize, d: &[f64]) -> Vec<f64> {
+    let mut f = Vec::with_capacity(carry_len(dim));
+    for i in 0..dim {
+        for j in i..dim {
+            f.push(d[i] * d[j]);
+        }
+    }
+    f.extend_from_slice(&d[..dim]);
+    f.push(1.0);
+    f
+}
+
+/// Appends `src` times `f` (per value, `f.len() ≥ src.len()`) to `out`:
+/// a copy and a rescale in one pass.
+#[inline]
+fn extend_scaled(out: &mut Vec<f64>, src: &[f64], f: &[f64]) {
+    out.extend(src.iter().zip(f).map(|(x, f)| x * f));
+}
+
 /// Cells waiting to be split: by priority (the greedy sequence) or in any
 /// order (a threshold's partition).
 enum Queue {
@@ -1166,8 +1212,8 @@ impl Queue {
     }
 }
 
-/// The free vertices' split data in cell order: quadric rows (`cl` each),
-/// local positions and free indices, permuted together.
+/// The free vertices' split data: quadric rows (`cl` each) in free order,
+/// and local positions and free indices in cell order (permuted together).
 struct Rows {
     q: Vec<f64>,
     pts: Vec<[f64; 3]>,
@@ -1193,52 +1239,127 @@ impl Rows {
         Some((blo, bhi))
     }
 
-    /// Adds row `i` to a cell's quadric and moments.
-    #[inline]
-    /// `cl`: the row length (`self.cl`; a constant where the caller's is,
-    /// so the sum unrolls once inlined).
-    fn add_to(&self, i: usize, cl: usize, q: &mut [f64], m: &mut [f64; 6]) {
-        add(q, &self.q[i * cl..(i + 1) * cl]);
-        add_moments(m, self.pts[i]);
-    }
-
-    /// Splits rows `start..end` in place (Hoare) at `mid` along `axis`:
-    /// rows below it first, each side's quadric (`q0`, `q1`) and moments
-    /// summed as its rows are met; returns where the upper side starts.
-    /// `CL`: the quadric's length when it is one of the common ones (the
-    /// sums then unroll), 0 for any other (`self.cl`). Same sums in the
-    /// same order either way.
-    #[allow(clippy::too_many_arguments)]
-    fn partition<const CL: usize>(&mut self, start: usize, end: usize, axis: usize, mid: f64, q0: &mut [f64], q1: &mut [f64], mo: &mut [[f64; 6]; 2]) -> usize {
-        let cl = if CL > 0 { CL } else { self.cl };
-        let (q0, q1) = (&mut q0[..cl], &mut q1[..cl]);
+    /// Splits rows `start..end`'s points and ids in place (Hoare) at `mid`
+    /// along `axis`: points below it first, each side's moments summed as
+    /// its points are met; returns where the upper side starts. The
+    /// quadric rows do not move (they are read through `ids`).
+    fn partition(&mut self, start: usize, end: usize, axis: usize, mid: f64, mo: &mut [[f64; 6]; 2]) -> usize {
         let (mut i, mut j) = (start, end);
         loop {
             while i < j && self.pts[i][axis] < mid {
-                self.add_to(i, cl, q0, &mut mo[0]);
+                add_moments(&mut mo[0], self.pts[i]);
                 i += 1;
             }
             while i < j && self.pts[j - 1][axis] >= mid {
-                self.add_to(j - 1, cl, q1, &mut mo[1]);
+                add_moments(&mut mo[1], self.pts[j - 1]);
                 j -= 1;
             }
             if i >= j {
                 return i;
             }
-            self.swap_rows(i, j - 1, cl);
-            self.add_to(i, cl, q0, &mut mo[0]);
-            self.add_to(j - 1, cl, q1, &mut mo[1]);
+            self.pts.swap(i, j - 1);
+            self.ids.swap(i, j - 1);
+            add_moments(&mut mo[0], self.pts[i]);
+            add_moments(&mut mo[1], self.pts[j - 1]);
             i += 1;
             j -= 1;
         }
     }
+}
 
-    #[inline]
-    fn swap_rows(&mut self, i: usize, j: usize, cl: usize) {
-        let (a, b) = self.q.split_at_mut(j * cl);
-        a[i * cl..(i + 1) * cl].swap_with_slice(&mut b[..cl]);
-        self.pts.swap(i, j);
-        self.ids.swap(i, j);
+/// A cell of the whole split tree, before the greedy order is known.
+struct Node {
+    /// Members: rows `start..end`.
+    start: u32,
+    end: u32,
+    /// Its children's index (low, then high at `child + 1`), or MAX for a
+    /// leaf: one member, or all members on one side of their mean.
+    child: u32,
+    axis: u8,
+    mid: f64,
+    /// A leaf of several members: its members' box where that is smaller
+    /// than its own (it takes it when the sequence reaches it).
+    shrunk: Option<([f64; 3], [f64; 3])>,
+}
+
+/// The split tree of every root down to single members: each cell split at
+/// its members' mean along their axis of largest variance (see
+/// [`Splits::split_cells`]). Roots are nodes `0..roots.len()`; children
+/// come after their parent.
+struct Tree {
+    nodes: Vec<Node>,
+}
+
+impl Tree {
+    fn grow(rows: &mut Rows, roots: &[Root]) -> Tree {
+        let mut nodes = Vec::with_capacity(2 * rows.ids.len());
+        // Per node: its box and its members' moments (sums of positions
+        // and of their squares, kept as cells are made so a split reads
+        // its members once).
+        let mut boxes: Vec<([f64; 3], [f64; 3])> = Vec::with_capacity(2 * rows.ids.len());
+        let mut moments: Vec<[f64; 6]> = Vec::with_capacity(2 * rows.ids.len());
+        for &(start, end, lo, hi) in roots {
+            let mut m = [0.0; 6];
+            for p in &rows.pts[start..end] {
+                add_moments(&mut m, *p);
+            }
+            nodes.push(Node { start: start as u32, end: end as u32, child: u32::MAX, axis: 0, mid: 0.0, shrunk: None });
+            boxes.push((lo, hi));
+            moments.push(m);
+        }
+        let mut todo: Vec<usize> = (0..nodes.len()).rev().collect();
+        while let Some(t) = todo.pop() {
+            let (start, end) = (nodes[t].start as usize, nodes[t].end as usize);
+            if end - start < 2 {
+                continue;
+            }
+            // Split at the members' mean along their axis of largest
+            // variance (a binary kd-split: clusters of one level of
+            // refinement differ by 2x in size, not 8x as octree splits do).
+            let n = (end - start) as f64;
+            let m = moments[t];
+            let var = [0, 1, 2].map(|k| m[3 + k] / n - (m[k] / n).powi(2));
+            let axis = (0..3).max_by(|&a, &b| var[a].total_cmp(&var[b])).unwrap();
+            let mid = m[axis] / n;
+            let mut mo = [[0.0; 6]; 2];
+            let i = rows.partition(start, end, axis, mid, &mut mo);
+            let (lo, hi) = boxes[t];
+            if i == start || i == end {
+                // All members on one side: a leaf whose box shrinks (the
+                // same split again would find them on one side again).
+                nodes[t].shrunk = rows.shrunk_box(start, end, lo, hi);
+                continue;
+            }
+            let c = nodes.len();
+            nodes[t].child = c as u32;
+            nodes[t].axis = axis as u8;
+            nodes[t].mid = mid;
+            let (mut lhi, mut hlo) = (hi, lo);
+            lhi[axis] = mid;
+            hlo[axis] = mid;
+            nodes.push(Node { start: start as u32, end: i as u32, child: u32::MAX, axis: 0, mid: 0.0, shrunk: None });
+            nodes.push(Node { start: i as u32, end: end as u32, child: u32::MAX, axis: 0, mid: 0.0, shrunk: None });
+            boxes.push((lo, lhi));
+            boxes.push((hlo, hi));
+            moments.extend(mo);
+            todo.push(c + 1);
+            todo.push(c);
+        }
+        Tree { nodes }
+    }
+}
+
+/// Appends the sum of rows `ids` of `q` (`cl` values each, in that order)
+/// to `out`. `CL`: the row length when it is one of the common ones (the
+/// sum then unrolls), 0 for any other (`cl`).
+fn sum_rows<const CL: usize>(q: &[f64], ids: &[u32], cl: usize, out: &mut Vec<f64>) {
+    let cl = if CL > 0 { CL } else { cl };
+    let at = out.len();
+    let row = |i: u32| &q[i as usize * cl..(i as usize + 1) * cl];
+    out.extend_from_slice(row(ids[0]));
+    let acc = &mut out[at..at + cl];
+    for &i in &ids[1..] {
+        add(acc, row(i));
     }
 }
 
@@ -1396,4 +1517,102 @@ pub(crate) fn unfold(images: &[[usize; 3]]) -> Vec<bool> {
         i = j;
     }
     keep
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fused_rescale_is_scale_carried_bit_for_bit() {
+        let mut rng = crate::geom::Rng::from_state(7);
+        for dim in [3, 5, 6, 8, 9, 11] {
+            let cs = carry_len(dim);
+            let d: Vec<f64> = (0..dim).map(|k| if k < 3 { 1.0 } else { rng.range(0.01, 30.0) }).collect();
+            let src: Vec<f64> = (0..3 * cs).map(|_| rng.range(-5.0, 5.0)).collect();
+            let mut want = src.clone();
+            for v in want.chunks_exact_mut(cs) {
+                scale_carried(v, dim, &d);
+            }
+            let f = carried_factors(dim, &d);
+            let mut got = Vec::new();
+            for v in src.chunks_exact(cs) {
+                extend_scaled(&mut got, v, &f);
+            }
+            let bits = |s: &[f64]| s.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&got), bits(&want), "dim {dim}");
+        }
+    }
+
+    /// A bumpy n×n grid with normals and colours varying over it.
+    fn coloured_grid(n: u32) -> IndexedMesh {
+        let mut m = IndexedMesh::default();
+        for y in 0..=n {
+            for x in 0..=n {
+                let (fx, fy) = (x as f64 / n as f64, y as f64 / n as f64);
+                let z = 0.1 * (7.0 * fx).sin() * (5.0 * fy).cos();
+                let c = |t: f64| (255.0 * (0.5 + 0.5 * t)) as u8;
+                let nrm = [-(0.7 * (7.0 * fx).cos()) as f32, 0.5, 1.0];
+                m.vertices.push(Vertex { pos: [fx, fy, z], normal: nrm, color: [c((9.0 * fx).sin()), c((4.0 * fy).cos()), 128, 255], ..Default::default() });
+            }
+        }
+        for y in 0..n {
+            for x in 0..n {
+                let v = y * (n + 1) + x;
+                m.triangles.push([v, v + 1, v + n + 2]);
+                m.triangles.push([v, v + n + 2, v + n + 1]);
+            }
+        }
+        m
+    }
+
+    #[test]
+    fn tree_sums_are_their_members_rows_and_the_threshold_is_a_prefix() {
+        let m = coloured_grid(24);
+        let attrs = AttrSet(AttrSet::NORMAL | AttrSet::COLOR);
+        let locked = vec![false; m.vertices.len()];
+        let sp = Splits::new(&m, None, &locked, None, attrs, usize::MAX, 0.0);
+        let (dim, cl) = (sp.space.dim, sp.cl);
+        assert_eq!(cl, Quadric::coeff_len(9));
+        // Every cell's quadric is its members' rows summed directly (the
+        // members: the free vertices whose leaf lies below it).
+        let mut row = vec![0.0; cl];
+        let emb = |v: u32| sp.space.embed(&m.vertices[v as usize]);
+        for (c, cell) in sp.cells.iter().enumerate() {
+            let mut want = vec![0.0; cl];
+            let mut members = 0;
+            for (i, &v) in sp.free.iter().enumerate() {
+                let mut k = sp.leaf_of[i];
+                while k != c as u32 && sp.cells[k as usize].parent != u32::MAX {
+                    k = sp.cells[k as usize].parent;
+                }
+                if k == c as u32 {
+                    sp.row_into(v, &emb(v), false, &mut row);
+                    add(&mut want, &row);
+                    members += 1;
+                }
+            }
+            assert_eq!(members, cell.end - cell.start, "cell {c}");
+            let got = &sp.cq[cell.q as usize * cl..(cell.q as usize + 1) * cl];
+            let scale = want.iter().fold(0.0f64, |a, x| a.max(x.abs()));
+            for (g, w) in got.iter().zip(&want) {
+                assert!((g - w).abs() <= 1e-12 * scale, "cell {c}: {g} vs {w}");
+            }
+            // Its priority: the error at the members' mean.
+            if cell.created > 0 {
+                let p = sp.prio[cell.created as usize - 1];
+                let parent = &sp.cq[sp.cells[cell.parent as usize].q as usize * cl..][..cl];
+                assert_eq!(p, crate::quadric::packed_error_at_mean(dim, parent), "cell {c}");
+            }
+        }
+        // A threshold's partition is the greedy prefix at it.
+        for share in [0.1, 0.3, 0.6] {
+            let tau = sp.priorities()[(share * sp.priorities().len() as f64) as usize];
+            let s = sp.steps_for_error(tau);
+            let th = Splits::to_threshold(&m, None, &locked, None, attrs, tau);
+            let (a, b) = (sp.build(s, 1e-3), th.build(th.steps(), 1e-3));
+            assert_eq!(a.mesh.triangles, b.mesh.triangles, "tau {tau}");
+            assert_eq!(a.a, b.a, "tau {tau}");
+        }
+    }
 }

@@ -217,12 +217,39 @@ impl QuadricSpace {
     }
 }
 
+/// Calls `$f` with the dimension `$n` as a constant where it is one a mesh
+/// can have (3, 5, 6, 8, 9, 11: positions; +uv; +normal or colour; +two or
+/// three of them), else with `$n` itself. The callee is
+/// `#[inline(always)]`: each arm is a copy whose loops have constant bounds
+/// and unroll, doing the same operations in the same order as the general
+/// one (the same bits); a loop over a runtime dimension spent most of its
+/// instructions on loop control and bounds checks.
+macro_rules! sized {
+    ($n:expr, $f:ident($($arg:expr),*)) => {
+        match $n {
+            3 => $f(3, $($arg),*),
+            5 => $f(5, $($arg),*),
+            6 => $f(6, $($arg),*),
+            8 => $f(8, $($arg),*),
+            9 => $f(9, $($arg),*),
+            11 => $f(11, $($arg),*),
+            n => $f(n, $($arg),*),
+        }
+    };
+}
+
 /// [`Quadric::at_point`] written straight into stored coefficients
 /// (`out.len() ≥ coeff_len(dim)`, overwritten): no struct, no copies — the
 /// form hot loops use.
 pub fn packed_at_point(dim: usize, a: &[f64], p: &[f64], area: f64, out: &mut [f64]) {
+    sized!(dim, packed_at_point_n(a, p, area, out))
+}
+
+#[inline(always)]
+fn packed_at_point_n(dim: usize, a: &[f64], p: &[f64], area: f64, out: &mut [f64]) {
     let al = a_len(dim);
-    out[..al].copy_from_slice(&a[..al]);
+    let (a, p, out) = (&a[..al], &p[..dim], &mut out[..Quadric::coeff_len(dim)]);
+    out[..al].copy_from_slice(a);
     let mut ap = [0.0; MAX_DIM];
     let mut k = 0;
     for i in 0..dim {
@@ -243,7 +270,7 @@ pub fn packed_at_point(dim: usize, a: &[f64], p: &[f64], area: f64, out: &mut [f
     out[al + dim] = c;
     out[al + dim + 1] = area;
     let s = al + dim + 2;
-    out[s..s + dim].copy_from_slice(&p[..dim]);
+    out[s..s + dim].copy_from_slice(p);
     out[s + dim] = 1.0;
 }
 
@@ -261,7 +288,7 @@ pub fn packed_error_at_mean(dim: usize, k: &[f64]) -> f64 {
     for i in 0..dim {
         x[i] = k[s + i] / cnt;
     }
-    let e = packed_value(k, dim, &x);
+    let e = sized!(dim, packed_value_n(k, &x));
     if e > 0.0 && e.is_finite() {
         e
     } else {
@@ -409,7 +436,14 @@ type Mat = [[f64; MAX_DIM]; MAX_DIM];
 /// `Q(x)` of stored coefficients `k` (see [`Quadric::coeff_len`]).
 #[inline]
 fn packed_value(k: &[f64], n: usize, x: &[f64]) -> f64 {
+    sized!(n, packed_value_n(k, x))
+}
+
+/// [`packed_value`], inlined so a constant `n` unrolls it (see `sized!`).
+#[inline(always)]
+fn packed_value_n(n: usize, k: &[f64], x: &[f64]) -> f64 {
     let x = &x[..n];
+    let k = &k[..a_len(n) + n + 1];
     let mut s = 0.0;
     let mut at = 0;
     for i in 0..n {
@@ -887,33 +921,9 @@ impl Quadric {
     /// c = w |d|² (A is a projector, so gᵀAg = |Ag|² ≥ 0).
     fn add_triangle_general(&mut self, p: &[f64; PAD], q: &[f64; PAD], r: &[f64; PAD], w: f64) {
         let n = self.dim;
-        let (lpq, lqr, lrp) = (dist2(p, q), dist2(q, r), dist2(r, p));
-        let (base, tip, third) = if lpq >= lqr && lpq >= lrp {
-            (p, q, r)
-        } else if lqr >= lrp {
-            (q, r, p)
-        } else {
-            (r, p, q)
+        let Some((e1, e2)) = triangle_frame(p, q, r) else {
+            return;
         };
-        let mut e1 = [0.0; PAD];
-        let mut e2 = [0.0; PAD];
-        for i in 0..PAD {
-            e1[i] = tip[i] - base[i];
-            e2[i] = third[i] - base[i];
-        }
-        if !normalize(&mut e1) {
-            return;
-        }
-        // Twice-is-enough Gram–Schmidt.
-        for _ in 0..2 {
-            let t = dot(&e2, &e1);
-            for i in 0..PAD {
-                e2[i] -= t * e1[i];
-            }
-        }
-        if !normalize(&mut e2) {
-            return;
-        }
         let mut d = [0.0; PAD];
         for i in 0..PAD {
             d[i] = (p[i] + q[i] + r[i]) * (1.0 / 3.0);
@@ -1184,6 +1194,110 @@ fn clamp(v: f64, lo: f64, hi: f64) -> f64 {
     } else {
         v
     }
+}
+
+/// The orthonormal frame (e1, e2) of triangle p, q, r in R^n (zero-padded
+/// to [`PAD`]), based at its longest edge, or None where it has none.
+#[inline]
+fn triangle_frame(p: &[f64; PAD], q: &[f64; PAD], r: &[f64; PAD]) -> Option<([f64; PAD], [f64; PAD])> {
+    let (lpq, lqr, lrp) = (dist2(p, q), dist2(q, r), dist2(r, p));
+    let (base, tip, third) = if lpq >= lqr && lpq >= lrp {
+        (p, q, r)
+    } else if lqr >= lrp {
+        (q, r, p)
+    } else {
+        (r, p, q)
+    };
+    let mut e1 = [0.0; PAD];
+    let mut e2 = [0.0; PAD];
+    for i in 0..PAD {
+        e1[i] = tip[i] - base[i];
+        e2[i] = third[i] - base[i];
+    }
+    if !normalize(&mut e1) {
+        return None;
+    }
+    // Twice-is-enough Gram–Schmidt.
+    for _ in 0..2 {
+        let t = dot(&e2, &e1);
+        for i in 0..PAD {
+            e2[i] -= t * e1[i];
+        }
+    }
+    if !normalize(&mut e2) {
+        return None;
+    }
+    Some((e1, e2))
+}
+
+/// The packed matrix A (`dim(dim+1)/2` values into `out`) of triangle p, q,
+/// r's quadric: what [`Quadric::add_triangle`] adds to a zero quadric's A,
+/// the same bits; false (`out` untouched) where it adds nothing.
+///
+/// For level 0, whose vertex quadrics are their triangles' matrices alone
+/// (the planes pass through the corners: no gradient, no residual). Why it
+/// wins over `add_triangle` into a cleared [`Quadric`] then adding its
+/// matrix to each corner: no clearing of the whole coefficient array, no
+/// b, c and area the caller drops, and a constant dimension (`sized!`), so
+/// the fill unrolls; with attributes (R^9) that was 7 % of a build's
+/// instructions.
+pub fn triangle_matrix(dim: usize, p: &[f64], q: &[f64], r: &[f64], out: &mut [f64]) -> bool {
+    sized!(dim, triangle_matrix_n(p, q, r, out))
+}
+
+#[inline(always)]
+fn triangle_matrix_n(n: usize, p: &[f64], q: &[f64], r: &[f64], out: &mut [f64]) -> bool {
+    let out = &mut out[..a_len(n)];
+    if n == 3 {
+        let (p, q, r) = (&p[..3], &q[..3], &r[..3]);
+        let probe = |s: &[f64]| s[0] * 0.0 + s[1] * 0.0 + s[2] * 0.0;
+        if probe(p) + probe(q) + probe(r) != 0.0 {
+            return false;
+        }
+        let Some((nrm, len, w)) = position_area(p, q, r) else {
+            return false;
+        };
+        // As `add_plane3`, each entry added to zero.
+        let il = 1.0 / len;
+        let nn = [nrm[0] * il, nrm[1] * il, nrm[2] * il];
+        let mut k = 0;
+        for i in 0..3 {
+            for j in i..3 {
+                out[k] = 0.0 + w * nn[i] * nn[j];
+                k += 1;
+            }
+        }
+        return true;
+    }
+    let pad = |s: &[f64]| {
+        let mut v = [0.0; PAD];
+        v[..n].copy_from_slice(&s[..n]);
+        v
+    };
+    let (p, q, r) = (pad(p), pad(q), pad(r));
+    let zero = [0.0; PAD];
+    let probe = |v: &[f64; PAD]| dot(v, &zero);
+    if probe(&p) + probe(&q) + probe(&r) != 0.0 {
+        return false;
+    }
+    let Some((_, _, w)) = position_area(&p, &q, &r) else {
+        return false;
+    };
+    let Some((e1, e2)) = triangle_frame(&p, &q, &r) else {
+        return false;
+    };
+    // As `add_triangle_general`'s rows, each entry added to zero.
+    let mut k = 0;
+    for i in 0..n {
+        let (a1, a2) = (w * e1[i], w * e2[i]);
+        out[k] = 0.0 + (w - a1 * e1[i] - a2 * e2[i]);
+        k += 1;
+        for j in i + 1..n {
+            out[k] = 0.0 - (a1 * e1[j] + a2 * e2[j]);
+            k += 1;
+        }
+    }
+    true
 }
 
 /// Zero-padded width of the general path's vectors: a multiple of 4 ≥
