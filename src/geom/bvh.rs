@@ -12,7 +12,7 @@
 //! distances whatever the seed, so indexes over different groupings of the
 //! same triangles agree. A query for a maximum over many points may end at
 //! the first triangle nearer than what could change it
-//! ([`Bvh::nearest_unless_below`]). Inner boxes are the unions of their
+//! (`Bvh::nearest_unless_below`). Inner boxes are the unions of their
 //! children's, made bottom-up.
 
 use super::tri::{closest_point_triangle_kind, TriKind};
