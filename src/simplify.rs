@@ -54,17 +54,25 @@ use crate::manifest::Simplifier;
 
 /// What `simplify` needs to know of each simplifier.
 impl Simplifier {
-    /// Bytes held per triangle of a mesh reduced in memory: the welded mesh
-    /// (≈ 0.5 vertices × 64 B + 12 B), the weld map and the simplifier's
-    /// working set (`collapse`: f32 positions, quadrics, edge tables;
-    /// `cluster`: per-vertex quadrics and the split sequence's cells), with
-    /// a margin over the measured peaks (`docs/simplify.md`, "Node by node").
-    pub fn bytes_per_triangle(self) -> u64 {
-        match self {
-            Simplifier::Collapse => 240,
+    /// Bytes held per triangle of a mesh with `attrs` reduced in memory:
+    /// the welded mesh (≈ 0.5 vertices × 64 B + 12 B), the weld map and the
+    /// simplifier's working set, which grows with the attributes
+    /// (`collapse`: f32 positions and attributes, meshoptimizer's quadrics
+    /// and attribute gradients, edge tables; `cluster`: per-vertex quadric
+    /// rows and the split tree's cell quadrics, `coeff_len(dim)` values
+    /// each). Fitted to peak RSS of `simplify --target-tris 300000 --mem
+    /// 512M` from 1 M-triangle spheres, positions only and with normals and
+    /// colours (2026-12-06: cluster 528 and 1,354 B a triangle, collapse
+    /// 224 and 347), plus 15 %. A figure for positions alone (440 and
+    /// 240 B) had let the cluster route take 1.35 GB under `--mem 512M`.
+    pub fn bytes_per_triangle(self, attrs: AttrSet) -> u64 {
+        let dim = attrs.quadric_dim();
+        let fitted = match self {
+            Simplifier::Collapse => 224.0 + 20.5 * (dim - 3) as f64,
             // Auto is resolved before any size is asked; the larger figure.
-            Simplifier::Cluster | Simplifier::Auto => 440,
-        }
+            Simplifier::Cluster | Simplifier::Auto => 344.0 + 18.4 * crate::quadric::Quadric::coeff_len(dim) as f64,
+        };
+        (1.15 * fitted).ceil() as u64
     }
 }
 
@@ -255,7 +263,7 @@ fn reduce_to_count(store: &Store, n: u64, out: &Path, o: &SimplifyOptions) -> Re
     }
     // Levels with at least n triangles (level 0 always is one).
     let levels: Vec<(u8, u64)> = (0..=store.top_level()).map(|l| (l, store.level_cut(l).triangles(store))).filter(|&(_, t)| t >= n).collect();
-    let fits = |t: u64| t.saturating_mul(o.simplifier.bytes_per_triangle()) <= o.mem;
+    let fits = |t: u64| t.saturating_mul(o.simplifier.bytes_per_triangle(store.header.attrs)) <= o.mem;
     let (level, tris) = match levels.iter().find(|&&(_, t)| fits(t)) {
         Some(&lt) => {
             rep.route = "in-memory".into();
@@ -279,7 +287,7 @@ fn reduce_to_count(store: &Store, n: u64, out: &Path, o: &SimplifyOptions) -> Re
         rep.note = Some(format!(
             "{got} of {n} triangles: the borders between the nodes reduced one by one are kept exactly (so the seams stay closed) and hold more; \
              a --mem that holds {got} triangles (about {} MiB) lets a last pass over the whole result go further",
-            got.saturating_mul(o.simplifier.bytes_per_triangle()) >> 20
+            got.saturating_mul(o.simplifier.bytes_per_triangle(store.header.attrs)) >> 20
         ));
     }
     Ok((r, rep))
@@ -291,7 +299,7 @@ fn reduce_to_count(store: &Store, n: u64, out: &Path, o: &SimplifyOptions) -> Re
 fn level_or_reduced(store: &Store, n: u64, reduced: IndexedMesh, mut rep: SimplifyReport, o: &SimplifyOptions) -> Result<(Reduced, SimplifyReport)> {
     let near = (0..=store.top_level())
         .map(|l| (l, store.level_cut(l).triangles(store)))
-        .filter(|&(_, t)| t.abs_diff(n) as f64 <= LEVEL_NEAR * n as f64 && t.saturating_mul(o.simplifier.bytes_per_triangle()) <= o.mem)
+        .filter(|&(_, t)| t.abs_diff(n) as f64 <= LEVEL_NEAR * n as f64 && t.saturating_mul(o.simplifier.bytes_per_triangle(store.header.attrs)) <= o.mem)
         .min_by_key(|&(_, t)| t.abs_diff(n));
     let Some((level, level_tris)) = near else { return Ok((Reduced::Mesh(reduced), rep)) };
     let cut = store.level_cut(level);
@@ -387,7 +395,7 @@ fn reduce_to_error(store: &Store, e: f64, o: &SimplifyOptions) -> Result<(Indexe
                 let cut = if last { store.level_cut(0) } else { store.error_cut(0.25 * limit) };
                 rep.start = if last { "level 0".into() } else { format!("max error {:.3e}", 0.25 * limit) };
                 let tris = cut.triangles(store);
-                rep.route = if tris.saturating_mul(o.simplifier.bytes_per_triangle()) <= o.mem { "in-memory" } else { "per-node" }.into();
+                rep.route = if tris.saturating_mul(o.simplifier.bytes_per_triangle(store.header.attrs)) <= o.mem { "in-memory" } else { "per-node" }.into();
                 let m = if last { load_cut(store, &cut, o)? } else { reduce_cut(store, &cut, Goal::Error(0.75 * limit), o)? };
                 (cut, m)
             }
@@ -418,13 +426,13 @@ fn reduce_to_error(store: &Store, e: f64, o: &SimplifyOptions) -> Result<(Indexe
 
 /// The cut's meshes welded into one (must fit `mem`).
 fn load_cut(store: &Store, cut: &Cut, o: &SimplifyOptions) -> Result<IndexedMesh> {
-    check_fits(cut.triangles(store), o, "the mesh")?;
+    check_fits(store, cut.triangles(store), o, "the mesh")?;
     let parts = store.cut_meshes(cut).collect::<Result<Vec<_>>>()?;
     Ok(weld_union(&store.layout, &parts))
 }
 
-fn check_fits(tris: u64, o: &SimplifyOptions, what: &str) -> Result<()> {
-    let (need, mem) = (tris.saturating_mul(o.simplifier.bytes_per_triangle()), o.mem);
+fn check_fits(store: &Store, tris: u64, o: &SimplifyOptions, what: &str) -> Result<()> {
+    let (need, mem) = (tris.saturating_mul(o.simplifier.bytes_per_triangle(store.header.attrs)), o.mem);
     if need > mem {
         return Err(Error::Usage(format!(
             "{what} of {tris} triangles needs about {} MiB in memory, more than --mem {} MiB; raise --mem or ask for fewer triangles",
@@ -442,7 +450,7 @@ fn check_fits(tris: u64, o: &SimplifyOptions, what: &str) -> Result<()> {
 pub fn reduce_cut(store: &Store, cut: &Cut, goal: Goal, o: &SimplifyOptions) -> Result<IndexedMesh> {
     let attrs = store.header.attrs;
     let tris = cut.triangles(store);
-    if tris.saturating_mul(o.simplifier.bytes_per_triangle()) <= o.mem {
+    if tris.saturating_mul(o.simplifier.bytes_per_triangle(store.header.attrs)) <= o.mem {
         let m = load_cut(store, cut, o)?;
         return Ok(reduce_mesh(&m, &vec![false; m.vertices.len()], attrs, goal, o.simplifier));
     }
@@ -470,7 +478,7 @@ fn per_node_to_count(store: &Store, cut: &Cut, n: u64, o: &SimplifyOptions, out:
     let mut pn = PerNode::new(store, cut, o)?;
     pn.reduce_to(n)?;
     let total = pn.total();
-    if total > n && !within_1pct(total, n) && check_fits(total, o, "the result").is_ok() {
+    if total > n && !within_1pct(total, n) && check_fits(store, total, o, "the result").is_ok() {
         let m = pn.welded()?;
         drop(pn);
         let m = reduce_mesh(&m, &vec![false; m.vertices.len()], store.header.attrs, Goal::Tris(n as usize), o.simplifier);
@@ -516,7 +524,7 @@ impl<'a> PerNode<'a> {
         let shared = shared_positions(store, cut, o.mem)?;
         let shared_bytes = shared.len() as u64 * SHARED_BYTES;
         let node_tris = cut.drawn.iter().map(|&i| store.nodes[i].tris as u64).max().unwrap_or(0).max(1);
-        let node_bytes = node_tris * o.simplifier.bytes_per_triangle();
+        let node_bytes = node_tris * o.simplifier.bytes_per_triangle(store.header.attrs);
         let fit = o.mem.saturating_sub(shared_bytes) / node_bytes;
         if fit == 0 {
             return Err(Error::Usage(format!(

@@ -100,7 +100,7 @@ fn exact_counts_node_by_node_under_a_small_budget_stay_closed() {
         // A budget that holds the output (60 K) but no level with >= 60 K
         // triangles (level 1 holds about 100 K).
         let n = 60_000;
-        let mem = (1.1 * n as f64) as u64 * simp.bytes_per_triangle();
+        let mem = (1.1 * n as f64) as u64 * simp.bytes_per_triangle(s.header.attrs);
         let name = format!("per-node-{simp:?}");
         let (r, _, m) = run(&s, dir.path(), &name, &opts(Target::Tris(n), simp, mem));
         assert_eq!(r.route, "per-node", "{name}");
@@ -138,7 +138,7 @@ fn outputs_larger_than_the_budget_are_streamed_node_by_node_welded_and_closed() 
     let (n, mem) = (100_000u64, 16u64 << 20);
     for simp in BOTH {
         // The output alone needs more than --mem in memory: this used to be refused.
-        assert!(n * simp.bytes_per_triangle() > mem);
+        assert!(n * simp.bytes_per_triangle(s.header.attrs) > mem);
         let name = format!("streamed-{simp:?}");
         let (r, a, m) = run(&s, dir.path(), &name, &opts(Target::Tris(n), simp, mem));
         assert_eq!(r.route, "per-node", "{name}");
@@ -310,7 +310,7 @@ fn the_command_writes_an_output_larger_than_mem_within_mem() {
     let (ply, _) = gen_ply(dir.path(), Shape::Sphere, 200_000, 0);
     let out = dir.path().join("o.ply");
     let (n, mem) = (100_000u64, 16u64 << 20);
-    assert!(n * Simplifier::Collapse.bytes_per_triangle() > mem);
+    assert!(n * Simplifier::Collapse.bytes_per_triangle(octolod::mesh::AttrSet::POSITION_ONLY) > mem);
     let (code, stdout, stderr, peak) = run_measured(
         module_path!(),
         "the_command_writes_an_output_larger_than_mem_within_mem",
@@ -337,6 +337,46 @@ fn the_command_writes_an_output_larger_than_mem_within_mem() {
     // The budget plus the process's fixed overhead (see `octolod::mem`).
     assert!(peak <= mem + (64 << 20), "peak RSS {} MiB under --mem 16M", peak >> 20);
     eprintln!("simplify 200 K -> 100 K triangles under --mem 16M: peak RSS {:.1} MiB", peak as f64 / (1 << 20) as f64);
+}
+
+/// The in-memory routes budget by the mesh's attributes: a 200 K sphere
+/// with normals and colours (quadric dimension 9) reduced by either
+/// simplifier under `--mem 160M` stays within it. Clustering budgeted
+/// 440 B a triangle whatever the dimension, so it reduced level 0 in
+/// memory and peaked at 302 MiB.
+#[test]
+fn both_simplifiers_stay_within_mem_on_a_mesh_with_attributes() {
+    let test = "both_simplifiers_stay_within_mem_on_a_mesh_with_attributes";
+    if measuring_child() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let (ply, _) = gen_ply(dir.path(), Shape::Sphere, 200_000, AttrSet::NORMAL | AttrSet::COLOR);
+    let mem = 160u64 << 20;
+    for simp in ["cluster", "collapse"] {
+        let out = dir.path().join(format!("{simp}.ply"));
+        let args = [
+            "--quiet",
+            "simplify",
+            ply.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--target-tris",
+            "60000",
+            "--simplifier",
+            simp,
+            "--mem",
+            "160M",
+            "--json",
+        ];
+        let (code, stdout, stderr, peak) = run_measured(module_path!(), test, &args);
+        assert_eq!(code, Some(0), "{simp}: {stderr}");
+        let r: SimplifyReport = serde_json::from_slice(&stdout).unwrap();
+        assert!(r.reached && within_1pct(r.triangles as usize, 60_000), "{simp}: {r:?}");
+        eprintln!("{simp}: 200 K sphere with normals and colours -> 60 K under --mem 160M: route {}, from {}, peak RSS {} MiB", r.route, r.start, peak >> 20);
+        // The budget plus the process's fixed overhead (see `octolod::mem`).
+        assert!(peak <= mem + (64 << 20), "{simp}: peak RSS {} MiB under --mem 160M ({r:?})", peak >> 20);
+    }
 }
 
 /// `simplify` is never worse than a store level of about the size asked:
@@ -367,7 +407,7 @@ fn a_level_of_about_the_size_asked_is_returned_when_it_measures_better() {
         eprintln!("{name}: level {level} RMS {:.3e}, reduction {:.3e}", c.level_rms, c.reduced_rms);
     }
     // Starting from level 1 (all --mem holds): compared the same way.
-    let mem = s.level_cut(1).triangles(&s) * Simplifier::Collapse.bytes_per_triangle();
+    let mem = s.level_cut(1).triangles(&s) * Simplifier::Collapse.bytes_per_triangle(s.header.attrs);
     let (r, _, m) = run(&s, dir.path(), "from-level-1", &opts(Target::Tris(n), Simplifier::Collapse, mem));
     let c = r.choice.clone().unwrap();
     assert_eq!(c.level_returned, c.level_rms < c.reduced_rms, "{c:?}");
