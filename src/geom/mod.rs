@@ -166,6 +166,21 @@ impl Rng {
     }
 }
 
+/// The triangles of an n × n grid of quads over (n + 1)² vertices in row
+/// order, each quad split along its rising diagonal (a test mesh's index).
+#[cfg(test)]
+pub(crate) fn grid_triangles(n: u32) -> Vec<[u32; 3]> {
+    let mut triangles = Vec::with_capacity(2 * (n * n) as usize);
+    for y in 0..n {
+        for x in 0..n {
+            let v = y * (n + 1) + x;
+            triangles.push([v, v + 1, v + n + 2]);
+            triangles.push([v, v + n + 2, v + n + 1]);
+        }
+    }
+    triangles
+}
+
 /// Random small triangles in the unit cube, every tenth degenerate (a test
 /// mesh for the indexes built on it).
 #[cfg(test)]

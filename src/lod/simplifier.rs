@@ -202,13 +202,7 @@ mod tests {
                 m.vertices.push(Vertex { pos: [fx, fy, z], ..Default::default() });
             }
         }
-        for y in 0..n {
-            for x in 0..n {
-                let v = y * (n + 1) + x;
-                m.triangles.push([v, v + 1, v + n + 2]);
-                m.triangles.push([v, v + n + 2, v + n + 1]);
-            }
-        }
+        m.triangles = crate::geom::grid_triangles(n);
         m
     }
 

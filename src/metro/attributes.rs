@@ -237,13 +237,7 @@ mod tests {
                 });
             }
         }
-        for j in 0..n {
-            for i in 0..n {
-                let v = j * (n + 1) + i;
-                m.triangles.push([v, v + 1, v + n + 2]);
-                m.triangles.push([v, v + n + 2, v + n + 1]);
-            }
-        }
+        m.triangles = crate::geom::grid_triangles(n);
         m
     }
 

@@ -587,15 +587,7 @@ mod tests {
                     positions.push([x * scale + offset, y * scale - offset, z * scale + 0.5 * offset + shift]);
                 }
             }
-            let mut triangles = Vec::new();
-            for j in 0..n {
-                for i in 0..n {
-                    let v = j * (n + 1) + i;
-                    triangles.push([v, v + 1, v + n + 2]);
-                    triangles.push([v, v + n + 2, v + n + 1]);
-                }
-            }
-            Mesh::new(positions, triangles)
+            Mesh::new(positions, crate::geom::grid_triangles(n))
         };
         let opts = Options { samples: Some(200_000), seed: 3, quiet: true };
         for (scale, offset) in [(1.0, 0.0), (0.9, 1.0), (3.0, 100.0), (10.0, 1e6), (1.0, -3e9)] {
