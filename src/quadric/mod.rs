@@ -865,30 +865,11 @@ impl Quadric {
     pub fn add_triangle(&mut self, p: &[f64], q: &[f64], r: &[f64]) {
         let n = self.dim;
         if n == 3 {
-            let (p, q, r) = (&p[..3], &q[..3], &r[..3]);
-            // v * 0 is NaN exactly for non-finite v: one branch for all values.
-            let probe = |s: &[f64]| s[0] * 0.0 + s[1] * 0.0 + s[2] * 0.0;
-            if probe(p) + probe(q) + probe(r) != 0.0 {
-                return;
-            }
-            if let Some((nrm, len, area)) = position_area(p, q, r) {
+            if let Some((nrm, len, area)) = plane3(p, q, r) {
                 self.add_plane3(p, q, r, nrm, len, area);
             }
-        } else {
-            let pad = |s: &[f64]| {
-                let mut v = [0.0; PAD];
-                v[..n].copy_from_slice(&s[..n]);
-                v
-            };
-            let (p, q, r) = (pad(p), pad(q), pad(r));
-            let zero = [0.0; PAD];
-            let probe = |v: &[f64; PAD]| dot(v, &zero);
-            if probe(&p) + probe(&q) + probe(&r) != 0.0 {
-                return;
-            }
-            if let Some((_, _, area)) = position_area(&p, &q, &r) {
-                self.add_triangle_general(&p, &q, &r, area);
-            }
+        } else if let Some(([p, q, r], area)) = padded(n, p, q, r) {
+            self.add_triangle_general(&p, &q, &r, area);
         }
     }
 
@@ -1249,12 +1230,7 @@ pub fn triangle_matrix(dim: usize, p: &[f64], q: &[f64], r: &[f64], out: &mut [f
 fn triangle_matrix_n(n: usize, p: &[f64], q: &[f64], r: &[f64], out: &mut [f64]) -> bool {
     let out = &mut out[..a_len(n)];
     if n == 3 {
-        let (p, q, r) = (&p[..3], &q[..3], &r[..3]);
-        let probe = |s: &[f64]| s[0] * 0.0 + s[1] * 0.0 + s[2] * 0.0;
-        if probe(p) + probe(q) + probe(r) != 0.0 {
-            return false;
-        }
-        let Some((nrm, len, w)) = position_area(p, q, r) else {
+        let Some((nrm, len, w)) = plane3(p, q, r) else {
             return false;
         };
         // As `add_plane3`, each entry added to zero.
@@ -1269,18 +1245,7 @@ fn triangle_matrix_n(n: usize, p: &[f64], q: &[f64], r: &[f64], out: &mut [f64])
         }
         return true;
     }
-    let pad = |s: &[f64]| {
-        let mut v = [0.0; PAD];
-        v[..n].copy_from_slice(&s[..n]);
-        v
-    };
-    let (p, q, r) = (pad(p), pad(q), pad(r));
-    let zero = [0.0; PAD];
-    let probe = |v: &[f64; PAD]| dot(v, &zero);
-    if probe(&p) + probe(&q) + probe(&r) != 0.0 {
-        return false;
-    }
-    let Some((_, _, w)) = position_area(&p, &q, &r) else {
+    let Some(([p, q, r], w)) = padded(n, p, q, r) else {
         return false;
     };
     let Some((e1, e2)) = triangle_frame(&p, &q, &r) else {
@@ -1298,6 +1263,41 @@ fn triangle_matrix_n(n: usize, p: &[f64], q: &[f64], r: &[f64], out: &mut [f64])
         }
     }
     true
+}
+
+/// A triangle in R^3 that adds to a quadric: its plane (`position_area`:
+/// normal, its length, area) when every coordinate is finite and the area
+/// is not zero. The one check [`Quadric::add_triangle`] and
+/// [`triangle_matrix`] make.
+#[inline(always)]
+fn plane3(p: &[f64], q: &[f64], r: &[f64]) -> Option<([f64; 3], f64, f64)> {
+    let (p, q, r) = (&p[..3], &q[..3], &r[..3]);
+    // v * 0 is NaN exactly for non-finite v: one branch for all values.
+    let probe = |s: &[f64]| s[0] * 0.0 + s[1] * 0.0 + s[2] * 0.0;
+    if probe(p) + probe(q) + probe(r) != 0.0 {
+        return None;
+    }
+    position_area(p, q, r)
+}
+
+/// A triangle in R^n (n > 3) that adds to a quadric: its corners
+/// zero-padded to [`PAD`] and its position area, when every coordinate is
+/// finite and the area is not zero ([`plane3`]'s check, in any dimension).
+#[inline(always)]
+fn padded(n: usize, p: &[f64], q: &[f64], r: &[f64]) -> Option<([[f64; PAD]; 3], f64)> {
+    let pad = |s: &[f64]| {
+        let mut v = [0.0; PAD];
+        v[..n].copy_from_slice(&s[..n]);
+        v
+    };
+    let (p, q, r) = (pad(p), pad(q), pad(r));
+    let zero = [0.0; PAD];
+    let probe = |v: &[f64; PAD]| dot(v, &zero);
+    if probe(&p) + probe(&q) + probe(&r) != 0.0 {
+        return None;
+    }
+    let (_, _, area) = position_area(&p, &q, &r)?;
+    Some(([p, q, r], area))
 }
 
 /// Zero-padded width of the general path's vectors: a multiple of 4 ≥
