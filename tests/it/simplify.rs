@@ -311,32 +311,28 @@ fn the_command_writes_an_output_larger_than_mem_within_mem() {
     let out = dir.path().join("o.ply");
     let (n, mem) = (100_000u64, 16u64 << 20);
     assert!(n * Simplifier::Collapse.bytes_per_triangle(octolod::mesh::AttrSet::POSITION_ONLY) > mem);
-    let (code, stdout, stderr, peak) = run_measured(
-        module_path!(),
-        "the_command_writes_an_output_larger_than_mem_within_mem",
-        &[
-            "--quiet",
-            "simplify",
-            ply.to_str().unwrap(),
-            "-o",
-            out.to_str().unwrap(),
-            "--target-tris",
-            &n.to_string(),
-            "--mem",
-            "16M",
-            "--leaf-tris",
-            "4096",
-            "--json",
-        ],
-    );
-    assert_eq!(code, Some(0), "{stderr}");
-    let r: SimplifyReport = serde_json::from_slice(&stdout).unwrap();
+    let test = "the_command_writes_an_output_larger_than_mem_within_mem";
+    let (r, peak) = simplify_within_mem(test, &ply, &out, &["--target-tris", &n.to_string(), "--leaf-tris", "4096"], mem);
     assert_eq!(r.route, "per-node", "{r:?}");
     assert!(r.reached && within_1pct(r.triangles as usize, n), "{r:?}");
     assert_eq!(read(&out).1.triangles.len() as u64, r.triangles);
-    // The budget plus the process's fixed overhead (see `octolod::mem`).
-    assert!(peak <= mem + (64 << 20), "peak RSS {} MiB under --mem 16M", peak >> 20);
     eprintln!("simplify 200 K -> 100 K triangles under --mem 16M: peak RSS {:.1} MiB", peak as f64 / (1 << 20) as f64);
+}
+
+/// `octolod --quiet simplify PLY -o OUT ARGS --mem MEM --json` run again
+/// as test `test`'s measuring child (`run_measured`): its report and peak
+/// RSS, once it succeeded within `mem` plus the process's fixed overhead
+/// (see `octolod::mem`).
+fn simplify_within_mem(test: &str, ply: &Path, out: &Path, args: &[&str], mem: u64) -> (SimplifyReport, u64) {
+    let mem_arg = format!("{}M", mem >> 20);
+    let mut all = vec!["--quiet", "simplify", ply.to_str().unwrap(), "-o", out.to_str().unwrap()];
+    all.extend_from_slice(args);
+    all.extend(["--mem", &mem_arg, "--json"]);
+    let (code, stdout, stderr, peak) = run_measured(module_path!(), test, &all);
+    assert_eq!(code, Some(0), "{args:?}: {stderr}");
+    let r: SimplifyReport = serde_json::from_slice(&stdout).unwrap();
+    assert!(peak <= mem + (64 << 20), "{args:?}: peak RSS {} MiB under --mem {mem_arg} ({r:?})", peak >> 20);
+    (r, peak)
 }
 
 /// The in-memory routes budget by the mesh's attributes: a 200 K sphere
@@ -355,27 +351,9 @@ fn both_simplifiers_stay_within_mem_on_a_mesh_with_attributes() {
     let mem = 160u64 << 20;
     for simp in ["cluster", "collapse"] {
         let out = dir.path().join(format!("{simp}.ply"));
-        let args = [
-            "--quiet",
-            "simplify",
-            ply.to_str().unwrap(),
-            "-o",
-            out.to_str().unwrap(),
-            "--target-tris",
-            "60000",
-            "--simplifier",
-            simp,
-            "--mem",
-            "160M",
-            "--json",
-        ];
-        let (code, stdout, stderr, peak) = run_measured(module_path!(), test, &args);
-        assert_eq!(code, Some(0), "{simp}: {stderr}");
-        let r: SimplifyReport = serde_json::from_slice(&stdout).unwrap();
+        let (r, peak) = simplify_within_mem(test, &ply, &out, &["--target-tris", "60000", "--simplifier", simp], mem);
         assert!(r.reached && within_1pct(r.triangles as usize, 60_000), "{simp}: {r:?}");
         eprintln!("{simp}: 200 K sphere with normals and colours -> 60 K under --mem 160M: route {}, from {}, peak RSS {} MiB", r.route, r.start, peak >> 20);
-        // The budget plus the process's fixed overhead (see `octolod::mem`).
-        assert!(peak <= mem + (64 << 20), "{simp}: peak RSS {} MiB under --mem 160M ({r:?})", peak >> 20);
     }
 }
 
