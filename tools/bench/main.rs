@@ -190,6 +190,12 @@ pub struct BenchArgs {
     /// binaries were built from).
     #[arg(long)]
     pub label: Option<String>,
+    /// An older octolod executable to compare with: for every setting it
+    /// also builds through its command line (`BIN build`, `BIN extract`),
+    /// and its levels are measured and reported as setting `LEAFxRATIO
+    /// @LABEL`. May be given more than once.
+    #[arg(long, value_name = "LABEL=BIN", value_parser = parse_baseline)]
+    pub baseline: Vec<Baseline>,
     /// Measure nothing: re-render report.md and the plots (into --out, with
     /// --suffix) from a report.json this tool wrote earlier.
     #[arg(long, value_name = "REPORT_JSON")]
@@ -231,6 +237,10 @@ pub struct RunOne {
     /// octolod: build only, extract nothing.
     #[arg(long)]
     pub no_extract: bool,
+    /// octolod: build with this executable through its command line
+    /// instead of the library (`--baseline` of the bench).
+    #[arg(long, value_name = "LABEL=BIN", value_parser = parse_baseline)]
+    pub baseline: Option<Baseline>,
     pub input: PathBuf,
     /// Output PLY; for octolod a prefix (level L goes to PREFIX-L<L>.ply).
     pub output: PathBuf,
@@ -277,6 +287,43 @@ pub fn setting_name(leaf: u64, ratio: u32, simplifier: octolod::manifest::Simpli
     }
 }
 
+/// A baseline build's setting text: the setting, then ` @LABEL`
+/// (`16384x2:collapse @before`).
+pub fn baseline_setting(setting: &str, label: &str) -> String {
+    format!("{setting} @{label}")
+}
+
+/// `--baseline LABEL=BIN`: an older octolod executable and the label its
+/// rows carry.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Baseline {
+    pub label: String,
+    pub bin: PathBuf,
+}
+
+impl std::fmt::Display for Baseline {
+    fn fmt(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        write!(f, "{}={}", self.label, self.bin.display())
+    }
+}
+
+/// `LABEL=BIN` → a [`Baseline`]. The label names rows and output files, so
+/// it is letters, digits, `.`, `_` and `-` only (no spaces, no `@`).
+pub fn parse_baseline(s: &str) -> std::result::Result<Baseline, String> {
+    let (label, bin) = s.split_once('=').ok_or_else(|| format!("--baseline {s:?} is not LABEL=BIN (e.g. before=/tmp/octolod-1f786c3)"))?;
+    let label = label.trim();
+    if label.is_empty() {
+        return Err(format!("--baseline {s:?}: empty label"));
+    }
+    if let Some(c) = label.chars().find(|c| !(c.is_ascii_alphanumeric() || matches!(c, '.' | '_' | '-'))) {
+        return Err(format!("--baseline {s:?}: the label may hold letters, digits, '.', '_' and '-' only, not {c:?}"));
+    }
+    if bin.trim().is_empty() {
+        return Err(format!("--baseline {s:?}: empty binary path"));
+    }
+    Ok(Baseline { label: label.to_string(), bin: PathBuf::from(bin) })
+}
+
 fn main() {
     let cli = Cli::parse();
     let r = match cli.child {
@@ -307,5 +354,28 @@ mod tests {
         assert_eq!(parse_setting(&setting_name(16384, 4, Simplifier::Collapse)).unwrap().ratio, 4);
         assert!(parse_setting("16384x2:grid").is_err());
         assert!(parse_setting("16384").is_err());
+    }
+
+    /// `--baseline LABEL=BIN`: the label before the first `=`, a path after;
+    /// a missing `=`, an empty label or path, and labels that would not
+    /// read back from a row's setting or name a file are refused.
+    #[test]
+    fn baselines_parse() {
+        let b = parse_baseline("before=/tmp/octolod-1f786c3").unwrap();
+        assert_eq!(b, Baseline { label: "before".into(), bin: "/tmp/octolod-1f786c3".into() });
+        assert_eq!(b.to_string(), "before=/tmp/octolod-1f786c3");
+        // Only the first `=` splits: a path may hold one.
+        assert_eq!(parse_baseline("v1.2_rc-3=/opt/a=b/octolod").unwrap().bin, PathBuf::from("/opt/a=b/octolod"));
+        assert_eq!(parse_baseline(" old =bin").unwrap().label, "old");
+        for bad in ["/tmp/octolod", "=/tmp/octolod", " =/tmp/octolod", "my build=/tmp/octolod", "a@b=/x", "a/b=/x", "old=", "old= "] {
+            assert!(parse_baseline(bad).is_err(), "{bad:?} accepted");
+        }
+        assert!(parse_baseline("/tmp/octolod").unwrap_err().contains("LABEL=BIN"));
+        assert!(parse_baseline("my build=/x").unwrap_err().contains("' '"));
+        assert_eq!(baseline_setting(&setting_name(16384, 2, Simplifier::Collapse), "before"), "16384x2:collapse @before");
+        // On the command line, repeated.
+        let cli = Cli::try_parse_from(["octolod-bench", "x.ply", "--baseline", "a=/bin/a", "--baseline", "b=/bin/b"]).unwrap();
+        assert_eq!(cli.bench.baseline.iter().map(|b| b.label.as_str()).collect::<Vec<_>>(), ["a", "b"]);
+        assert!(Cli::try_parse_from(["octolod-bench", "x.ply", "--baseline", "/bin/a"]).is_err());
     }
 }

@@ -267,16 +267,14 @@ pub fn report_md(r: &Report) -> String {
             let t = b.timed.seconds;
             let _ = writeln!(
                 w,
-                "| {} | {} | {} | {t:.2} | {:.2} / {:.2} / {:.2} | {:.3} | {:.0} | {:.1} | {} |",
+                "| {} | {} | {} | {t:.2} | {} | {:.3} | {:.0} | {} | {} |",
                 b.setting(),
                 b.levels.len(),
-                thousands(b.nodes),
-                b.soup_seconds,
-                b.octree_seconds,
-                b.simplify_seconds,
+                b.nodes.map_or("n/a".into(), thousands),
+                [b.soup_seconds, b.octree_seconds, b.simplify_seconds].map(|x| opt(Some(x), |x| format!("{x:.2}"))).join(" / "),
                 info.triangles as f64 / t / 1e6,
                 b.timed.peak_rss_mib,
-                b.disk_bytes as f64 / 1e6,
+                opt(b.disk_bytes.map(|d| d as f64 / 1e6), |d| format!("{d:.1}")),
                 opt(b.timed.other_cpu_cores, |c| format!("{c:.2}")),
             );
         }
@@ -478,7 +476,7 @@ fn sweep_section(w: &mut String, r: &Report) {
             b.octree_seconds,
             t * 1e9 / x.triangles as f64,
             rss * 1048576.0 / x.triangles as f64,
-            b.disk_bytes as f64 / 1e6,
+            b.disk_bytes.map_or(f64::NAN, |d| d as f64 / 1e6),
             ratio(t / x.triangles as f64 / bt),
             ratio(simp / bs),
             ratio(rss / x.triangles as f64 / br),

@@ -171,26 +171,49 @@ pub struct BuildOut {
     pub octree_seconds: f64,
     #[serde(with = "nullable", default = "nan")]
     pub simplify_seconds: f64,
-    /// The soup took the external (out-of-core) path.
-    pub soup_external: bool,
-    pub nodes: u64,
-    pub leaves: u64,
-    pub deepest: u32,
+    /// The soup took the external (out-of-core) path (`None`: a baseline
+    /// build, which does not say).
+    pub soup_external: Option<bool>,
+    /// Nodes, level-0 nodes (leaves) and the octree's depth; `None` where a
+    /// baseline's summary line did not give them.
+    pub nodes: Option<u64>,
+    pub leaves: Option<u64>,
+    pub deepest: Option<u32>,
     /// The store's size on disk.
-    pub disk_bytes: u64,
+    pub disk_bytes: Option<u64>,
     /// Peak RSS after extracting every level, MiB (`peak_rss_mib` is read
-    /// before extraction).
+    /// before extraction; baseline: the largest of the build's and the
+    /// extract commands' `ru_maxrss`).
     #[serde(with = "nullable", default = "nan")]
     pub peak_rss_with_extract_mib: f64,
     /// Empty with `--no-extract`.
     pub levels: Vec<LevelOut>,
+    /// `--baseline LABEL=BIN`: the label, when an older octolod executable
+    /// built this through its command line (absent: this bench's library).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub baseline: Option<String>,
+    /// Baseline: the build command run, and the total seconds its summary
+    /// line reported (its own timing, without process start and exit).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub command: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reported_total_seconds: Option<f64>,
     #[serde(flatten)]
     pub timed: Timed,
 }
 
 impl BuildOut {
-    /// `LEAFxRATIO`, with `:collapse` for collapse builds.
+    /// `LEAFxRATIO`, with `:collapse` for collapse builds and ` @LABEL`
+    /// for a baseline's.
     pub fn setting(&self) -> String {
+        let s = self.plain_setting();
+        match &self.baseline {
+            Some(l) => crate::baseline_setting(&s, l),
+            None => s,
+        }
+    }
+    /// The setting without a baseline's label.
+    pub fn plain_setting(&self) -> String {
         crate::setting_name(self.leaf_tris, self.level_ratio, self.simplifier)
     }
 }
