@@ -3,8 +3,8 @@
 //! read one back (`--from-json`) and write it again.
 
 use crate::runners::wait_idle;
-use crate::types::{finite, BuildOut, ChildOut, InputReport, LevelOut, MachineJson, Method, MetroJson, Report, Row, RowChild, RunOut, SweepRow};
-use crate::{parse_setting, setting_name, BenchArgs, Setting};
+use crate::types::{finite, BaselineJson, BuildOut, ChildOut, InputReport, LevelOut, MachineJson, Method, MetroJson, Report, Row, RowChild, RunOut, SweepRow};
+use crate::{baseline_setting, parse_setting, setting_name, Baseline, BenchArgs, Setting};
 use anyhow::{anyhow, bail, Context, Result};
 use octolod::gen::{GenOptions, Shape};
 use octolod::mesh::{Aabb, AttrSet, Vertex};
@@ -164,6 +164,7 @@ pub fn bench(args: &BenchArgs) -> Result<()> {
         bail!("--settings is empty");
     }
     octolod::mem::parse_size(&args.mem)?;
+    let baselines = check_baselines(&args.baseline)?;
     std::fs::create_dir_all(&args.out).with_context(|| format!("create {}", args.out.display()))?;
     let exe = std::env::current_exe().context("locate this executable")?;
     let (octolod_bin, octolod_note) = find_octolod(args, &exe);
@@ -182,6 +183,7 @@ pub fn bench(args: &BenchArgs) -> Result<()> {
         generated: now_utc(),
         command: command_line(),
         label: args.label.clone(),
+        baselines,
         rerendered: None,
         machine: MachineJson { cpu, threads, mem_gib },
         metro: b.metro_bin.as_ref().map_or(b.metro_note.clone(), |p| p.display().to_string()),
@@ -284,10 +286,39 @@ fn find_octolod(args: &BenchArgs, exe: &Path) -> (Option<PathBuf>, String) {
     }
 }
 
+/// `--baseline`: refuses a label given twice and a binary whose `build
+/// --help` does not answer (before anything is measured); records each with
+/// what its `--version` prints, if it does.
+fn check_baselines(baselines: &[Baseline]) -> Result<Vec<BaselineJson>> {
+    let mut out: Vec<BaselineJson> = Vec::new();
+    for bl in baselines {
+        if out.iter().any(|o| o.label == bl.label) {
+            bail!("--baseline {bl}: the label {:?} is given twice", bl.label);
+        }
+        let help = Command::new(&bl.bin).args(["build", "--help"]).stdin(Stdio::null()).output();
+        match help {
+            Ok(o) if o.status.success() => {}
+            Ok(o) => bail!("--baseline {bl}: `build --help` failed ({}): {}", o.status, String::from_utf8_lossy(&o.stderr).lines().next().unwrap_or("").trim()),
+            Err(e) => bail!("--baseline {bl}: not runnable: {e}"),
+        }
+        let version = Command::new(&bl.bin)
+            .arg("--version")
+            .stdin(Stdio::null())
+            .output()
+            .ok()
+            .filter(|o| o.status.success())
+            .and_then(|o| String::from_utf8_lossy(&o.stdout).lines().next().map(|l| l.trim().to_string()))
+            .filter(|l| !l.is_empty());
+        out.push(BaselineJson { label: bl.label.clone(), bin: bl.bin.clone(), version });
+    }
+    Ok(out)
+}
+
 /// A row for an octolod level.
 fn level_row(b: &BuildOut, l: &LevelOut, n_in: f64) -> Row {
     Row {
         setting: b.setting(),
+        baseline: b.baseline.clone(),
         level: Some(l.level),
         ..Row::unmeasured(Method::Octolod, l.triangles, l.vertices, l.path.clone(), &b.timed, n_in, RowChild::Level(l.clone()))
     }
@@ -300,15 +331,20 @@ fn run_row(j: RunOut, n_in: f64) -> Row {
     Row { target: Some(target), load_seconds, ..Row::unmeasured(method, triangles, vertices, path, &timed, n_in, RowChild::Run(Box::new(j))) }
 }
 
-/// Every method on one input: the octolod builds (one per setting), then
-/// the peers and the simplifiers at every octolod output size kept.
+/// Every method on one input: the octolod builds (one per setting, each
+/// followed by every `--baseline`'s build of it), then the peers and the
+/// simplifiers at every output size of the current builds kept.
 fn bench_input(b: &Bench, info: &mut InputReport, dir: &Path, settings: &[Setting], simplify: bool, failures: &mut Vec<String>) {
     let n_in = info.triangles as f64;
     let input = info.path.display().to_string();
-    for st in settings {
-        let setting = setting_name(st.leaf, st.ratio, st.simplifier);
-        let prefix = dir.join(format!("octolod-{}", setting.replace(':', "-")));
-        let args = vec![
+    let builds = settings.iter().flat_map(|st| std::iter::once(None).chain(b.args.baseline.iter().map(Some)).map(move |bl| (st, bl)));
+    for (st, bl) in builds {
+        let plain = setting_name(st.leaf, st.ratio, st.simplifier);
+        let (setting, prefix) = match bl {
+            Some(bl) => (baseline_setting(&plain, &bl.label), dir.join(format!("octolod-{}-at-{}", plain.replace(':', "-"), bl.label))),
+            None => (plain.clone(), dir.join(format!("octolod-{}", plain.replace(':', "-")))),
+        };
+        let mut args = vec![
             "--method".into(),
             "octolod".into(),
             "--leaf-tris".into(),
@@ -322,6 +358,9 @@ fn bench_input(b: &Bench, info: &mut InputReport, dir: &Path, settings: &[Settin
             input.clone(),
             prefix.display().to_string(),
         ];
+        if let Some(bl) = bl {
+            args.extend(["--baseline".into(), bl.to_string()]);
+        }
         let j: BuildOut = match b.child(&args) {
             Ok(j) => j,
             Err(e) => {
@@ -353,9 +392,14 @@ fn bench_input(b: &Bench, info: &mut InputReport, dir: &Path, settings: &[Settin
         }
         info.builds.push(j);
     }
+    for line in crate::report::vs_baseline_lines(info) {
+        b.say(&format!("[{}] {line}", info.name));
+    }
 
-    // Peers, then `octolod simplify`, at every distinct octolod output size.
-    let mut targets: Vec<u64> = info.rows.iter().filter(|r| r.method == Method::Octolod).map(|r| r.triangles).collect();
+    // Peers, then `octolod simplify`, at every distinct output size of the
+    // current octolod builds (not the baselines', which would run every
+    // peer again for sizes a level or so apart).
+    let mut targets: Vec<u64> = info.rows.iter().filter(|r| r.method == Method::Octolod && r.baseline.is_none()).map(|r| r.triangles).collect();
     targets.sort_unstable_by(|a, b| b.cmp(a));
     targets.dedup();
     let methods: Vec<Method> = Method::PEERS
@@ -567,6 +611,7 @@ mod tests {
             generated: "2026-01-01 00:00 UTC".into(),
             command: "octolod-bench x.ply".into(),
             label: Some("commit x".into()),
+            baselines: vec![],
             rerendered: None,
             machine: MachineJson { cpu: "cpu".into(), threads: 2, mem_gib: 8.0 },
             metro: "octolod".into(),
@@ -644,6 +689,56 @@ mod tests {
         assert!(md.contains("| 16384x8:collapse L1 | 40 | meshlab-qec | 40 |"), "{md}");
         assert!(md.contains("RMS ÷ meshlab-qec"), "{md}");
         assert!(md.contains("| 16384x8:collapse | meshlab-qec | 1 |"), "{md}");
+    }
+
+    /// A `--baseline` build's levels are rows like the current build's
+    /// (setting `LEAFxRATIO[:collapse] @LABEL`, paired with the peers at
+    /// their size), compared with the current build of the same setting,
+    /// and read back from the JSON.
+    #[test]
+    fn baseline_rows_in_the_report() {
+        let mut r = sample_report();
+        let info = &mut r.inputs[0];
+        let cur = &mut info.builds[0];
+        cur.simplifier = octolod::manifest::Simplifier::Collapse;
+        info.rows[0].setting = cur.setting();
+        let base = BuildOut {
+            baseline: Some("before".into()),
+            nodes: None,
+            disk_bytes: None,
+            soup_seconds: f64::NAN,
+            command: Some("octolod build x.ply -o s".into()),
+            timed: Timed { seconds: 1.0, peak_rss_mib: 60.0, ..Timed::default() },
+            ..cur.clone()
+        };
+        assert_eq!(base.setting(), "16384x8:collapse @before");
+        let mut row = level_row(&base, &LevelOut { triangles: 40, ..base.levels[0].clone() }, 96.0);
+        let mut m: MetroJson = serde_json::from_str(METRO).unwrap();
+        m.combined.rms *= 2.0;
+        set_metro(&mut row, m, 0.3, 2.0);
+        info.rows.push(row);
+        info.builds.push(base);
+        r.baselines = vec![BaselineJson { label: "before".into(), bin: "/tmp/octolod-old".into(), version: Some("octolod 0.1.0".into()) }];
+        r.fill_pairs();
+        // The baseline's level against the three peers too.
+        assert_eq!(r.inputs[0].pairs.len(), 12);
+        let md = report_md(&r);
+        assert!(
+            md.contains(
+                "Baselines (older octolod executables, each built every setting through its command line): `@before` = `/tmp/octolod-old` (`octolod 0.1.0`)."
+            ),
+            "{md}"
+        );
+        assert!(md.contains("| 16384x8:collapse @before | 1 | n/a | 1.00 | n/a / 0.10 / 0.30 | 0.000 | 60 | n/a | n/a |"), "{md}");
+        assert!(md.contains("| 16384x8:collapse | @before | 0.50 / 1.00 | 0.50 | 0.000 / 0.000 | 2.00 | 30 / 60 | 0.50 |"), "{md}");
+        assert!(md.contains("| 16384x8:collapse | @before | L1 | 40 / 40 | 1.00 | 5.000e-2 / 1.000e-1 | 0.50 | 1.000e-1 / 1.000e-1 | 1.00 |"), "{md}");
+        assert!(md.contains("| 16384x8:collapse @before L1 | 40 | meshopt-simplify | 40 |"), "{md}");
+        assert!(md.contains("| 16384x8:collapse @before | oocs | 1 |"), "{md}");
+        let lines = crate::report::vs_baseline_lines(&r.inputs[0]);
+        assert_eq!(lines[1], "  L1: triangles 40 / 40 = 1.00, RMS 0.50, Hausdorff 1.00");
+        let back = read_report(&serde_json::to_string_pretty(&r).unwrap(), "-t").unwrap();
+        assert_eq!(report_md(&back), md);
+        assert_eq!(back.inputs[0].rows.last().unwrap().baseline.as_deref(), Some("before"));
     }
 
     /// metro's figures are read from its `combined` object.

@@ -23,7 +23,7 @@
 //! (`--clean` deletes them). `--levels 4,7,10` measures only those octolod
 //! levels (and runs the peers and simplifiers at their sizes only).
 //! `--suffix -10m` names the four files `report-10m.md` and so on; `--label TEXT` adds a line saying what was
-//! measured (the commit, say); `--from-json report.json` measures nothing
+//! measured (the commit, say), and the header lists every `--baseline` (label, binary, `--version`); `--from-json report.json` measures nothing
 //! and writes the report and plots again from an earlier run's JSON (for
 //! changes to the layout).
 //!
@@ -84,6 +84,17 @@
 //! [`types::MetroJson`] and the `combined` figures (both directions
 //! together) are divided by the input's bounding-box diagonal. Without a
 //! working `metro`, errors are "n/a" and everything else is still measured.
+//!
+//! - `octolod @LABEL` (with `--baseline LABEL=BIN`, repeatable): every
+//!   setting built again by an older octolod executable BIN (a release
+//!   binary built from another commit), through its command line: `BIN
+//!   build` timed whole by the wall clock (process start and its output
+//!   included), peak RSS its `ru_maxrss`, the phase times, nodes and store
+//!   size read from the summary line it prints; then `BIN extract STORE
+//!   --level L` per level. Its levels are rows like the current build's
+//!   (setting `16384x2 @LABEL`), measured by the same metro; the report
+//!   adds a "Current ÷ baseline" table per input. The peers and `octolod
+//!   simplify` run at the current build's sizes only.
 //!
 //! Ratios are paired output by output within the run: each octolod output
 //! (setting, level, T triangles) against each peer's run whose target was T,

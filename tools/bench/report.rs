@@ -1,7 +1,7 @@
 //! `report<suffix>.md`: the tables, from a [`Report`] (a run's, or one read
 //! back from its JSON), and the pairing of outputs at the same target.
 
-use crate::types::{finite, Method, PairJson, Report, Row, RowChild};
+use crate::types::{finite, BuildOut, InputReport, Method, PairJson, Report, Row, RowChild};
 use std::fmt::Write as _;
 
 /// One octolod output (a level, or an `octolod simplify` run) against one
@@ -175,6 +175,14 @@ pub fn report_md(r: &Report) -> String {
     if let Some(l) = &r.label {
         let _ = writeln!(w, "Measured: {l}.\n");
     }
+    if !r.baselines.is_empty() {
+        let list: Vec<String> = r
+            .baselines
+            .iter()
+            .map(|b| format!("`@{}` = `{}`{}", b.label, b.bin.display(), b.version.as_ref().map_or(String::new(), |v| format!(" (`{v}`)"))))
+            .collect();
+        let _ = writeln!(w, "Baselines (older octolod executables, each built every setting through its command line): {}.\n", list.join(", "));
+    }
     let _ = writeln!(
         w,
         "Machine: {}, {} hardware threads, {:.1} GiB RAM. octolod uses all threads (rayon); meshoptimizer, the OOCS baseline and MeshLab's edge collapse (pymeshlab, when run) are single-threaded.\n",
@@ -242,6 +250,12 @@ pub fn report_md(r: &Report) -> String {
             None => String::new(),
         }
     );
+    if !r.baselines.is_empty() {
+        let _ = writeln!(
+            w,
+            "Baselines: rows whose setting ends in `@LABEL` are the same setting built by that `--baseline` executable through its command line (`BIN build IN -o STORE --leaf-tris L --level-ratio R --simplifier S --mem M`, then `BIN extract STORE --level L -o OUT` per level), measured like the current build's levels. Their time is the wall clock around the whole `build` command, so it includes process start and the binary's own output; peak RSS is the command's `ru_maxrss`; soup / octree / simplify seconds, nodes and the store's size are read from the summary line it prints (n/a where it does not). The peers and `octolod simplify` ran only at the current build's output sizes, so a baseline level pairs with a peer only where its size equals one of those. \"Current ÷ baseline\" divides each current figure by the baseline's for the same setting: below 1 means the current build takes less time, memory or error, except for throughput, where above 1 means it is faster.\n"
+        );
+    }
 
     for info in &r.inputs {
         let dim = info.builds.first().map(|b| b.quadric_dim);
@@ -278,6 +292,7 @@ pub fn report_md(r: &Report) -> String {
                 opt(b.timed.other_cpu_cores, |c| format!("{c:.2}")),
             );
         }
+        vs_baseline_section(w, info);
         let _ = writeln!(w, "\n### All outputs\n");
         let _ = writeln!(
             w,
@@ -379,6 +394,129 @@ pub fn report_md(r: &Report) -> String {
     let _ = writeln!(w, "![RMS error vs output size](error_vs_size{sfx}.svg)\n");
     let _ = writeln!(w, "Raw numbers: `report{sfx}.json`.");
     s
+}
+
+/// A `--baseline` build and the current build of the same setting, on one
+/// input.
+pub struct VsBaseline<'a> {
+    pub cur: &'a BuildOut,
+    pub base: &'a BuildOut,
+    /// Per level measured in both: (current row, baseline row).
+    pub levels: Vec<(&'a Row, &'a Row)>,
+}
+
+/// Every baseline build of an input with the current build of its setting.
+pub fn vs_baselines(info: &InputReport) -> Vec<VsBaseline<'_>> {
+    let mut out = Vec::new();
+    for base in info.builds.iter().filter(|b| b.baseline.is_some()) {
+        let Some(cur) = info.builds.iter().find(|c| c.baseline.is_none() && c.plain_setting() == base.plain_setting()) else { continue };
+        let (cs, bs) = (cur.setting(), base.setting());
+        let levels = info
+            .rows
+            .iter()
+            .filter(|r| r.method == Method::Octolod && r.setting == cs)
+            .filter_map(|c| Some((c, info.rows.iter().find(|r| r.method == Method::Octolod && r.setting == bs && r.level == c.level)?)))
+            .collect();
+        out.push(VsBaseline { cur, base, levels });
+    }
+    out
+}
+
+/// Current ÷ baseline, figure by figure (`n/a` where either is missing).
+fn cur_by_base(c: Option<f64>, b: Option<f64>) -> String {
+    opt(c.zip(b).map(|(c, b)| c / b), ratio)
+}
+
+/// The progress lines comparing each baseline with the current build.
+pub fn vs_baseline_lines(info: &InputReport) -> Vec<String> {
+    let n_in = info.triangles as f64;
+    let mut out = Vec::new();
+    for v in vs_baselines(info) {
+        let (c, b) = (&v.cur.timed, &v.base.timed);
+        out.push(format!(
+            "{} current ÷ @{}: build time {:.2} / {:.2} s = {}, M input tris/s {:.3} / {:.3} = {}, peak RSS {:.0} / {:.0} MiB = {}",
+            v.cur.setting(),
+            v.base.baseline.as_deref().unwrap_or("?"),
+            c.seconds,
+            b.seconds,
+            ratio(c.seconds / b.seconds),
+            n_in / c.seconds / 1e6,
+            n_in / b.seconds / 1e6,
+            ratio(b.seconds / c.seconds),
+            c.peak_rss_mib,
+            b.peak_rss_mib,
+            ratio(c.peak_rss_mib / b.peak_rss_mib),
+        ));
+        for (cr, br) in &v.levels {
+            out.push(format!(
+                "  L{}: triangles {} / {} = {}, RMS {}, Hausdorff {}",
+                cr.level.unwrap_or(0),
+                thousands(cr.triangles),
+                thousands(br.triangles),
+                ratio(cr.triangles as f64 / br.triangles as f64),
+                cur_by_base(cr.rms, br.rms),
+                cur_by_base(cr.hausdorff, br.hausdorff),
+            ));
+        }
+    }
+    out
+}
+
+/// The "Current ÷ baseline" tables of an input (nothing without baselines).
+fn vs_baseline_section(w: &mut String, info: &InputReport) {
+    let vs = vs_baselines(info);
+    if vs.is_empty() {
+        return;
+    }
+    let n_in = info.triangles as f64;
+    let _ = writeln!(w, "\n### Current ÷ baseline\n");
+    let _ =
+        writeln!(w, "Each figure is current / baseline, then their ratio (current ÷ baseline; for throughput, below 1 means the current build is slower).\n");
+    let _ = writeln!(w, "| setting | baseline | build time (s) | ÷ | M input tris/s | ÷ | peak RSS (MiB) | ÷ |");
+    let _ = writeln!(w, "|---|---|---:|---:|---:|---:|---:|---:|");
+    for v in &vs {
+        let (c, b) = (&v.cur.timed, &v.base.timed);
+        let (ct, bt) = (n_in / c.seconds / 1e6, n_in / b.seconds / 1e6);
+        let _ = writeln!(
+            w,
+            "| {} | @{} | {:.2} / {:.2} | {} | {ct:.3} / {bt:.3} | {} | {:.0} / {:.0} | {} |",
+            v.cur.setting(),
+            v.base.baseline.as_deref().unwrap_or("?"),
+            c.seconds,
+            b.seconds,
+            ratio(c.seconds / b.seconds),
+            ratio(ct / bt),
+            c.peak_rss_mib,
+            b.peak_rss_mib,
+            ratio(c.peak_rss_mib / b.peak_rss_mib),
+        );
+    }
+    if vs.iter().all(|v| v.levels.is_empty()) {
+        return;
+    }
+    let d = info.diagonal;
+    let _ = writeln!(w, "\n| setting | baseline | level | triangles | ÷ | RMS / diag | ÷ | Hausdorff / diag | ÷ |");
+    let _ = writeln!(w, "|---|---|---:|---:|---:|---:|---:|---:|---:|");
+    for v in &vs {
+        for (cr, br) in &v.levels {
+            let _ = writeln!(
+                w,
+                "| {} | @{} | L{} | {} / {} | {} | {} / {} | {} | {} / {} | {} |",
+                v.cur.setting(),
+                v.base.baseline.as_deref().unwrap_or("?"),
+                cr.level.unwrap_or(0),
+                thousands(cr.triangles),
+                thousands(br.triangles),
+                ratio(cr.triangles as f64 / br.triangles as f64),
+                opt(cr.rms.map(|x| x / d), sci),
+                opt(br.rms.map(|x| x / d), sci),
+                cur_by_base(cr.rms, br.rms),
+                opt(cr.hausdorff.map(|x| x / d), sci),
+                opt(br.hausdorff.map(|x| x / d), sci),
+                cur_by_base(cr.hausdorff, br.hausdorff),
+            );
+        }
+    }
 }
 
 /// `octolod simplify` against the peers at the same targets, and the

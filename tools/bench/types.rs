@@ -342,9 +342,13 @@ pub struct MachineJson {
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Row {
     pub method: Method,
-    /// `16384x2` for octolod levels, empty otherwise.
+    /// `16384x2` for octolod levels (`16384x2 @LABEL` for a baseline's),
+    /// empty otherwise.
     #[serde(default)]
     pub setting: String,
+    /// An octolod level built by `--baseline LABEL=BIN`: the label.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub baseline: Option<String>,
     /// octolod: the level.
     pub level: Option<u8>,
     /// Peers and `octolod simplify`: the triangles asked (an octolod
@@ -400,6 +404,7 @@ impl Row {
         Row {
             method,
             setting: String::new(),
+            baseline: None,
             level: None,
             target: None,
             triangles,
@@ -492,6 +497,15 @@ pub struct SweepRow {
     pub build: BuildOut,
 }
 
+/// One `--baseline LABEL=BIN`, as the report records it.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct BaselineJson {
+    pub label: String,
+    pub bin: PathBuf,
+    /// What `BIN --version` printed (first line), if it answers.
+    pub version: Option<String>,
+}
+
 /// `report<suffix>.json`: every number of a run.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Report {
@@ -501,6 +515,9 @@ pub struct Report {
     pub command: String,
     /// `--label`.
     pub label: Option<String>,
+    /// `--baseline`: older octolod executables built beside this one.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub baselines: Vec<BaselineJson>,
     /// `--from-json`: when and from what the Markdown was re-rendered.
     pub rerendered: Option<String>,
     pub machine: MachineJson,
