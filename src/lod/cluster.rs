@@ -58,6 +58,13 @@ pub struct NodeOut {
     pub members_first: Vec<u32>,
     pub members: Vec<u32>,
     pub stats: ClusterStats,
+    /// The distance its quadrics predict for the farthest representative:
+    /// the largest over representatives of √(residual ÷ area), their summed
+    /// quadric's error at their position over its weight (the trace of its
+    /// position block). A measured error far above it is surface the
+    /// quadrics did not see go (a thin part folded away, a floating piece
+    /// merged into one point).
+    pub predicted: f64,
 }
 
 /// Figures of one node's clustering.
@@ -912,6 +919,18 @@ impl<'a> Splits<'a> {
             }
         }
         st.clusters = reps.len() as u64;
+        let mut predicted2 = 0.0f64;
+        for r in 0..reps.len() {
+            let a = match rep_own_a[r] {
+                u32::MAX => self.rep_a(rep_cell[r] as usize),
+                w => &wedge_a[w as usize * al..(w as usize + 1) * al],
+            };
+            let area = (0..3).map(|k| a[diag_at(dim, k)]).sum::<f64>();
+            let e = rep_ge[r * (dim + 1) + dim];
+            if area > 0.0 && e.is_finite() {
+                predicted2 = predicted2.max(e / area);
+            }
+        }
         let (mesh, src) = compact(self.mesh, &remap, &reps, self.seams.as_ref().map(|sm| (sm, &rep_cell[..])));
         // Back to raw attribute units as they are copied out.
         let mut out_a = Vec::with_capacity(src.len() * cs);
@@ -955,7 +974,7 @@ impl<'a> Splits<'a> {
             }
         }
         let kept_from = src.iter().map(|&k| if k < nv { k as u32 } else { u32::MAX }).collect();
-        NodeOut { mesh, a: out_a, kept_from, members_first, members, stats: st }
+        NodeOut { mesh, a: out_a, kept_from, members_first, members, stats: st, predicted: predicted2.sqrt() }
     }
 
     /// Vertex `v`'s row (embedded at `p`): its quadric about its own

@@ -82,11 +82,36 @@ impl NodeSimplifier for ClusterNodes {
     }
 
     fn simplify(&self, n: &NodeInput, tau: f64, as_stored: &dyn Fn(&mut IndexedMesh)) -> Simplified {
-        let sp = Splits::to_threshold(n.mesh, n.carried, n.locked, n.pos_of, self.attrs, tau);
-        let mut out = sp.build(sp.steps(), self.rel_tol);
-        as_stored(&mut out.mesh);
-        let error = node_error(n.mesh, &out);
-        let locked = out.kept_from.iter().map(|&k| k != u32::MAX).collect();
+        let run = |locked: &[bool]| {
+            let sp = Splits::to_threshold(n.mesh, n.carried, locked, n.pos_of, self.attrs, tau);
+            let mut out = sp.build(sp.steps(), self.rel_tol);
+            as_stored(&mut out.mesh);
+            let error = node_error(n.mesh, &out);
+            (out, error)
+        };
+        let (mut out, mut error) = run(n.locked);
+        // As edge collapse does (`CollapseNodes::simplify`), against the
+        // distance the clusters' own quadrics predict: the threshold is a
+        // quadric error, not a distance.
+        let floor = REPAIR_FLOOR * node_extent(n.mesh);
+        let mut locked: Option<Vec<bool>> = None;
+        for _ in 0..REPAIR_ROUNDS {
+            if !(error.error > REPAIR_FACTOR * out.predicted && error.error > floor) {
+                break;
+            }
+            let l = locked.get_or_insert_with(|| n.locked.to_vec());
+            if lock_near(n.mesh, l, error.error, error.far.iter().chain(&error.far_reps)) == 0 {
+                break;
+            }
+            let (o, e) = run(l);
+            if !(e.error < error.error) {
+                break;
+            }
+            (out, error) = (o, e);
+        }
+        // Only the caller's locks are reported: the repair's are this
+        // node's own.
+        let locked = out.kept_from.iter().map(|&k| k != u32::MAX && n.locked[k as usize]).collect();
         Simplified { clamped: out.stats.clamped, mesh: out.mesh, carried: out.a, locked, error }
     }
 }
@@ -133,7 +158,7 @@ impl NodeSimplifier for CollapseNodes {
                 break;
             }
             let l = locked.get_or_insert_with(|| n.locked.to_vec());
-            if lock_near(n.mesh, l, error.far.iter().chain(&error.far_reps)) == 0 {
+            if lock_near(n.mesh, l, error.error, error.far.iter().chain(&error.far_reps)) == 0 {
                 break;
             }
             let (o, f, e) = run(l);
@@ -152,11 +177,31 @@ impl NodeSimplifier for CollapseNodes {
 const REPAIR_FACTOR: f64 = 4.0;
 /// At most this many such passes per node.
 const REPAIR_ROUNDS: usize = 2;
+/// Errors below this share of a node's extent are never repaired.
+const REPAIR_FLOOR: f64 = 1e-4;
+
+/// The diagonal of the box of a mesh's referenced vertices.
+fn node_extent(mesh: &IndexedMesh) -> f64 {
+    let mut b = crate::mesh::Aabb::EMPTY;
+    for t in &mesh.triangles {
+        for &v in t {
+            b.add(mesh.vertices[v as usize].pos);
+        }
+    }
+    if b.is_empty() {
+        0.0
+    } else {
+        b.diagonal()
+    }
+}
 
 /// Locks every vertex of `mesh` within its distance of one of `far`
-/// (point, distance to the other side); returns how many it newly locked.
-fn lock_near<'a>(mesh: &IndexedMesh, locked: &mut [bool], far: impl Iterator<Item = &'a ([f64; 3], f64)>) -> usize {
-    let far: Vec<([f64; 3], f64)> = far.map(|&(p, d)| (p, d * d)).collect();
+/// (point, distance to the other side) that is at least a quarter of
+/// `error` away (the others are not what set it, and vertices locked here
+/// and there in a coarse clustering only fold its triangles); returns how
+/// many it newly locked.
+fn lock_near<'a>(mesh: &IndexedMesh, locked: &mut [bool], error: f64, far: impl Iterator<Item = &'a ([f64; 3], f64)>) -> usize {
+    let far: Vec<([f64; 3], f64)> = far.filter(|f| f.1 >= 0.25 * error).map(|&(p, d)| (p, d * d)).collect();
     let mut added = 0;
     for (v, l) in mesh.vertices.iter().zip(locked.iter_mut()) {
         if *l {
@@ -301,13 +346,14 @@ mod tests {
         }
     }
 
-    /// A small closed box floating 0.1 above a flat grid: edge collapse
-    /// may fold it to a point within a limit of 0.01 (its size is 0.002),
-    /// which would leave its surface 0.1 from any output. The node's
-    /// measured error gives it away and the node is collapsed again with
-    /// the box kept.
+    /// A small closed box floating 0.1 above a flat grid: either simplifier
+    /// may fold it to a point (edge collapse within a limit of 0.01, its
+    /// size being 0.002; clustering merges it into one cluster), which
+    /// would leave its surface 0.1 from any output. The node's measured
+    /// error gives it away and the node is simplified again with the box
+    /// kept.
     #[test]
-    fn a_collapse_that_loses_a_floating_piece_is_repaired() {
+    fn a_simplification_that_loses_a_floating_piece_is_repaired() {
         let mut m = grid(16, false);
         let base = m.vertices.len() as u32;
         let (c, h) = ([0.5, 0.5, 0.1], 0.001);
@@ -322,19 +368,25 @@ mod tests {
             m.triangles.push([base + f[0], base + f[2], base + f[3]]);
         }
         let locked = vec![false; m.vertices.len()];
-        let limit = 0.01;
+        let node = NodeInput { mesh: &m, carried: None, locked: &locked, pos_of: None };
+        let attrs = AttrSet::default();
         let high = |mesh: &IndexedMesh| mesh.triangles.iter().filter(|t| t.iter().all(|&v| mesh.vertices[v as usize].pos[2] > 0.05)).count();
-        // Without the repair the box goes: the collapse alone folds it away.
-        let alone = collapse::collapse(&m, &locked, AttrSet::default(), 0, Some(limit));
+        // Without the repair the box goes.
+        let (limit, tau) = (0.01, 1e-3);
+        let alone = collapse::collapse(&m, &locked, attrs, 0, Some(limit));
         let kept: Vec<[u32; 3]> = collapse::unfold(&alone.vertices, &alone.triangles);
         assert_eq!(high(&collapse::compact(&alone.vertices, &kept).0), 0, "the box survived the collapse alone: the test no longer tests the repair");
-        let out = CollapseNodes { attrs: AttrSet::default() }.simplify(&NodeInput { mesh: &m, carried: None, locked: &locked, pos_of: None }, limit, &|_| {});
-        assert_eq!(high(&out.mesh), 12, "the box is kept whole");
-        assert!(out.error.error <= REPAIR_FACTOR * limit, "error {} after the repair", out.error.error);
-        // The grid still simplifies, and no vertex is reported locked (the
-        // repair's locks are not shared positions).
-        assert!(out.mesh.triangles.len() < 100, "{} triangles", out.mesh.triangles.len());
-        assert!(out.locked.iter().all(|&l| !l));
+        let sp = Splits::to_threshold(&m, None, &locked, None, attrs, tau);
+        assert_eq!(high(&sp.build(sp.steps(), 1e-3).mesh), 0, "the box survived the clustering alone: the test no longer tests the repair");
+        let outs = [CollapseNodes { attrs }.simplify(&node, limit, &|_| {}), ClusterNodes { attrs, rel_tol: 1e-3 }.simplify(&node, tau, &|_| {})];
+        for (out, name) in outs.iter().zip(["collapse", "cluster"]) {
+            assert_eq!(high(&out.mesh), 12, "{name}: the box is kept whole");
+            assert!(out.error.error < 0.01, "{name}: error {} after the repair", out.error.error);
+            // The grid still simplifies, and no vertex is reported locked
+            // (the repair's locks are not shared positions).
+            assert!(out.mesh.triangles.len() < 100, "{name}: {} triangles", out.mesh.triangles.len());
+            assert!(out.locked.iter().all(|&l| !l), "{name}");
+        }
     }
 
     #[test]
