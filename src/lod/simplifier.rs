@@ -172,8 +172,10 @@ impl NodeSimplifier for CollapseNodes {
     }
 }
 
-/// A node whose measured error exceeds this many times its level's limit
-/// is collapsed again with the input around its far points kept.
+/// A node whose measured error exceeds this many times what its
+/// simplifier predicted (edge collapse: the level's limit; clustering: its
+/// representatives' quadric distance, `NodeOut::predicted`) is simplified
+/// again with the input around its far points kept.
 const REPAIR_FACTOR: f64 = 4.0;
 /// At most this many such passes per node.
 const REPAIR_ROUNDS: usize = 2;
