@@ -89,26 +89,10 @@ impl NodeSimplifier for ClusterNodes {
             let error = node_error(n.mesh, &out);
             (out, error)
         };
-        let (mut out, mut error) = run(n.locked);
-        // As edge collapse does (`CollapseNodes::simplify`), against the
-        // distance the clusters' own quadrics predict: the threshold is a
-        // quadric error, not a distance.
+        // Against the distance the clusters' own quadrics predict: the
+        // threshold is a quadric error, not a distance.
         let floor = REPAIR_FLOOR * node_extent(n.mesh);
-        let mut locked: Option<Vec<bool>> = None;
-        for _ in 0..REPAIR_ROUNDS {
-            if !(error.error > REPAIR_FACTOR * out.predicted && error.error > floor) {
-                break;
-            }
-            let l = locked.get_or_insert_with(|| n.locked.to_vec());
-            if lock_near(n.mesh, l, error.error, error.far.iter().chain(&error.far_reps)) == 0 {
-                break;
-            }
-            let (o, e) = run(l);
-            if !(e.error < error.error) {
-                break;
-            }
-            (out, error) = (o, e);
-        }
+        let (out, error) = repaired(n, run(n.locked), |o| o.predicted, floor, run);
         // Only the caller's locks are reported: the repair's are this
         // node's own.
         let locked = out.kept_from.iter().map(|&k| k != u32::MAX && n.locked[k as usize]).collect();
@@ -144,29 +128,9 @@ impl NodeSimplifier for CollapseNodes {
             let (mut out, from) = collapse::compact(&c.vertices, &collapse::unfold(&c.vertices, &c.triangles));
             as_stored(&mut out);
             let error = collapse::collapse_error(n.mesh, locked, &out, &from);
-            (out, from, error)
+            ((out, from), error)
         };
-        let (mut out, mut from, mut error) = run(n.locked);
-        // Surface the quadrics do not see go (a thin fin whose two sides
-        // meet and fold away, a floating piece collapsed to a point, a
-        // double sheet retracting in its own plane): its measured error
-        // stands far above the limit. The input around the points that set
-        // it is kept as it is, and the node collapsed again.
-        let mut locked: Option<Vec<bool>> = None;
-        for _ in 0..REPAIR_ROUNDS {
-            if !(error.error > REPAIR_FACTOR * limit) {
-                break;
-            }
-            let l = locked.get_or_insert_with(|| n.locked.to_vec());
-            if lock_near(n.mesh, l, error.error, error.far.iter().chain(&error.far_reps)) == 0 {
-                break;
-            }
-            let (o, f, e) = run(l);
-            if !(e.error < error.error) {
-                break;
-            }
-            (out, from, error) = (o, f, e);
-        }
+        let ((out, from), error) = repaired(n, run(n.locked), |_| limit, 0.0, run);
         let locked = from.iter().map(|&f| n.locked[f as usize]).collect();
         Simplified { mesh: out, carried: Vec::new(), locked, error, clamped: 0 }
     }
@@ -181,6 +145,34 @@ const REPAIR_FACTOR: f64 = 4.0;
 const REPAIR_ROUNDS: usize = 2;
 /// Errors below this share of a node's extent are never repaired.
 const REPAIR_FLOOR: f64 = 1e-4;
+
+/// A node's simplification `first` (output, measured error), repaired:
+/// surface the quadrics do not see go (a thin fin whose two sides meet and
+/// fold away, a floating piece collapsed to a point or merged into one
+/// cluster, a double sheet retracting in its own plane) while its measured
+/// error stands above `REPAIR_FACTOR` × what the simplifier `predicted`
+/// (and above `floor`); the input around the points that set it is then
+/// kept as it is and the node simplified again by `run` with those locks,
+/// at most `REPAIR_ROUNDS` times, each pass kept only when the error drops.
+fn repaired<T>(n: &NodeInput, first: (T, NodeError), predicted: impl Fn(&T) -> f64, floor: f64, run: impl Fn(&[bool]) -> (T, NodeError)) -> (T, NodeError) {
+    let (mut out, mut error) = first;
+    let mut locked: Option<Vec<bool>> = None;
+    for _ in 0..REPAIR_ROUNDS {
+        if !(error.error > REPAIR_FACTOR * predicted(&out) && error.error > floor) {
+            break;
+        }
+        let l = locked.get_or_insert_with(|| n.locked.to_vec());
+        if lock_near(n.mesh, l, error.error, error.far.iter().chain(&error.far_reps)) == 0 {
+            break;
+        }
+        let (o, e) = run(l);
+        if !(e.error < error.error) {
+            break;
+        }
+        (out, error) = (o, e);
+    }
+    (out, error)
+}
 
 /// The diagonal of the box of a mesh's referenced vertices.
 fn node_extent(mesh: &IndexedMesh) -> f64 {
