@@ -745,6 +745,72 @@ impl<'a> Splits<'a> {
             .count()
     }
 
+    /// Output triangles after each of `steps` splits: [`Splits::count_at`]
+    /// of each, from one pass over the triangles where no chart joins a
+    /// seam cluster ([`Splits::births`]).
+    pub fn counts_at(&self, steps: &[u32]) -> Vec<usize> {
+        match self.births() {
+            Some(b) => steps.iter().map(|&s| b.partition_point(|&x| x <= s)).collect(),
+            None => steps.iter().map(|&s| self.count_at(s)).collect(),
+        }
+    }
+
+    /// Each triangle's birth, sorted: the fewest splits after which its
+    /// corners are three distinct output vertices (`u32::MAX`: never), so
+    /// that [`Splits::count_at`]`(s)` is the number of births at most `s`.
+    /// Two free corners part when the cell that is their lowest common
+    /// ancestor is split (its children are created at that step, and
+    /// creation steps grow down the tree); a locked corner is apart from
+    /// every free one, and from another locked one unless they are one
+    /// position. One pass instead of one per prefix (a τ curve asks up to
+    /// 25). `None` when charts join seam clusters (`merges`: the clusters
+    /// then depend on the threshold too).
+    fn births(&self) -> Option<Vec<u32>> {
+        if !self.merges.is_empty() {
+            return None;
+        }
+        if self.free.is_empty() {
+            return Some(vec![0; self.mesh.triangles.len()]);
+        }
+        let mut split_at = vec![u32::MAX; self.cells.len()];
+        for c in &self.cells {
+            if c.parent != u32::MAX {
+                split_at[c.parent as usize] = c.created;
+            }
+        }
+        let pos_of = self.seams.as_ref().map(|sm| &sm.pos_of[..]);
+        // Cells are numbered as they are made, children after their
+        // parent: walking up from the larger index meets the ancestor.
+        let apart = |x: u32, y: u32| -> u32 {
+            match (self.slot[x as usize], self.slot[y as usize]) {
+                (u32::MAX, u32::MAX) => {
+                    let key = |v: u32| pos_of.map_or(v, |p| p[v as usize]);
+                    if key(x) == key(y) {
+                        u32::MAX
+                    } else {
+                        0
+                    }
+                }
+                (u32::MAX, _) | (_, u32::MAX) => 0,
+                (i, j) => {
+                    let (mut a, mut b) = (self.leaf_of[i as usize], self.leaf_of[j as usize]);
+                    while a != b {
+                        let up = if a > b { &mut a } else { &mut b };
+                        let p = self.cells[*up as usize].parent;
+                        if p == u32::MAX {
+                            return 0; // different roots
+                        }
+                        *up = p;
+                    }
+                    split_at[a as usize]
+                }
+            }
+        };
+        let mut b: Vec<u32> = self.mesh.triangles.iter().map(|t| apart(t[0], t[1]).max(apart(t[1], t[2])).max(apart(t[0], t[2]))).collect();
+        b.sort_unstable();
+        Some(b)
+    }
+
     /// The fewest splits giving at least `target` triangles (all of them
     /// when even those give fewer), by bisection.
     pub fn steps_for_target(&self, target: usize) -> u32 {
@@ -1627,5 +1693,50 @@ mod tests {
             assert_eq!(a.mesh.triangles, b.mesh.triangles, "tau {tau}");
             assert_eq!(a.a, b.a, "tau {tau}");
         }
+    }
+
+    #[test]
+    fn counts_from_births_are_the_counts_of_each_prefix() {
+        let m = coloured_grid(20);
+        let nv = m.vertices.len();
+        // Locked: the border row and a few scattered vertices.
+        let locked: Vec<bool> = (0..nv).map(|v| v < 21 || v % 17 == 0).collect();
+        for attrs in [AttrSet::default(), AttrSet(AttrSet::NORMAL | AttrSet::COLOR)] {
+            for lock in [&vec![false; nv], &locked] {
+                let sp = Splits::new(&m, None, lock, None, attrs, usize::MAX, 0.0);
+                assert!(sp.births().is_some());
+                let steps: Vec<u32> = (0..=sp.steps()).collect();
+                let want: Vec<usize> = steps.iter().map(|&s| sp.count_at(s)).collect();
+                assert_eq!(sp.counts_at(&steps), want);
+                assert!(want[0] < want[steps.len() - 1], "the splits make triangles");
+            }
+        }
+        // Seams: the grid cut along a column into two uv islands (wedges
+        // of one position), the ones on the border locked.
+        let mut cut = m.clone();
+        let n = 21u32;
+        let mut twin = vec![u32::MAX; nv];
+        for y in 0..n {
+            let v = y * n + 10;
+            twin[v as usize] = cut.vertices.len() as u32;
+            let mut w = cut.vertices[v as usize];
+            w.uv = [0.9, 0.9];
+            cut.vertices.push(w);
+        }
+        for t in cut.triangles.iter_mut() {
+            if t.iter().any(|&v| v % n > 10) {
+                for v in t.iter_mut() {
+                    if twin[*v as usize] != u32::MAX {
+                        *v = twin[*v as usize];
+                    }
+                }
+            }
+        }
+        let lock: Vec<bool> = (0..cut.vertices.len()).map(|v| v < 21 || (v >= nv && v == nv)).collect();
+        let sp = Splits::new(&cut, None, &lock, None, AttrSet(AttrSet::UV), usize::MAX, 0.0);
+        assert!(sp.seams.is_some());
+        let steps: Vec<u32> = (0..=sp.steps()).collect();
+        let want: Vec<usize> = steps.iter().map(|&s| sp.count_at(s)).collect();
+        assert_eq!(sp.counts_at(&steps), want);
     }
 }

@@ -224,7 +224,7 @@ impl SplitCurve {
         let n = sp.steps();
         let mut steps: Vec<u32> = (0..=24).map(|j| ((n as u64 * j as u64 * j as u64) / (24 * 24)) as u32).collect();
         steps.dedup();
-        let counts = steps.iter().map(|&s| (s, sp.count_at(s) as f64)).collect();
+        let counts = steps.iter().zip(sp.counts_at(&steps)).map(|(&s, c)| (s, c as f64)).collect();
         SplitCurve { tris: tris as u64, prio: sp.priorities().to_vec(), counts }
     }
 
