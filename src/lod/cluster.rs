@@ -747,7 +747,7 @@ impl<'a> Splits<'a> {
 
     /// Output triangles after each of `steps` splits: [`Splits::count_at`]
     /// of each, from one pass over the triangles where no chart joins a
-    /// seam cluster ([`Splits::births`]).
+    /// seam cluster (`Splits::births`).
     pub fn counts_at(&self, steps: &[u32]) -> Vec<usize> {
         match self.births() {
             Some(b) => steps.iter().map(|&s| b.partition_point(|&x| x <= s)).collect(),
