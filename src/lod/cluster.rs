@@ -772,6 +772,8 @@ impl<'a> Splits<'a> {
         if self.free.is_empty() {
             return Some(vec![0; self.mesh.triangles.len()]);
         }
+        // The walks read parents alone: a compact table, not the cells.
+        let parent: Vec<u32> = self.cells.iter().map(|c| c.parent).collect();
         let mut split_at = vec![u32::MAX; self.cells.len()];
         for c in &self.cells {
             if c.parent != u32::MAX {
@@ -796,7 +798,7 @@ impl<'a> Splits<'a> {
                     let (mut a, mut b) = (self.leaf_of[i as usize], self.leaf_of[j as usize]);
                     while a != b {
                         let up = if a > b { &mut a } else { &mut b };
-                        let p = self.cells[*up as usize].parent;
+                        let p = parent[*up as usize];
                         if p == u32::MAX {
                             return 0; // different roots
                         }
