@@ -1734,7 +1734,7 @@ mod tests {
                 }
             }
         }
-        let lock: Vec<bool> = (0..cut.vertices.len()).map(|v| v < 21 || (v >= nv && v == nv)).collect();
+        let lock: Vec<bool> = (0..cut.vertices.len()).map(|v| v < 21 || v == nv).collect();
         let sp = Splits::new(&cut, None, &lock, None, AttrSet(AttrSet::UV), usize::MAX, 0.0);
         assert!(sp.seams.is_some());
         let steps: Vec<u32> = (0..=sp.steps()).collect();
