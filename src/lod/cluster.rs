@@ -749,9 +749,17 @@ impl<'a> Splits<'a> {
     /// of each, from one pass over the triangles where no chart joins a
     /// seam cluster (`Splits::births`).
     pub fn counts_at(&self, steps: &[u32]) -> Vec<usize> {
-        match self.births() {
-            Some(b) => steps.iter().map(|&s| b.partition_point(|&x| x <= s)).collect(),
-            None => steps.iter().map(|&s| self.count_at(s)).collect(),
+        let count = self.counter();
+        steps.iter().map(|&s| count(s)).collect()
+    }
+
+    /// [`Splits::count_at`] as a function of the prefix, read off the
+    /// births (made once) where there are any.
+    fn counter(&self) -> impl Fn(u32) -> usize + '_ {
+        let births = self.births();
+        move |s| match &births {
+            Some(b) => b.partition_point(|&x| x <= s),
+            None => self.count_at(s),
         }
     }
 
@@ -817,19 +825,20 @@ impl<'a> Splits<'a> {
     /// when even those give fewer), by bisection.
     pub fn steps_for_target(&self, target: usize) -> u32 {
         let n = self.steps();
-        if self.count_at(n) <= target {
+        let count = self.counter();
+        if count(n) <= target {
             return n;
         }
         let (mut lo, mut hi) = (0u32, n);
         while hi - lo > 1 {
             let m = lo + (hi - lo) / 2;
-            if self.count_at(m) >= target {
+            if count(m) >= target {
                 hi = m;
             } else {
                 lo = m;
             }
         }
-        if self.count_at(lo) >= target {
+        if count(lo) >= target {
             lo
         } else {
             hi

@@ -91,7 +91,7 @@ impl NodeSimplifier for ClusterNodes {
         };
         // Against the distance the clusters' own quadrics predict: the
         // threshold is a quadric error, not a distance.
-        let floor = REPAIR_FLOOR * node_extent(n.mesh);
+        let floor = || REPAIR_FLOOR * node_extent(n.mesh);
         let (out, error) = repaired(n, run(n.locked), |o| o.predicted, floor, run);
         // Only the caller's locks are reported: the repair's are this
         // node's own.
@@ -130,7 +130,7 @@ impl NodeSimplifier for CollapseNodes {
             let error = collapse::collapse_error(n.mesh, locked, &out, &from);
             ((out, from), error)
         };
-        let ((out, from), error) = repaired(n, run(n.locked), |_| limit, 0.0, run);
+        let ((out, from), error) = repaired(n, run(n.locked), |_| limit, || 0.0, run);
         let locked = from.iter().map(|&f| n.locked[f as usize]).collect();
         Simplified { mesh: out, carried: Vec::new(), locked, error, clamped: 0 }
     }
@@ -151,14 +151,21 @@ const REPAIR_FLOOR: f64 = 1e-4;
 /// fold away, a floating piece collapsed to a point or merged into one
 /// cluster, a double sheet retracting in its own plane) while its measured
 /// error stands above `REPAIR_FACTOR` × what the simplifier `predicted`
-/// (and above `floor`); the input around the points that set it is then
+/// (and above `floor`, evaluated only then: most nodes need no repair);
+/// the input around the points that set it is then
 /// kept as it is and the node simplified again by `run` with those locks,
 /// at most `REPAIR_ROUNDS` times, each pass kept only when the error drops.
-fn repaired<T>(n: &NodeInput, first: (T, NodeError), predicted: impl Fn(&T) -> f64, floor: f64, run: impl Fn(&[bool]) -> (T, NodeError)) -> (T, NodeError) {
+fn repaired<T>(
+    n: &NodeInput,
+    first: (T, NodeError),
+    predicted: impl Fn(&T) -> f64,
+    floor: impl Fn() -> f64,
+    run: impl Fn(&[bool]) -> (T, NodeError),
+) -> (T, NodeError) {
     let (mut out, mut error) = first;
     let mut locked: Option<Vec<bool>> = None;
     for _ in 0..REPAIR_ROUNDS {
-        if !(error.error > REPAIR_FACTOR * predicted(&out) && error.error > floor) {
+        if !(error.error > REPAIR_FACTOR * predicted(&out) && error.error > floor()) {
             break;
         }
         let l = locked.get_or_insert_with(|| n.locked.to_vec());
