@@ -214,7 +214,7 @@ pub trait WithSimplifier {
 pub fn with_simplifier<W: WithSimplifier>(opts: &LodOptions, attrs: crate::mesh::AttrSet, w: W) -> W::Out {
     match opts.params.simplifier.resolve(attrs) {
         Simplifier::Cluster | Simplifier::Auto => w.run(ClusterNodes { attrs, rel_tol: opts.rel_tol }),
-        Simplifier::Collapse => w.run(CollapseNodes { attrs }),
+        Simplifier::Collapse => w.run(CollapseNodes { attrs, share: 1.0 / opts.params.level_ratio }),
     }
 }
 

@@ -105,6 +105,9 @@ impl NodeSimplifier for ClusterNodes {
 /// level; its quadrics come from the mesh it is given, so none is carried.
 pub struct CollapseNodes {
     pub attrs: AttrSet,
+    /// The share of its triangles a level keeps (1/`--level-ratio`): the
+    /// sampled curves are measured around it.
+    pub share: f64,
 }
 
 impl NodeSimplifier for CollapseNodes {
@@ -115,7 +118,7 @@ impl NodeSimplifier for CollapseNodes {
     }
 
     fn curve(&self, n: &NodeInput) -> collapse::ErrorCurve {
-        collapse::ErrorCurve::of(n.mesh, n.locked, self.attrs)
+        collapse::ErrorCurve::of(n.mesh, n.locked, self.attrs, self.share)
     }
 
     fn choose_limit(&self, curves: &[collapse::ErrorCurve], share: f64) -> (f64, f64) {
@@ -324,7 +327,7 @@ mod tests {
     #[test]
     fn both_simplifiers_meet_the_chosen_limit() {
         check(&ClusterNodes { attrs: AttrSet::default(), rel_tol: 1e-3 });
-        check(&CollapseNodes { attrs: AttrSet::default() });
+        check(&CollapseNodes { attrs: AttrSet::default(), share: 0.5 });
     }
 
     #[test]
@@ -334,7 +337,7 @@ mod tests {
         let locked: Vec<bool> = m.vertices.iter().map(|v| v.pos[0] == 0.0 || v.pos[0] == 1.0 || v.pos[1] == 0.0 || v.pos[1] == 1.0).collect();
         let ring = locked.iter().filter(|&&l| l).count();
         let cl: [&dyn Fn(&NodeInput) -> Simplified; 2] = [&|n| ClusterNodes { attrs: AttrSet::default(), rel_tol: 1e-3 }.simplify(n, 1e-2, &|_| {}), &|n| {
-            CollapseNodes { attrs: AttrSet::default() }.simplify(n, 1e-2, &|_| {})
+            CollapseNodes { attrs: AttrSet::default(), share: 0.5 }.simplify(n, 1e-2, &|_| {})
         }];
         for f in cl {
             let out = f(&NodeInput { mesh: &m, carried: None, locked: &locked, pos_of: None });
@@ -379,7 +382,7 @@ mod tests {
         assert_eq!(high(&collapse::compact(&alone.vertices, &kept).0), 0, "the box survived the collapse alone: the test no longer tests the repair");
         let sp = Splits::to_threshold(&m, None, &locked, None, attrs, tau);
         assert_eq!(high(&sp.build(sp.steps(), 1e-3).mesh), 0, "the box survived the clustering alone: the test no longer tests the repair");
-        let outs = [CollapseNodes { attrs }.simplify(&node, limit, &|_| {}), ClusterNodes { attrs, rel_tol: 1e-3 }.simplify(&node, tau, &|_| {})];
+        let outs = [CollapseNodes { attrs, share: 0.5 }.simplify(&node, limit, &|_| {}), ClusterNodes { attrs, rel_tol: 1e-3 }.simplify(&node, tau, &|_| {})];
         for (out, name) in outs.iter().zip(["collapse", "cluster"]) {
             assert_eq!(high(&out.mesh), 12, "{name}: the box is kept whole");
             assert!(out.error.error < 0.01, "{name}: error {} after the repair", out.error.error);
