@@ -244,7 +244,7 @@ impl ErrorCurve {
     /// count stops it), but the mesh is prepared once and only the count
     /// and error are kept: the output's vertices are not made.
     /// `share`: the share of its triangles the level keeps (the curve's
-    /// points are around it, [`CURVE_FACTORS`]).
+    /// points are around it, `CURVE_FACTORS`).
     pub fn of(mesh: &IndexedMesh, locked: &[bool], attrs: AttrSet, share: f64) -> ErrorCurve {
         let n = mesh.triangles.len();
         let mut points: Vec<(f64, f64)> = Vec::new();
