@@ -1126,8 +1126,8 @@ impl Quadric {
                 }
             }
             if nf > 0 {
-                let mut hf = [[0.0; MAX_DIM]; MAX_DIM];
-                let mut r = [0.0; MAX_DIM];
+                let mut hf = [[0.0; 3]; 3];
+                let mut r = [0.0; 3];
                 for (ii, &i) in free[..nf].iter().enumerate() {
                     let mut ri = -g[i];
                     for l in 0..3 {
@@ -1141,8 +1141,8 @@ impl Quadric {
                     }
                     r[ii] = ri;
                 }
-                let mut dy = [0.0; MAX_DIM];
-                Eigen::new(&hf, nf).pinv_apply(rel_tol, &r, &mut dy);
+                let mut dy = [0.0; 3];
+                eigen::pinv_apply_small(&hf, nf, rel_tol, &r, &mut dy);
                 let mut feasible = true;
                 for (ii, &i) in free[..nf].iter().enumerate() {
                     let v = start[i] + dy[ii];
