@@ -177,6 +177,9 @@ pub struct NodeMesh {
 pub fn encode_payload(layout: &VertexLayout, m: &IndexedMesh, patches: &[(u32, u32)], out: &mut Vec<u8>) {
     out.clear();
     let nv = m.vertices.len();
+    // Its exact size up front: grown by doubling, the payload was copied
+    // over a few times.
+    out.reserve(16 + 8 * patches.len() + nv * layout.size + 3 * m.triangles.len() * index_width(nv));
     for x in [nv as u32, m.triangles.len() as u32, index_width(nv) as u32, patches.len() as u32] {
         out.extend_from_slice(&x.to_le_bytes());
     }

@@ -293,6 +293,9 @@ impl ChunkEncoder {
     /// See [`ChunkFile::encode`].
     pub fn encode(&self, target: u32, source: u32, m: &IndexedMesh, a: &[f32], locked: &[bool], out: &mut Vec<u8>) {
         out.clear();
+        // Its exact size up front (grown by doubling it was copied over).
+        let iw = crate::store::index_width(m.vertices.len());
+        out.reserve(16 + m.vertices.len() * (self.layout.size + 4 * self.a_len + 1) + 3 * m.triangles.len() * iw);
         for x in [target, source, m.vertices.len() as u32, m.triangles.len() as u32] {
             out.extend_from_slice(&x.to_le_bytes());
         }

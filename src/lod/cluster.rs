@@ -879,6 +879,12 @@ impl<'a> Splits<'a> {
                 .fold(([f32::MAX; 2], [f32::MIN; 2]), |(lo, hi), v| ([lo[0].min(v.uv[0]), lo[1].min(v.uv[1])], [hi[0].max(v.uv[0]), hi[1].max(v.uv[1])]))
         });
         if !self.free.is_empty() {
+            // At most a representative per free vertex: reserved, not grown.
+            let most = self.free.len();
+            rep_cell.reserve(most);
+            reps.reserve(most);
+            rep_own_a.reserve(most);
+            rep_ge.reserve(most * (dim + 1));
             let a = self.assign(s);
             let wedges = self.seams.as_ref().map(|sm| self.wedges(&a, sm));
             let mut rep_of_cell = vec![u32::MAX; self.cells.len()];
@@ -1525,8 +1531,11 @@ fn compact(mesh: &IndexedMesh, remap: &[u32], reps: &[Vertex], welded: Option<(&
         }
     };
     let mut map = vec![u32::MAX; nv + reps.len()];
-    let mut out = IndexedMesh::default();
-    let mut src = Vec::new();
+    // Room for every image kept and each source once (an upper bound):
+    // reserved, not grown by doubling.
+    let most_v = (nv + reps.len()).min(3 * images.len());
+    let mut out = IndexedMesh { vertices: Vec::with_capacity(most_v), triangles: Vec::with_capacity(images.len()) };
+    let mut src = Vec::with_capacity(most_v);
     for (k, _) in images.iter().zip(&keep).filter(|(_, &x)| x) {
         let mut nt = [0u32; 3];
         for c in 0..3 {
