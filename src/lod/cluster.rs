@@ -43,6 +43,7 @@ use crate::mesh::IndexedMesh;
 use crate::mesh::{Aabb, AttrSet, Vertex};
 use crate::quadric::{carry_len, AttrWeights, Quadric, QuadricSpace, MAX_DIM};
 use std::collections::BinaryHeap;
+use std::sync::Arc;
 
 /// A node's simplified mesh and where each of its vertices came from.
 #[derive(Clone, Debug, Default)]
@@ -65,6 +66,10 @@ pub struct NodeOut {
     /// quadrics did not see go (a thin part folded away, a floating piece
     /// merged into one point).
     pub predicted: f64,
+    /// The input's triangles around each vertex
+    /// ([`super::vertex_triangles`]) where the clustering made them (level
+    /// 0's border planes): the node error's input side reuses them.
+    pub in_fans: Option<Arc<(Vec<u32>, Vec<u32>)>>,
 }
 
 /// Figures of one node's clustering.
@@ -135,6 +140,8 @@ pub struct Splits<'a> {
     stop: f64,
     left_max: Vec<f64>,
     pub stats: ClusterStats,
+    /// The mesh's triangles around each vertex, where made (level 0).
+    in_fans: Option<Arc<(Vec<u32>, Vec<u32>)>>,
 }
 
 /// A node's attribute seams: positions holding several vertices (wedges:
@@ -452,6 +459,7 @@ impl<'a> Splits<'a> {
             stop: 0.0,
             left_max: Vec::new(),
             stats,
+            in_fans: None,
         };
         // Per vertex: its quadric matrix (propagated, or its triangles' sum).
         let embedded: Vec<[f64; MAX_DIM]> = mesh.vertices.iter().map(|v| sp.space.embed(v)).collect();
@@ -481,7 +489,9 @@ impl<'a> Splits<'a> {
                         }
                     }
                 }
-                add_border_planes(mesh, locked, sp.seams.as_ref().map(|s| &s.seam[..]), dim, cs, &mut va);
+                let fans = super::vertex_triangles(nv, &mesh.triangles);
+                add_border_planes(mesh, &fans, locked, sp.seams.as_ref().map(|s| &s.seam[..]), dim, cs, &mut va);
+                sp.in_fans = Some(Arc::new(fans));
                 va
             }
         };
@@ -543,7 +553,6 @@ impl<'a> Splits<'a> {
         let nt = tree.nodes.len();
         sp.cq = Vec::with_capacity(nt * cl);
         let mut q_at = vec![0u32; nt];
-        let mut tp = vec![0.0f64; nt];
         // Row lengths of every dimension a mesh can have: 3, 5, 6
         // (positions; +uv; +normal or colour), 8, 9 and 11 (+two or three
         // of them), so the sums unroll.
@@ -577,8 +586,11 @@ impl<'a> Splits<'a> {
                 }
             }
             q_at[t] = (at / cl) as u32;
-            tp[t] = prio(&sp.cq[at..at + cl]);
         }
+        // A cell's priority is taken when it is made: the cells below an
+        // unsplit one (about half the tree at a level's threshold) never
+        // need theirs.
+        let prio_of = |cq: &[f64], t: usize| prio(&cq[q_at[t] as usize * cl..(q_at[t] as usize + 1) * cl]);
         // The greedy sequence over the tree: cells are numbered as they
         // are made (roots first, then each split's low and high child).
         let mut node_of: Vec<u32> = Vec::with_capacity(nt);
@@ -590,7 +602,7 @@ impl<'a> Splits<'a> {
             sp.cells.push(Cell { lo: rlo, hi: rhi, start: start as u32, end: end as u32, created: 0, parent: u32::MAX, q: q_at[r] });
             node_of.push(r as u32);
             split.push(false);
-            heap.push(Prio(tp[r], c as u32));
+            heap.push(Prio(prio_of(&sp.cq, r), c as u32));
         }
         let mut clusters = roots.len();
         while clusters < max_clusters {
@@ -632,7 +644,7 @@ impl<'a> Splits<'a> {
                 sp.cells.push(Cell { lo: clo, hi: chi, start: k.start, end: k.end, created: step, parent: c, q: q_at[t] });
                 node_of.push(t as u32);
                 split.push(false);
-                heap.push(Prio(tp[t], id + o as u32));
+                heap.push(Prio(prio_of(&sp.cq, t), id + o as u32));
                 clusters += 1;
             }
         }
@@ -1057,7 +1069,7 @@ impl<'a> Splits<'a> {
             }
         }
         let kept_from = src.iter().map(|&k| if k < nv { k as u32 } else { u32::MAX }).collect();
-        NodeOut { mesh, a: out_a, kept_from, members_first, members, stats: st, predicted: predicted2.sqrt() }
+        NodeOut { mesh, a: out_a, kept_from, members_first, members, stats: st, predicted: predicted2.sqrt(), in_fans: self.in_fans.clone() }
     }
 
     /// Vertex `v`'s row (embedded at `p`): its quadric about its own
@@ -1144,12 +1156,11 @@ const SEAM_WEIGHT: f64 = 1.0;
 /// retreat by a cluster; with these, moving off the border line costs.
 /// An edge between two seam vertices (`seam`) is an attribute seam inside
 /// the surface, not its border: its planes weigh [`SEAM_WEIGHT`].
-fn add_border_planes(mesh: &IndexedMesh, locked: &[bool], seam: Option<&[bool]>, dim: usize, stride: usize, va: &mut [f64]) {
+fn add_border_planes(mesh: &IndexedMesh, (first, around): &(Vec<u32>, Vec<u32>), locked: &[bool], seam: Option<&[bool]>, dim: usize, stride: usize, va: &mut [f64]) {
     // Open edges (used by one triangle), found per smaller end from the
     // triangles around it: a few entries sorted per vertex instead of a
     // hash map of every edge (which cost ~100 ns a triangle at level 0).
     let nv = mesh.vertices.len();
-    let (first, around) = super::vertex_triangles(nv, &mesh.triangles);
     let mut open: Vec<(u32, u32, u32)> = Vec::new();
     let mut ends: Vec<(u32, u32)> = Vec::new();
     for a in 0..nv as u32 {

@@ -48,7 +48,15 @@ pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> NodeError {
         return NodeError::default();
     }
     let image = images(input, out);
-    let (in_first, in_around) = vertex_triangles(input.vertices.len(), &input.triangles);
+    // Made once with level 0's border planes, else here.
+    let made;
+    let (in_first, in_around) = match &out.in_fans {
+        Some(f) if f.0.len() == input.vertices.len() + 1 && f.1.len() == 3 * input.triangles.len() => (&f.0, &f.1),
+        _ => {
+            made = vertex_triangles(input.vertices.len(), &input.triangles);
+            (&made.0, &made.1)
+        }
+    };
     let border = BorderFaces::of_clusters(input, out, &image);
     let Some(top) = input_side(input, out, &image, (&in_first, &in_around), &border) else {
         // Everything collapsed: the input's extent is the error.
