@@ -1358,22 +1358,27 @@ impl Rows {
     /// quadric rows do not move (they are read through `ids`).
     fn partition(&mut self, start: usize, end: usize, axis: usize, mid: f64, mo: &mut [[f64; 6]; 2]) -> usize {
         let (mut i, mut j) = (start, end);
+        // The sums in locals (registers), stored once at the end: summed
+        // through `mo` they went to memory at every point.
+        let (mut lo, mut hi) = (mo[0], mo[1]);
+        let pts = &mut self.pts[..end];
         loop {
-            while i < j && self.pts[i][axis] < mid {
-                add_moments(&mut mo[0], self.pts[i]);
+            while i < j && pts[i][axis] < mid {
+                add_moments(&mut lo, pts[i]);
                 i += 1;
             }
-            while i < j && self.pts[j - 1][axis] >= mid {
-                add_moments(&mut mo[1], self.pts[j - 1]);
+            while i < j && pts[j - 1][axis] >= mid {
+                add_moments(&mut hi, pts[j - 1]);
                 j -= 1;
             }
             if i >= j {
+                *mo = [lo, hi];
                 return i;
             }
-            self.pts.swap(i, j - 1);
+            pts.swap(i, j - 1);
             self.ids.swap(i, j - 1);
-            add_moments(&mut mo[0], self.pts[i]);
-            add_moments(&mut mo[1], self.pts[j - 1]);
+            add_moments(&mut lo, pts[i]);
+            add_moments(&mut hi, pts[j - 1]);
             i += 1;
             j -= 1;
         }

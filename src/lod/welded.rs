@@ -31,19 +31,25 @@ impl Welded {
             let mut weld = Welder::with_capacity(m.vertices.len());
             m.vertices.iter().map(|v| weld.id(v.pos, |p| pos.push(p))).collect()
         };
-        let mut count = vec![0u32; pos.len() + 1];
-        for &p in &pos_of {
-            count[p as usize + 1] += 1;
-        }
-        for i in 0..pos.len() {
-            count[i + 1] += count[i];
-        }
-        let mut members = vec![0u32; pos_of.len()];
-        let mut next = count.clone();
-        for (v, &p) in pos_of.iter().enumerate() {
-            members[next[p as usize] as usize] = v as u32;
-            next[p as usize] += 1;
-        }
+        let (count, members) = if unique {
+            // One vertex a position: the lists are the identity.
+            ((0..=pos.len() as u32).collect(), (0..pos.len() as u32).collect())
+        } else {
+            let mut count = vec![0u32; pos.len() + 1];
+            for &p in &pos_of {
+                count[p as usize + 1] += 1;
+            }
+            for i in 0..pos.len() {
+                count[i + 1] += count[i];
+            }
+            let mut members = vec![0u32; pos_of.len()];
+            let mut next = count.clone();
+            for (v, &p) in pos_of.iter().enumerate() {
+                members[next[p as usize] as usize] = v as u32;
+                next[p as usize] += 1;
+            }
+            (count, members)
+        };
         let mut normal = vec![[0.0; 3]; pos.len()];
         for t in &m.triangles {
             let c = t.map(|v| m.vertices[v as usize].pos);
