@@ -108,14 +108,17 @@ impl LevelCube {
                 let c = [i % ext[0], (i / ext[0]) % ext[1], i / (ext[0] * ext[1])];
                 runs.push((path([0, 1, 2].map(|k| lo[k] + c[k] as u32)), n as u64));
             }
+            runs.sort_unstable();
         } else {
-            let mut counts: HashMap<u64, u64> = HashMap::default();
-            for c in &cells {
-                *counts.entry(path(*c)).or_insert(0) += 1;
+            // Spread over a sparse box (a terrain's relief, a scan's
+            // depth): the paths sorted and counted in runs (hashing them,
+            // then sorting the counts, cost more).
+            let mut paths: Vec<u64> = cells.iter().map(|c| path(*c)).collect();
+            paths.sort_unstable();
+            for run in paths.chunk_by(|a, b| a == b) {
+                runs.push((run[0], run.len() as u64));
             }
-            runs.extend(counts);
         }
-        runs.sort_unstable();
         runs
     }
 
