@@ -195,54 +195,75 @@ impl ChunkFile {
         self.gather_with(t, true)
     }
 
-    /// [`ChunkFile::gather`], the carried quadrics summed only when
-    /// `quadrics` (a band pass needs none; `a` is then empty).
-    pub fn gather_with(&self, t: usize, quadrics: bool) -> Result<Gathered> {
+    /// Leaf `t`'s chunks as read, in order, each checked against its
+    /// header: (offset, bytes).
+    fn read_leaf(&self, t: usize) -> Result<Vec<(u64, Vec<u8>)>> {
         use std::os::unix::fs::FileExt;
         let f = self.reader.as_ref().expect("chunk file not finished");
-        let refs = self.refs_of(t);
-        let mut bufs = Vec::with_capacity(refs.len());
-        for r in refs {
-            let mut b = vec![0u8; r.bytes as usize];
-            f.read_exact_at(&mut b, r.offset).ctx(&self.path, "read chunk file")?;
-            bufs.push(b);
+        let rec = self.layout.size + 4 * self.a_len + 1;
+        self.refs_of(t)
+            .iter()
+            .map(|r| {
+                let mut b = vec![0u8; r.bytes as usize];
+                f.read_exact_at(&mut b, r.offset).ctx(&self.path, "read chunk file")?;
+                let ok = b.len() >= 16 && {
+                    let (nv, nt) = (u32::from_le_bytes(b[8..12].try_into().unwrap()) as usize, u32::from_le_bytes(b[12..16].try_into().unwrap()) as usize);
+                    b.len() as u64 == 16 + nv as u64 * rec as u64 + nt as u64 * 3 * index_width(nv) as u64
+                };
+                if !ok {
+                    return Err(self.damaged(r.offset));
+                }
+                Ok((r.offset, b))
+            })
+            .collect()
+    }
+
+    fn damaged(&self, offset: u64) -> Error {
+        Error::input(Location { file: self.path.clone(), offset: Some(offset), ..Default::default() }, "damaged chunk")
+    }
+
+    /// One chunk's (source node, vertex count, triangles), its corners
+    /// checked against its vertex count.
+    fn chunk_triangles(&self, offset: u64, b: &[u8], mut each: impl FnMut([usize; 3])) -> Result<(u32, usize, usize)> {
+        let u = |o: usize| u32::from_le_bytes(b[o..o + 4].try_into().unwrap());
+        let (source, nv, nt) = (u(4), u(8) as usize, u(12) as usize);
+        let iw = index_width(nv);
+        let rec = self.layout.size + 4 * self.a_len + 1;
+        for tri in b[16 + nv * rec..].chunks_exact(3 * iw) {
+            let tri = [0, 1, 2].map(|j| index_at(tri, iw, j) as usize);
+            if tri.iter().any(|&i| i >= nv) {
+                return Err(self.damaged(offset));
+            }
+            each(tri);
         }
+        Ok((source, nv, nt))
+    }
+
+    /// [`ChunkFile::gather`], the carried quadrics summed only when
+    /// `quadrics` (`a` is empty otherwise).
+    pub fn gather_with(&self, t: usize, quadrics: bool) -> Result<Gathered> {
+        let bufs = self.read_leaf(t)?;
         let mut g = Gathered::default();
         let vs = self.layout.size;
         let rec = vs + 4 * self.a_len + 1;
-        let total_v: usize = bufs.iter().map(|b| if b.len() >= 16 { u32::from_le_bytes(b[8..12].try_into().unwrap()) as usize } else { 0 }).sum();
+        let count = |b: &[u8], at: usize| u32::from_le_bytes(b[at..at + 4].try_into().unwrap()) as usize;
+        let total_v: usize = bufs.iter().map(|(_, b)| count(b, 8)).sum();
         let mut map = ByteIds::new(vs, total_v);
         // Room for every record up front (shared ones merge, so at most
         // this): growing by doubling copied the node's vertices and, for
         // clustering, their carried quadrics (55 values a vertex with
-        // normals and colours) a few times over.
-        // (Counts bounded by the bytes read: a damaged header reserves no more.)
-        let count = |b: &Vec<u8>, at: usize, size: usize| {
-            if b.len() >= 16 {
-                (u32::from_le_bytes(b[at..at + 4].try_into().unwrap()) as usize).min(b.len() / size)
-            } else {
-                0
-            }
-        };
-        let (room_v, room_t) = bufs.iter().fold((0, 0), |(v, t), b| (v + count(b, 8, rec), t + count(b, 12, 3)));
-        g.mesh.vertices.reserve(room_v);
-        g.was_locked.reserve(room_v);
+        // normals and colours) a few times over. (Counts checked against
+        // the bytes read.)
+        let room_t: usize = bufs.iter().map(|(_, b)| count(b, 12)).sum();
+        g.mesh.vertices.reserve(total_v);
+        g.was_locked.reserve(total_v);
         g.mesh.triangles.reserve(room_t);
         if quadrics {
-            g.a.reserve(room_v * self.a_len);
+            g.a.reserve(total_v * self.a_len);
         }
         let mut ids = Vec::new();
-        for (r, b) in refs.iter().zip(&bufs) {
-            let bad = || Error::input(Location { file: self.path.clone(), offset: Some(r.offset), ..Default::default() }, "damaged chunk");
-            if b.len() < 16 {
-                return Err(bad());
-            }
-            let u = |o: usize| u32::from_le_bytes(b[o..o + 4].try_into().unwrap());
-            let (source, nv, nt) = (u(4), u(8) as usize, u(12) as usize);
-            let iw = index_width(nv);
-            if b.len() != 16 + nv * rec + nt * 3 * iw {
-                return Err(bad());
-            }
+        for (offset, b) in &bufs {
+            let nv = count(b, 8);
             ids.clear();
             for k in 0..nv {
                 let v = &b[16 + k * rec..16 + (k + 1) * rec];
@@ -262,23 +283,64 @@ impl ChunkFile {
                 g.was_locked[id as usize] |= v[rec - 1] & 1 != 0;
                 ids.push(id);
             }
-            let tb = &b[16 + nv * rec..];
-            for tri in tb.chunks_exact(3 * iw) {
-                let tri = [0, 1, 2].map(|j| index_at(tri, iw, j) as usize);
-                if tri.iter().any(|&i| i >= nv) {
-                    return Err(bad());
-                }
-                g.mesh.triangles.push(tri.map(|i| ids[i]));
-            }
+            let (source, _, nt) = self.chunk_triangles(*offset, b, |tri| g.mesh.triangles.push(tri.map(|i| ids[i])))?;
             g.patches.push((source, nt as u32));
         }
         Ok(g)
+    }
+
+    /// Leaf `t`'s chunks read, to be scanned one by one, unwelded and
+    /// positions only ([`LeafScan::each`]): what the shared-vertex pass
+    /// needs, without welding the node (a chunk's vertices are distinct;
+    /// the same vertex in two chunks is merged by the caller, for the few
+    /// positions it keeps).
+    pub fn scan(&self, t: usize) -> Result<LeafScan<'_>> {
+        Ok(LeafScan { file: self, bufs: self.read_leaf(t)? })
     }
 
     /// Removes the file.
     pub fn remove(self) {
         drop(self.reader);
         let _ = std::fs::remove_file(&self.path);
+    }
+}
+
+/// A leaf's chunks as read ([`ChunkFile::scan`]).
+pub struct LeafScan<'a> {
+    file: &'a ChunkFile,
+    bufs: Vec<(u64, Vec<u8>)>,
+}
+
+impl LeafScan<'_> {
+    fn count(b: &[u8], at: usize) -> usize {
+        u32::from_le_bytes(b[at..at + 4].try_into().unwrap()) as usize
+    }
+
+    /// Vertices and triangles, summed over the chunks.
+    pub fn sizes(&self) -> (usize, usize) {
+        self.bufs.iter().fold((0, 0), |(v, t), (_, b)| (v + Self::count(b, 8), t + Self::count(b, 12)))
+    }
+
+    /// Each chunk's vertex positions, whether each was locked one level
+    /// below, and its triangles (indices into that chunk's vertices).
+    pub fn each(&self, mut f: impl FnMut(&[[f64; 3]], &[bool], &[[u32; 3]])) -> Result<()> {
+        let file = self.file;
+        let (vs, rec) = (file.layout.size, file.layout.size + 4 * file.a_len + 1);
+        let most = |at: usize| self.bufs.iter().map(|(_, b)| Self::count(b, at)).max().unwrap_or(0);
+        let (mut pos, mut locked, mut tris) = (Vec::with_capacity(most(8)), Vec::with_capacity(most(8)), Vec::with_capacity(most(12)));
+        for (offset, b) in &self.bufs {
+            let nv = Self::count(b, 8);
+            pos.clear();
+            locked.clear();
+            tris.clear();
+            for v in b[16..16 + nv * rec].chunks_exact(rec) {
+                pos.push(file.layout.decode_pos(&v[..vs]));
+                locked.push(v[rec - 1] & 1 != 0);
+            }
+            file.chunk_triangles(*offset, b, |tri| tris.push(tri.map(|i| i as u32)))?;
+            f(&pos, &locked, &tris);
+        }
+        Ok(())
     }
 }
 
@@ -510,6 +572,44 @@ mod tests {
             assert_eq!(g.a, (0..m.vertices.len()).map(|i| i as f64).collect::<Vec<_>>());
             assert_eq!(g.was_locked, (0..m.vertices.len()).map(|i| i % 3 == 0).collect::<Vec<_>>());
             assert_eq!(g.patches, vec![(9, m.triangles.len() as u32)]);
+        }
+    }
+
+    #[test]
+    fn scans_see_what_gathers_weld_and_both_reject_damaged_chunks() {
+        // Two chunks of one leaf sharing two vertices (locked in one of
+        // them), a third leaf whose chunk's last index is out of range.
+        let layout = VertexLayout::new(AttrSet(0));
+        let dir = tempfile::tempdir().unwrap();
+        let mut file = ChunkFile::create(dir.path().join("c.bin"), layout, 0).unwrap();
+        let v = |x: f64, y: f64| Vertex { pos: [x, y, 0.5], ..Default::default() };
+        let a = IndexedMesh { vertices: vec![v(0.0, 0.0), v(1.0, 0.0), v(0.0, 1.0)], triangles: vec![[0, 1, 2]] };
+        let b = IndexedMesh { vertices: vec![v(1.0, 0.0), v(1.0, 1.0), v(0.0, 1.0)], triangles: vec![[0, 1, 2]] };
+        let mut bytes = Vec::new();
+        for (m, locked) in [(&a, [false, true, true]), (&b, [false, false, false])] {
+            file.encode(0, 3, m, &[], &locked, &mut bytes);
+            file.append(0, &bytes).unwrap();
+        }
+        file.encode(1, 4, &a, &[], &[false; 3], &mut bytes);
+        let n = bytes.len();
+        bytes[n - 2..].copy_from_slice(&7u16.to_le_bytes());
+        file.append(1, &bytes).unwrap();
+        file.finish(2).unwrap();
+        let g = file.gather_with(0, false).unwrap();
+        assert_eq!((g.mesh.vertices.len(), g.mesh.triangles.len()), (4, 2));
+        let scan = file.scan(0).unwrap();
+        assert_eq!(scan.sizes(), (6, 2));
+        let mut seen = Vec::new();
+        scan.each(|pos, locked, tris| seen.push((pos.to_vec(), locked.to_vec(), tris.to_vec()))).unwrap();
+        assert_eq!(seen.len(), 2);
+        assert_eq!(seen[0].0, a.vertices.iter().map(|v| v.pos).collect::<Vec<_>>());
+        assert_eq!(seen[0].1, [false, true, true]);
+        assert_eq!(seen[1].2, b.triangles);
+        // Welded, the shared vertices keep the flag either chunk gave them.
+        assert_eq!(g.was_locked, [false, true, true, false]);
+        for e in [file.gather(1).err(), file.scan(1).and_then(|s| s.each(|_, _, _| ())).err()] {
+            let e = e.expect("a damaged chunk is an error").to_string();
+            assert!(e.contains("damaged chunk") && e.contains("c.bin"), "{e}");
         }
     }
 }

@@ -29,7 +29,8 @@ use crate::mesh::{Aabb, AttrSet, IndexedMesh, VertexLayout};
 use crate::progress::Progress;
 use crate::store::{encode_payload, NodeRec, PackWriter, StoreHeader, NO_NODE};
 use rayon::prelude::*;
-use rustc_hash::FxHashSet;
+use rustc_hash::{FxHashMap, FxHashSet};
+use crate::geom::{cross, sub};
 use std::path::Path;
 use std::sync::atomic::{AtomicU8, Ordering};
 use std::time::Instant;
@@ -127,8 +128,6 @@ struct SharedPass {
     resolved: Resolved,
     stats: SharedStats,
     hist: Histogram,
-    /// Distinct positions per node, summed.
-    positions: u64,
 }
 
 /// [`LevelBuilder::simplify_and_route`]'s result.
@@ -310,27 +309,73 @@ impl<'a, S: NodeSimplifier> LevelBuilder<'a, S> {
         // its cells), so nodes count at it, not finer; the counts come out
         // the same, with fewer runs for the (serial) merge.
         let hist_depth = AtomicU8::new(hist.depth());
-        let mut positions = 0u64;
         ordered(
             lv.ids.len(),
             cfg.batch,
             |_| Ok(()),
             |k, ()| {
                 let leaf = lv.ids[k];
-                let g = cur.chunks.gather_with(leaf, false)?;
-                let w = Welded::new(&g.mesh, cfg.unique_positions);
                 let test = lv.band.tester(k, &cur.leaves[leaf].bounds);
-                let mut records = Vec::new();
-                for (pi, p) in w.pos.iter().enumerate() {
-                    if test.may_share(*p) {
-                        let flags = if w.was_locked(&g, pi) { WAS_LOCKED } else { 0 };
-                        records.push((*p, w.normal[pi].map(|x| x as f32), flags));
-                    }
+                // The node's chunks unwelded: only the positions in the band
+                // are merged (by their bits, in the order the whole node's
+                // weld met them), each with its triangles' normals summed in
+                // the same order, so the records are the welded node's.
+                let mut band: FxHashMap<[u64; 3], u32> = FxHashMap::default();
+                let mut records: Vec<([f64; 3], [f64; 3], u32)> = Vec::new();
+                let mut centroids = Vec::new();
+                let mut ids = Vec::new();
+                let scan = cur.chunks.scan(leaf)?;
+                let (nv, nt) = scan.sizes();
+                // The band is a part of the node: room for a quarter of its
+                // vertices, grown when more.
+                band.reserve(nv / 4);
+                records.reserve(nv / 4);
+                if !lv.is_final {
+                    centroids.reserve(nt);
                 }
+                scan.each(|pos, locked, tris| {
+                    ids.clear();
+                    for (v, p) in pos.iter().enumerate() {
+                        if !test.may_share(*p) {
+                            ids.push(u32::MAX);
+                            continue;
+                        }
+                        let n = records.len() as u32;
+                        let id = *band.entry(pos_bits(*p)).or_insert(n);
+                        if id == n {
+                            records.push((*p, [0.0; 3], 0));
+                        }
+                        if locked[v] {
+                            records[id as usize].2 = WAS_LOCKED;
+                        }
+                        ids.push(id);
+                    }
+                    for t in tris {
+                        let c = t.map(|v| pos[v as usize]);
+                        if !lv.is_final {
+                            centroids.push([0, 1, 2].map(|k| (c[0][k] + c[1][k] + c[2][k]) / 3.0));
+                        }
+                        let at = t.map(|v| ids[v as usize]);
+                        if at == [u32::MAX; 3] {
+                            continue;
+                        }
+                        let n = cross(sub(c[1], c[0]), sub(c[2], c[0]));
+                        for k in 0..3 {
+                            // Once per position, as the welded node counts it.
+                            if at[k] != u32::MAX && !at[..k].contains(&at[k]) {
+                                let r = &mut records[at[k] as usize].1;
+                                for a in 0..3 {
+                                    r[a] += n[a];
+                                }
+                            }
+                        }
+                    }
+                })?;
+                let records = records.into_iter().map(|(p, n, f)| (p, n.map(|x| x as f32), f)).collect();
                 // Centroid counts at the histogram's depth, as sorted runs.
                 let d = hist_depth.load(Ordering::Relaxed);
-                let h = if lv.is_final { Vec::new() } else { lv.next_cube.cell_counts(d, g.mesh.triangles.iter().map(|t| tri_centroid(&g.mesh, t))) };
-                Ok(Pass1 { records, hist: h, hist_depth: d, positions: w.pos.len() as u64 })
+                let h = if lv.is_final { Vec::new() } else { lv.next_cube.cell_counts(d, centroids.into_iter()) };
+                Ok(Pass1 { records, hist: h, hist_depth: d })
             },
             |k, r: Pass1| {
                 let node = (lv.base + k) as u32;
@@ -339,13 +384,12 @@ impl<'a, S: NodeSimplifier> LevelBuilder<'a, S> {
                 }
                 hist.add_runs(r.hist_depth, &r.hist);
                 hist_depth.store(hist.depth(), Ordering::Relaxed);
-                positions += r.positions;
                 progress.inc(1);
                 Ok(())
             },
         )?;
         let (resolved, stats) = sorter.resolve((mem / 4) as usize, cfg.scratch.path(), cfg.scratch.path().join("shared.bin"))?;
-        Ok(SharedPass { resolved, stats, hist, positions })
+        Ok(SharedPass { resolved, stats, hist })
     }
 
     /// Step 3, threshold: the simplifier's curves of a sample of nodes
@@ -412,7 +456,7 @@ impl<'a, S: NodeSimplifier> LevelBuilder<'a, S> {
         };
         let encoder = next_chunks.as_ref().map(ChunkFile::encoder);
         let mut routed = Routed { chunks: None, leaves: vec![LeafStats::default(); next.map_or(0, |t| t.leaves.len())], triangles: 0, far: Vec::new() };
-        let (mut shared_occurrences, mut seam_only, mut prev_freed) = (0u64, 0u64, 0u64);
+        let (mut shared_occurrences, mut seam_only, mut prev_freed, mut positions) = (0u64, 0u64, 0u64, 0u64);
         let resolved = &mut shared.resolved;
         let diagonal = cfg.bbox.diagonal();
         ordered(
@@ -460,6 +504,7 @@ impl<'a, S: NodeSimplifier> LevelBuilder<'a, S> {
                     routed.far.push(FarNode { node: dag.nodes.len() - 1 - lv.base, base: r.base, far: r.far, far_reps: r.far_reps });
                 }
                 shared_occurrences += r.shared;
+                positions += r.positions;
                 seam_only += r.seam_only;
                 prev_freed += r.prev_freed;
                 if let Some(file) = next_chunks.as_mut() {
@@ -478,7 +523,7 @@ impl<'a, S: NodeSimplifier> LevelBuilder<'a, S> {
         )?;
         pack.finish()?;
         let st = &shared.stats;
-        rep.positions = shared.positions - (shared_occurrences - st.shared);
+        rep.positions = positions - (shared_occurrences - st.shared);
         rep.set_locked(st.shared + seam_only, prev_freed + st.shared_was_locked, st.shared_was_locked);
         routed.chunks = next_chunks;
         Ok(routed)
@@ -553,7 +598,6 @@ struct Pass1 {
     /// (key at `hist_depth`, count), sorted.
     hist: Vec<(u64, u64)>,
     hist_depth: u8,
-    positions: u64,
 }
 
 /// Pass-2 result of one node.
@@ -573,6 +617,8 @@ struct Pass2 {
     /// Representatives setting it, to measure against the whole level.
     far_reps: Vec<([f64; 3], f64)>,
     clamped: u64,
+    /// Distinct positions in the node.
+    positions: u64,
     shared: u64,
     seam_only: u64,
     prev_freed: u64,
@@ -609,7 +655,7 @@ fn self_node<S: NodeSimplifier>(
     let (leaf, id) = (lv.ids[k], lv.base + k);
     let mut g = cur.chunks.gather(leaf)?;
     let w = Welded::new(&g.mesh, cfg.unique_positions);
-    let mut p2 = Pass2::default();
+    let mut p2 = Pass2 { positions: w.pos.len() as u64, ..Default::default() };
     // Each position's shared record, looked up once.
     let hits: Vec<Option<&([f32; 3], u32)>> = w.pos.iter().map(|p| set.get(&pos_bits(*p))).collect();
     // A shard's positions shared with other shards count as shared.
