@@ -230,9 +230,22 @@ pub fn build_levels<S: NodeSimplifier>(mut b: LevelBuilder<S>, from: u8, id: u64
 }
 
 fn leaf_stats(m: &IndexedMesh) -> LeafStats {
-    let mut s = LeafStats::default();
+    let mut s = LeafStats { tris: m.triangles.len() as u64, ..Default::default() };
+    // The reach per corner; the bounds once per vertex used (the same box
+    // as over the corners, at a third of the comparisons).
+    let mut used = vec![false; m.vertices.len()];
     for t in &m.triangles {
-        s.add_triangle(t.map(|v| m.vertices[v as usize].pos), tri_centroid(m, t));
+        let c = tri_centroid(m, t);
+        for &v in t {
+            used[v as usize] = true;
+            let p = m.vertices[v as usize].pos;
+            for a in 0..3 {
+                s.reach = s.reach.max((p[a] - c[a]).abs());
+            }
+        }
+    }
+    for (v, _) in used.iter().enumerate().filter(|u| *u.1) {
+        s.bounds.add(m.vertices[v].pos);
     }
     s
 }

@@ -51,10 +51,13 @@ impl Welded {
             (count, members)
         };
         let mut normal = vec![[0.0; 3]; pos.len()];
+        // The bounds of the corners are those of the vertices used, taken
+        // once each rather than once per corner (min and max: same box).
+        let mut used = vec![false; m.vertices.len()];
         for t in &m.triangles {
             let c = t.map(|v| m.vertices[v as usize].pos);
-            for p in c {
-                bounds.add(p);
+            for &v in t {
+                used[v as usize] = true;
             }
             let n = cross(sub(c[1], c[0]), sub(c[2], c[0]));
             let mut seen = [u32::MAX; 3];
@@ -67,6 +70,9 @@ impl Welded {
                 }
                 seen[k] = p;
             }
+        }
+        for (v, _) in used.iter().enumerate().filter(|u| *u.1) {
+            bounds.add(m.vertices[v].pos);
         }
         Welded { pos, pos_of, normal, first: count, members, bounds }
     }
