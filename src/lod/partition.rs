@@ -221,7 +221,7 @@ impl Histogram {
     /// with `keep_empty`, empty cells are leaves too (a tiling).
     fn cut_scaled(&self, roots: &[u64], root_depth: u8, scale: f64, limit: u64, max_depth: u8, keep_empty: bool) -> Vec<(u64, u8, u64)> {
         let mut cells: Vec<(u64, u64)> = self.map.iter().map(|(&k, &n)| (k, n)).collect();
-        cells.sort_unstable();
+        radix_sort_keys(&mut cells);
         let hd = self.depth;
         let max_depth = max_depth.min(hd);
         struct Rule {
@@ -262,6 +262,41 @@ impl Histogram {
             rest = &rest[k..];
         }
         out
+    }
+}
+
+/// Sorts `(key, value)` pairs with distinct keys by key: least
+/// significant digit first, 11 bits a pass, up to the largest key's bits. The histograms' cuts
+/// sort up to a million cells at a time between two passes of a level,
+/// on one thread; this takes a fraction of a comparison sort's
+/// instructions (at depth 10, 3 passes over the cells).
+fn radix_sort_keys(v: &mut Vec<(u64, u64)>) {
+    const DIGIT: u32 = 11;
+    let bits = 64 - v.iter().map(|x| x.0).max().unwrap_or(0).leading_zeros();
+    if v.len() < 256 || bits > 44 {
+        v.sort_unstable();
+        return;
+    }
+    let mut tmp = vec![(0u64, 0u64); v.len()];
+    let mut shift = 0;
+    while shift < bits {
+        let mut count = [0usize; 1 << DIGIT];
+        for &(k, _) in v.iter() {
+            count[((k >> shift) & ((1 << DIGIT) - 1)) as usize] += 1;
+        }
+        let mut at = 0;
+        for c in count.iter_mut() {
+            let n = *c;
+            *c = at;
+            at += n;
+        }
+        for &x in v.iter() {
+            let d = ((x.0 >> shift) & ((1 << DIGIT) - 1)) as usize;
+            tmp[count[d]] = x;
+            count[d] += 1;
+        }
+        std::mem::swap(v, &mut tmp);
+        shift += DIGIT;
     }
 }
 
@@ -374,6 +409,21 @@ mod tests {
                     }
                 }
             }
+        }
+    }
+
+    #[test]
+    fn radix_sorted_keys_are_sorted() {
+        let mut rng = crate::geom::Rng::new(3);
+        for (n, bits) in [(10, 30), (300, 30), (5000, 30), (5000, 3), (4000, 63), (2000, 45)] {
+            let mut keys: Vec<u64> = (0..n).map(|_| rng.next_u64() & ((1u64 << bits) - 1)).collect();
+            keys.sort_unstable();
+            keys.dedup();
+            let mut v: Vec<(u64, u64)> = keys.iter().rev().map(|&k| (k, k ^ 0x55)).collect();
+            let mut want = v.clone();
+            want.sort_unstable();
+            radix_sort_keys(&mut v);
+            assert_eq!(v, want, "{n} keys of {bits} bits");
         }
     }
 
