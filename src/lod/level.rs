@@ -305,6 +305,10 @@ impl<'a, S: NodeSimplifier> LevelBuilder<'a, S> {
         let mem = cfg.opts.params.mem;
         let mut sorter = SharedSort::new((mem / 4) as usize, cfg.scratch.path());
         let mut hist = Histogram::new(HIST_DEPTH, cfg.hist_cap);
+        // At most a cell per triangle.
+        if !lv.is_final {
+            hist.reserve(lv.triangles as usize);
+        }
         // The histogram's depth so far: it only coarsens (when it outgrows
         // its cells), so nodes count at it, not finer; the counts come out
         // the same, with fewer runs for the (serial) merge.

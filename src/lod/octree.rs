@@ -363,6 +363,7 @@ pub fn build_octree(soup: &Path, chunk_path: std::path::PathBuf, cube: &LevelCub
         // Room for every open cell's eight children: each pass goes deeper.
         let depth = opts.max_depth.min(open_depth + COUNT_DEPTHS);
         let mut hist = Histogram::new(depth, cap);
+        hist.reserve(sh.triangles as usize);
         let progress = Progress::items(sh.triangles, "counting", opts.quiet);
         let sh_open = 3 * (KEY_DEPTH - open_depth) as u32;
         let all = open_depth == 0;

@@ -145,6 +145,13 @@ impl Histogram {
         Histogram { depth: depth.min(KEY_DEPTH), cap: cap.max(64), map: HashMap::default() }
     }
 
+    /// Room for `n` cells (at most the cap) up front: growing by
+    /// rehashing, on the one thread that merges, cost as much as the
+    /// counting itself.
+    pub fn reserve(&mut self, n: usize) {
+        self.map.reserve(n.min(self.cap));
+    }
+
     #[inline]
     pub fn add(&mut self, key: u64, n: u64) {
         *self.map.entry(key >> (3 * (KEY_DEPTH - self.depth) as u32)).or_insert(0) += n;
