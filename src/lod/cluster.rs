@@ -67,7 +67,7 @@ pub struct NodeOut {
     /// merged into one point).
     pub predicted: f64,
     /// The input's triangles around each vertex
-    /// ([`super::vertex_triangles`]) where the clustering made them (level
+    /// (`vertex_triangles`) where the clustering made them (level
     /// 0's border planes): the node error's input side reuses them.
     pub in_fans: Option<Arc<(Vec<u32>, Vec<u32>)>>,
 }
@@ -1156,7 +1156,15 @@ const SEAM_WEIGHT: f64 = 1.0;
 /// retreat by a cluster; with these, moving off the border line costs.
 /// An edge between two seam vertices (`seam`) is an attribute seam inside
 /// the surface, not its border: its planes weigh [`SEAM_WEIGHT`].
-fn add_border_planes(mesh: &IndexedMesh, (first, around): &(Vec<u32>, Vec<u32>), locked: &[bool], seam: Option<&[bool]>, dim: usize, stride: usize, va: &mut [f64]) {
+fn add_border_planes(
+    mesh: &IndexedMesh,
+    (first, around): &(Vec<u32>, Vec<u32>),
+    locked: &[bool],
+    seam: Option<&[bool]>,
+    dim: usize,
+    stride: usize,
+    va: &mut [f64],
+) {
     // Open edges (used by one triangle), found per smaller end from the
     // triangles around it: a few entries sorted per vertex instead of a
     // hash map of every edge (which cost ~100 ns a triangle at level 0).

@@ -58,7 +58,7 @@ pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> NodeError {
         }
     };
     let border = BorderFaces::of_clusters(input, out, &image);
-    let Some(top) = input_side(input, out, &image, (&in_first, &in_around), &border) else {
+    let Some(top) = input_side(input, out, &image, (in_first, in_around), &border) else {
         // Everything collapsed: the input's extent is the error.
         let mut bbox = Aabb::EMPTY;
         for v in (0..input.vertices.len()).filter(|&v| in_first[v + 1] > in_first[v]) {
@@ -68,7 +68,7 @@ pub fn node_error(input: &IndexedMesh, out: &cluster::NodeOut) -> NodeError {
         return NodeError { error: e, base: e, ..Default::default() };
     };
     let in_d2 = top.max();
-    let in_fans = InFans { input, first: &in_first, around: &in_around };
+    let in_fans = InFans { input, first: in_first, around: in_around };
     let (r2, rest_r, top_r) = reps_side(&in_fans, out, &border, top.rest);
     // The far points: those with the largest bounds; every other one is
     // within `rest` (input side) or `rest_r` (representatives).
