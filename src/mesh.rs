@@ -203,22 +203,11 @@ impl VertexLayout {
         }
     }
 
-    /// Reads a vertex's position alone from `bytes[..self.size]`.
-    #[inline]
-    pub fn decode_pos(&self, bytes: &[u8]) -> [f64; 3] {
-        let b = &bytes[..self.size];
-        if self.attrs.pos_f64() {
-            [0, 1, 2].map(|k| f64::from_le_bytes(b[8 * k..8 * k + 8].try_into().unwrap()))
-        } else {
-            [0, 1, 2].map(|k| f32::from_le_bytes(b[4 * k..4 * k + 4].try_into().unwrap()) as f64)
-        }
-    }
-
     /// Reads a vertex from `bytes[..self.size]`.
     #[inline]
     pub fn decode(&self, bytes: &[u8]) -> Vertex {
         let b = &bytes[..self.size];
-        let mut v = Vertex { pos: self.decode_pos(b), ..Default::default() };
+        let mut v = Vertex { pos: self.position(b), ..Default::default() };
         if self.attrs.normal() {
             let o = self.normal_at;
             for k in 0..3 {

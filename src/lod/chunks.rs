@@ -200,14 +200,14 @@ impl ChunkFile {
     fn read_leaf(&self, t: usize) -> Result<Vec<(u64, Vec<u8>)>> {
         use std::os::unix::fs::FileExt;
         let f = self.reader.as_ref().expect("chunk file not finished");
-        let rec = self.layout.size + 4 * self.a_len + 1;
+        let rec = record_size(&self.layout, self.a_len);
         self.refs_of(t)
             .iter()
             .map(|r| {
                 let mut b = vec![0u8; r.bytes as usize];
                 f.read_exact_at(&mut b, r.offset).ctx(&self.path, "read chunk file")?;
                 let ok = b.len() >= 16 && {
-                    let (nv, nt) = (u32::from_le_bytes(b[8..12].try_into().unwrap()) as usize, u32::from_le_bytes(b[12..16].try_into().unwrap()) as usize);
+                    let (nv, nt) = (field(&b, 8), field(&b, 12));
                     b.len() as u64 == 16 + nv as u64 * rec as u64 + nt as u64 * 3 * index_width(nv) as u64
                 };
                 if !ok {
@@ -225,10 +225,9 @@ impl ChunkFile {
     /// One chunk's (source node, vertex count, triangles), its corners
     /// checked against its vertex count.
     fn chunk_triangles(&self, offset: u64, b: &[u8], mut each: impl FnMut([usize; 3])) -> Result<(u32, usize, usize)> {
-        let u = |o: usize| u32::from_le_bytes(b[o..o + 4].try_into().unwrap());
-        let (source, nv, nt) = (u(4), u(8) as usize, u(12) as usize);
+        let (source, nv, nt) = (field(b, 4) as u32, field(b, 8), field(b, 12));
         let iw = index_width(nv);
-        let rec = self.layout.size + 4 * self.a_len + 1;
+        let rec = record_size(&self.layout, self.a_len);
         for tri in b[16 + nv * rec..].chunks_exact(3 * iw) {
             let tri = [0, 1, 2].map(|j| index_at(tri, iw, j) as usize);
             if tri.iter().any(|&i| i >= nv) {
@@ -245,16 +244,15 @@ impl ChunkFile {
         let bufs = self.read_leaf(t)?;
         let mut g = Gathered::default();
         let vs = self.layout.size;
-        let rec = vs + 4 * self.a_len + 1;
-        let count = |b: &[u8], at: usize| u32::from_le_bytes(b[at..at + 4].try_into().unwrap()) as usize;
-        let total_v: usize = bufs.iter().map(|(_, b)| count(b, 8)).sum();
+        let rec = record_size(&self.layout, self.a_len);
+        let total_v: usize = bufs.iter().map(|(_, b)| field(b, 8)).sum();
         let mut map = ByteIds::new(vs, total_v);
         // Room for every record up front (shared ones merge, so at most
         // this): growing by doubling copied the node's vertices and, for
         // clustering, their carried quadrics (55 values a vertex with
         // normals and colours) a few times over. (Counts checked against
         // the bytes read.)
-        let room_t: usize = bufs.iter().map(|(_, b)| count(b, 12)).sum();
+        let room_t: usize = bufs.iter().map(|(_, b)| field(b, 12)).sum();
         g.mesh.vertices.reserve(total_v);
         g.was_locked.reserve(total_v);
         g.mesh.triangles.reserve(room_t);
@@ -263,7 +261,7 @@ impl ChunkFile {
         }
         let mut ids = Vec::new();
         for (offset, b) in &bufs {
-            let nv = count(b, 8);
+            let nv = field(b, 8);
             ids.clear();
             for k in 0..nv {
                 let v = &b[16 + k * rec..16 + (k + 1) * rec];
@@ -305,6 +303,18 @@ impl ChunkFile {
     }
 }
 
+/// A chunk's header field at byte `at` (4: source, 8: vertices, 12:
+/// triangles).
+fn field(b: &[u8], at: usize) -> usize {
+    u32::from_le_bytes(b[at..at + 4].try_into().unwrap()) as usize
+}
+
+/// Bytes of one chunk vertex record: the vertex, its carried values
+/// (`a_len` f32s) and its flags byte.
+fn record_size(layout: &VertexLayout, a_len: usize) -> usize {
+    layout.size + 4 * a_len + 1
+}
+
 /// A leaf's chunks as read ([`ChunkFile::scan`]).
 pub struct LeafScan<'a> {
     file: &'a ChunkFile,
@@ -312,29 +322,25 @@ pub struct LeafScan<'a> {
 }
 
 impl LeafScan<'_> {
-    fn count(b: &[u8], at: usize) -> usize {
-        u32::from_le_bytes(b[at..at + 4].try_into().unwrap()) as usize
-    }
-
     /// Vertices and triangles, summed over the chunks.
     pub fn sizes(&self) -> (usize, usize) {
-        self.bufs.iter().fold((0, 0), |(v, t), (_, b)| (v + Self::count(b, 8), t + Self::count(b, 12)))
+        self.bufs.iter().fold((0, 0), |(v, t), (_, b)| (v + field(b, 8), t + field(b, 12)))
     }
 
     /// Each chunk's vertex positions, whether each was locked one level
     /// below, and its triangles (indices into that chunk's vertices).
     pub fn each(&self, mut f: impl FnMut(&[[f64; 3]], &[bool], &[[u32; 3]])) -> Result<()> {
         let file = self.file;
-        let (vs, rec) = (file.layout.size, file.layout.size + 4 * file.a_len + 1);
-        let most = |at: usize| self.bufs.iter().map(|(_, b)| Self::count(b, at)).max().unwrap_or(0);
+        let (vs, rec) = (file.layout.size, record_size(&file.layout, file.a_len));
+        let most = |at: usize| self.bufs.iter().map(|(_, b)| field(b, at)).max().unwrap_or(0);
         let (mut pos, mut locked, mut tris) = (Vec::with_capacity(most(8)), Vec::with_capacity(most(8)), Vec::with_capacity(most(12)));
         for (offset, b) in &self.bufs {
-            let nv = Self::count(b, 8);
+            let nv = field(b, 8);
             pos.clear();
             locked.clear();
             tris.clear();
             for v in b[16..16 + nv * rec].chunks_exact(rec) {
-                pos.push(file.layout.decode_pos(&v[..vs]));
+                pos.push(file.layout.position(&v[..vs]));
                 locked.push(v[rec - 1] & 1 != 0);
             }
             file.chunk_triangles(*offset, b, |tri| tris.push(tri.map(|i| i as u32)))?;
@@ -357,7 +363,7 @@ impl ChunkEncoder {
         out.clear();
         // Its exact size up front (grown by doubling it was copied over).
         let iw = crate::store::index_width(m.vertices.len());
-        out.reserve(16 + m.vertices.len() * (self.layout.size + 4 * self.a_len + 1) + 3 * m.triangles.len() * iw);
+        out.reserve(16 + m.vertices.len() * record_size(&self.layout, self.a_len) + 3 * m.triangles.len() * iw);
         for x in [target, source, m.vertices.len() as u32, m.triangles.len() as u32] {
             out.extend_from_slice(&x.to_le_bytes());
         }

@@ -20,7 +20,7 @@ use super::partition::{Histogram, LevelCube, Tiling};
 use super::shared::{Band, Resolved, SharedSet, SharedSort, SharedStats, WAS_LOCKED};
 use super::simplifier::{NodeInput, NodeSimplifier};
 use super::welded::Welded;
-use super::{next_up_f32, tri_centroid, Built, LeafStats, LodOptions, HIST_DEPTH, MAX_LEVELS, SAMPLED_NODES};
+use super::{centroid, next_up_f32, tri_centroid, Built, LeafStats, LodOptions, HIST_DEPTH, MAX_LEVELS, SAMPLED_NODES};
 use crate::error::{Error, Result};
 use crate::geom::pos_bits;
 use crate::geom::{cross, sub};
@@ -317,70 +317,7 @@ impl<'a, S: NodeSimplifier> LevelBuilder<'a, S> {
             lv.ids.len(),
             cfg.batch,
             |_| Ok(()),
-            |k, ()| {
-                let leaf = lv.ids[k];
-                let test = lv.band.tester(k, &cur.leaves[leaf].bounds);
-                // The node's chunks unwelded: only the positions in the band
-                // are merged (by their bits, in the order the whole node's
-                // weld met them), each with its triangles' normals summed in
-                // the same order, so the records are the welded node's.
-                let mut band: FxHashMap<[u64; 3], u32> = FxHashMap::default();
-                let mut records: Vec<([f64; 3], [f64; 3], u32)> = Vec::new();
-                let mut centroids = Vec::new();
-                let mut ids = Vec::new();
-                let scan = cur.chunks.scan(leaf)?;
-                let (nv, nt) = scan.sizes();
-                // The band is a part of the node: room for a quarter of its
-                // vertices, grown when more.
-                band.reserve(nv / 4);
-                records.reserve(nv / 4);
-                if !lv.is_final {
-                    centroids.reserve(nt);
-                }
-                scan.each(|pos, locked, tris| {
-                    ids.clear();
-                    for (v, p) in pos.iter().enumerate() {
-                        if !test.may_share(*p) {
-                            ids.push(u32::MAX);
-                            continue;
-                        }
-                        let n = records.len() as u32;
-                        let id = *band.entry(pos_bits(*p)).or_insert(n);
-                        if id == n {
-                            records.push((*p, [0.0; 3], 0));
-                        }
-                        if locked[v] {
-                            records[id as usize].2 = WAS_LOCKED;
-                        }
-                        ids.push(id);
-                    }
-                    for t in tris {
-                        let c = t.map(|v| pos[v as usize]);
-                        if !lv.is_final {
-                            centroids.push([0, 1, 2].map(|k| (c[0][k] + c[1][k] + c[2][k]) / 3.0));
-                        }
-                        let at = t.map(|v| ids[v as usize]);
-                        if at == [u32::MAX; 3] {
-                            continue;
-                        }
-                        let n = cross(sub(c[1], c[0]), sub(c[2], c[0]));
-                        for k in 0..3 {
-                            // Once per position, as the welded node counts it.
-                            if at[k] != u32::MAX && !at[..k].contains(&at[k]) {
-                                let r = &mut records[at[k] as usize].1;
-                                for a in 0..3 {
-                                    r[a] += n[a];
-                                }
-                            }
-                        }
-                    }
-                })?;
-                let records = records.into_iter().map(|(p, n, f)| (p, n.map(|x| x as f32), f)).collect();
-                // Centroid counts at the histogram's depth, as sorted runs.
-                let d = hist_depth.load(Ordering::Relaxed);
-                let h = if lv.is_final { Vec::new() } else { lv.next_cube.cell_counts(d, centroids.into_iter()) };
-                Ok(Pass1 { records, hist: h, hist_depth: d })
-            },
+            |k, ()| band_records(cur, lv, k, hist_depth.load(Ordering::Relaxed)),
             |k, r: Pass1| {
                 let node = (lv.base + k) as u32;
                 for (p, n, f) in r.records {
@@ -641,6 +578,72 @@ impl Pass2 {
             self.far_reps = ne.far_reps;
         }
     }
+}
+
+/// Pass 1 of one node (step 2): its band's positions with their partial
+/// normals and flags, and its centroid counts at histogram depth `d`.
+/// The node's chunks are read unwelded: only the positions in the band are
+/// merged (by their bits, in the order the whole node's weld met them),
+/// each with its triangles' normals summed in the same order, so the
+/// records are the welded node's.
+fn band_records(cur: &Current, lv: &LevelNodes, k: usize, d: u8) -> Result<Pass1> {
+    let leaf = lv.ids[k];
+    let test = lv.band.tester(k, &cur.leaves[leaf].bounds);
+    let mut band: FxHashMap<[u64; 3], u32> = FxHashMap::default();
+    let mut records: Vec<([f64; 3], [f64; 3], u32)> = Vec::new();
+    let mut centroids = Vec::new();
+    let mut ids = Vec::new();
+    let scan = cur.chunks.scan(leaf)?;
+    let (nv, nt) = scan.sizes();
+    // The band is a part of the node: room for a quarter of its vertices,
+    // grown when more.
+    band.reserve(nv / 4);
+    records.reserve(nv / 4);
+    if !lv.is_final {
+        centroids.reserve(nt);
+    }
+    scan.each(|pos, locked, tris| {
+        ids.clear();
+        for (v, p) in pos.iter().enumerate() {
+            if !test.may_share(*p) {
+                ids.push(u32::MAX);
+                continue;
+            }
+            let n = records.len() as u32;
+            let id = *band.entry(pos_bits(*p)).or_insert(n);
+            if id == n {
+                records.push((*p, [0.0; 3], 0));
+            }
+            if locked[v] {
+                records[id as usize].2 = WAS_LOCKED;
+            }
+            ids.push(id);
+        }
+        for t in tris {
+            let c = t.map(|v| pos[v as usize]);
+            if !lv.is_final {
+                centroids.push(centroid(c));
+            }
+            let at = t.map(|v| ids[v as usize]);
+            if at == [u32::MAX; 3] {
+                continue;
+            }
+            let n = cross(sub(c[1], c[0]), sub(c[2], c[0]));
+            for k in 0..3 {
+                // Once per position, as the welded node counts it.
+                if at[k] != u32::MAX && !at[..k].contains(&at[k]) {
+                    let r = &mut records[at[k] as usize].1;
+                    for a in 0..3 {
+                        r[a] += n[a];
+                    }
+                }
+            }
+        }
+    })?;
+    let records = records.into_iter().map(|(p, n, f)| (p, n.map(|x| x as f32), f)).collect();
+    // Centroid counts at the histogram's depth, as sorted runs.
+    let hist = if lv.is_final { Vec::new() } else { lv.next_cube.cell_counts(d, centroids.into_iter()) };
+    Ok(Pass1 { records, hist, hist_depth: d })
 }
 
 /// Node `k` of the level (its shared positions `set`): its payload, its

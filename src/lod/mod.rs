@@ -244,15 +244,28 @@ fn leaf_stats(m: &IndexedMesh) -> LeafStats {
             }
         }
     }
-    for (v, _) in used.iter().enumerate().filter(|u| *u.1) {
-        s.bounds.add(m.vertices[v].pos);
-    }
+    s.bounds = used_bounds(m, &used);
     s
+}
+
+/// The box of the vertices flagged `used` (those of the triangles: the
+/// same box as over every corner, a comparison per vertex rather than per
+/// corner).
+fn used_bounds(m: &IndexedMesh, used: &[bool]) -> Aabb {
+    let mut b = Aabb::EMPTY;
+    for (v, _) in used.iter().enumerate().filter(|u| *u.1) {
+        b.add(m.vertices[v].pos);
+    }
+    b
 }
 
 #[inline]
 fn tri_centroid(m: &IndexedMesh, t: &[u32; 3]) -> [f64; 3] {
-    let c = t.map(|v| m.vertices[v as usize].pos);
+    centroid(t.map(|v| m.vertices[v as usize].pos))
+}
+
+#[inline]
+fn centroid(c: [[f64; 3]; 3]) -> [f64; 3] {
     [0, 1, 2].map(|k| (c[0][k] + c[1][k] + c[2][k]) / 3.0)
 }
 

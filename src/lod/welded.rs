@@ -23,7 +23,6 @@ impl Welded {
     /// without attributes), so none is looked up.
     pub fn new(m: &IndexedMesh, unique: bool) -> Welded {
         let mut pos = Vec::new();
-        let mut bounds = Aabb::EMPTY;
         let pos_of: Vec<u32> = if unique {
             pos.extend(m.vertices.iter().map(|v| v.pos));
             (0..m.vertices.len() as u32).collect()
@@ -51,8 +50,7 @@ impl Welded {
             (count, members)
         };
         let mut normal = vec![[0.0; 3]; pos.len()];
-        // The bounds of the corners are those of the vertices used, taken
-        // once each rather than once per corner (min and max: same box).
+        // The bounds: of the vertices used (`super::used_bounds`).
         let mut used = vec![false; m.vertices.len()];
         for t in &m.triangles {
             let c = t.map(|v| m.vertices[v as usize].pos);
@@ -71,10 +69,7 @@ impl Welded {
                 seen[k] = p;
             }
         }
-        for (v, _) in used.iter().enumerate().filter(|u| *u.1) {
-            bounds.add(m.vertices[v].pos);
-        }
-        Welded { pos, pos_of, normal, first: count, members, bounds }
+        Welded { pos, pos_of, normal, first: count, members, bounds: super::used_bounds(m, &used) }
     }
 
     /// Per vertex: locked (its position is shared). Attribute seams are not
