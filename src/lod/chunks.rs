@@ -265,17 +265,24 @@ impl ChunkFile {
             ids.clear();
             for k in 0..nv {
                 let v = &b[16 + k * rec..16 + (k + 1) * rec];
+                let mut fresh = false;
                 let id = map.id(&v[..vs], || {
                     g.mesh.vertices.push(self.layout.decode(&v[..vs]));
-                    if quadrics {
-                        g.a.extend(std::iter::repeat_n(0.0, self.a_len));
-                    }
                     g.was_locked.push(false);
+                    fresh = true;
                 });
                 if quadrics {
-                    let at = id as usize * self.a_len;
-                    for (j, x) in v[vs..vs + 4 * self.a_len].chunks_exact(4).enumerate() {
-                        g.a[at + j] += f32::from_le_bytes(x.try_into().unwrap()) as f64;
+                    let carried = v[vs..vs + 4 * self.a_len].chunks_exact(4).map(|x| f32::from_le_bytes(x.try_into().unwrap()) as f64);
+                    if fresh {
+                        // A vertex's first record: its values added to zero
+                        // (the same bits, a negative zero made positive),
+                        // without zeroing its row first.
+                        g.a.extend(carried.map(|x| 0.0 + x));
+                    } else {
+                        let at = id as usize * self.a_len;
+                        for (a, x) in g.a[at..at + self.a_len].iter_mut().zip(carried) {
+                            *a += x;
+                        }
                     }
                 }
                 g.was_locked[id as usize] |= v[rec - 1] & 1 != 0;

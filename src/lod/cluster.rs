@@ -1078,9 +1078,11 @@ impl<'a> Splits<'a> {
     fn row_into(&self, v: u32, p: &[f64], eliminate: bool, q: &mut [f64]) {
         let dim = self.space.dim;
         let (al, cs) = (dim * (dim + 1) / 2, carry_len(dim));
-        let mut t = [0.0; crate::quadric::MAX_COEFFS];
+        // Cleared only for a seam vertex (most rows take the carried values as they are).
+        let mut t: [f64; crate::quadric::MAX_COEFFS];
         let c = &self.va[v as usize * cs..(v as usize + 1) * cs];
         let c = if eliminate {
+            t = [0.0; crate::quadric::MAX_COEFFS];
             let t = &mut t[..cs];
             t.copy_from_slice(c);
             crate::quadric::eliminate_attrs(dim, t, crate::quadric::DEFAULT_REL_TOL);
