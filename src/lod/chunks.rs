@@ -310,9 +310,9 @@ impl ChunkFile {
     }
 }
 
-/// A chunk's header field at byte `at` (4: source, 8: vertices, 12:
-/// triangles).
-fn field(b: &[u8], at: usize) -> usize {
+/// A chunk's header field at byte `at` (0: target leaf, 4: source, 8:
+/// vertices, 12: triangles).
+pub(crate) fn field(b: &[u8], at: usize) -> usize {
     u32::from_le_bytes(b[at..at + 4].try_into().unwrap()) as usize
 }
 

@@ -20,7 +20,7 @@ use super::plan::Plan;
 use super::state::ShardState;
 use crate::error::{Error, IoContext, Location, Result};
 use crate::io::{AtomicDir, OutputKind};
-use crate::lod::chunks::ChunkFile;
+use crate::lod::chunks::{self, ChunkFile};
 use crate::lod::level::{LevelBuilder, Paused};
 use crate::lod::octree::OctreeReport;
 use crate::lod::simplifier::NodeSimplifier;
@@ -286,13 +286,13 @@ fn union_chunks(states: &[ShardState], dirs: &[PathBuf], map: &[Vec<u32>], path:
             b.resize(r.bytes as usize, 0);
             f.read_exact_at(&mut b, r.offset).ctx(&src, "read chunk file")?;
             let bad = || Error::input(Location { file: src.clone(), offset: Some(r.offset), ..Default::default() }, "damaged chunk");
-            if b.len() < 16 || u32::from_le_bytes(b[0..4].try_into().unwrap()) != r.target {
+            if b.len() < 16 || chunks::field(&b, 0) != r.target as usize {
                 return Err(bad());
             }
             let target = leaf_base + r.target;
             b[0..4].copy_from_slice(&target.to_le_bytes());
             if stop > 0 {
-                let source = u32::from_le_bytes(b[4..8].try_into().unwrap()) as usize;
+                let source = chunks::field(&b, 4);
                 let id = *m.get(source).ok_or_else(bad)?;
                 b[4..8].copy_from_slice(&id.to_le_bytes());
             }
