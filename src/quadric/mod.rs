@@ -267,8 +267,8 @@ fn packed_at_point_n(dim: usize, a: &[f64], p: &[f64], area: f64, out: &mut [f64
     let mut rest = a;
     for i in 0..dim {
         let (row, tail) = rest.split_at(dim - i);
-        ap[i] += row[0] * p[i];
         let pi = p[i];
+        ap[i] += row[0] * pi;
         for (j, &v) in (i + 1..dim).zip(&row[1..]) {
             ap[i] += v * p[j];
             ap[j] += v * pi;
