@@ -5,18 +5,22 @@
 //! tables). Nothing is compared or merged; the disk is read and written in
 //! sequence.
 //!
-//! Takes: fixed-size records and a byte budget. Gives: [`BucketFiles`]
-//! (append per bucket, written behind the caller), [`read_records`], and
-//! [`SlotBuckets`] (records by dense slot, emitted in slot order).
+//! Takes: fixed-size or varint-coded records and a byte budget. Gives:
+//! [`BucketFiles`] (append per bucket, written behind the caller),
+//! [`read_records`] and [`read_varying`], LEB128 varints ([`put_varint`],
+//! [`get_varint`]), and [`SlotBuckets`] (records by dense slot, emitted in
+//! slot order; its records delta-coded, as the soup's corner records: the
+//! external path is bound by the bytes it writes, `docs/ply-and-soup.md`).
 
 use super::{WriteBehind, SEQ_BUF};
-use crate::error::{IoContext, Result};
+use crate::error::{Error, IoContext, Location, Result};
 use rayon::prelude::*;
 use std::fs::File;
 use std::io::Read;
 use std::path::{Path, PathBuf};
 
-/// Append-only bucket files of fixed-size records, one write buffer of
+/// Append-only bucket files of records of at most `rec` bytes (fixed:
+/// [`BucketFiles::record`]; varying: [`BucketFiles::room`]), one write buffer of
 /// `region` bytes per bucket, filled up to `fill[b]`; a full buffer is
 /// written behind ([`WriteBehind`]: the kernel's copy runs on another core
 /// while the next records are made) and replaced by an empty one.
@@ -79,6 +83,26 @@ impl BucketFiles {
         Ok(&mut self.bufs[b][at..at + self.rec])
     }
 
+    /// Room for a record of at most `max` bytes (at most the record size
+    /// the files were made with) at the end of bucket `b`;
+    /// [`BucketFiles::commit`] then says how many bytes it took.
+    #[inline]
+    pub(crate) fn room(&mut self, b: usize, max: usize) -> Result<&mut [u8]> {
+        debug_assert!(max <= self.rec);
+        if self.fill[b] + max > self.region {
+            self.flush(b)?;
+        }
+        let at = self.fill[b];
+        Ok(&mut self.bufs[b][at..at + max])
+    }
+
+    /// The record just written into [`BucketFiles::room`] took `len` bytes.
+    #[inline]
+    pub(crate) fn commit(&mut self, b: usize, len: usize) {
+        self.counts[b] += 1;
+        self.fill[b] += len;
+    }
+
     fn flush(&mut self, b: usize) -> Result<()> {
         if self.fill[b] > 0 {
             let full = std::mem::take(&mut self.bufs[b]);
@@ -115,6 +139,77 @@ pub(crate) fn read_records(path: &Path, rec: usize, records: u64, chunk: &mut [u
     Ok(())
 }
 
+/// Reads the variable-length records of the file at `path` (each at most
+/// `max_rec` bytes) through `chunk` (at least `max_rec` bytes): `each` is
+/// given the bytes from a record's start (at least `max_rec` of them, or
+/// all that are left) and returns the record's length. Gives the bytes read.
+pub(crate) fn read_varying(path: &Path, max_rec: usize, chunk: &mut [u8], mut each: impl FnMut(&[u8]) -> Result<usize>) -> Result<u64> {
+    assert!(chunk.len() >= max_rec && max_rec > 0);
+    let mut f = File::open(path).ctx(path, "open bucket file")?;
+    let total = f.metadata().ctx(path, "read bucket file")?.len();
+    let mut left = total;
+    let (mut lo, mut hi) = (0usize, 0usize);
+    loop {
+        if left > 0 && hi - lo < max_rec {
+            chunk.copy_within(lo..hi, 0);
+            hi -= lo;
+            lo = 0;
+            let want = ((chunk.len() - hi) as u64).min(left) as usize;
+            f.read_exact(&mut chunk[hi..hi + want]).ctx(path, "read bucket file")?;
+            hi += want;
+            left -= want as u64;
+        }
+        if lo == hi {
+            return Ok(total);
+        }
+        while lo < hi && (hi - lo >= max_rec || left == 0) {
+            let n = each(&chunk[lo..hi])?;
+            debug_assert!(n > 0 && n <= hi - lo);
+            lo += n;
+        }
+    }
+}
+
+/// Writes `x` as a LEB128 varint (7 bits a byte, low first) at the start
+/// of `out` (room for 10 bytes); gives its length.
+#[inline]
+pub(crate) fn put_varint(out: &mut [u8], mut x: u64) -> usize {
+    if x < 0x80 {
+        out[0] = x as u8;
+        return 1;
+    }
+    let mut i = 0;
+    while x >= 0x80 {
+        out[i] = x as u8 | 0x80;
+        x >>= 7;
+        i += 1;
+    }
+    out[i] = x as u8;
+    i + 1
+}
+
+/// The LEB128 varint at the start of `b` and its length; None when `b`
+/// ends inside it or it runs past 10 bytes.
+#[inline]
+pub(crate) fn get_varint(b: &[u8]) -> Option<(u64, usize)> {
+    match b.first() {
+        Some(&c) if c < 0x80 => return Some((c as u64, 1)),
+        None => return None,
+        _ => {}
+    }
+    let mut x = 0u64;
+    for (i, &c) in b.iter().enumerate().take(10) {
+        x |= ((c & 0x7f) as u64) << (7 * i);
+        if c < 0x80 {
+            return Some((x, i + 1));
+        }
+    }
+    None
+}
+
+/// The longest varint of a slot record's slot difference (33 bits).
+const MAX_SLOT_VARINT: usize = 5;
+
 /// Phases 2–3 of the external path: a one-pass distribution sort by slot.
 ///
 /// Slots are dense (0..3·triangles), so instead of a comparison sort the
@@ -129,8 +224,13 @@ pub(crate) struct SlotBuckets {
     per: u64,
     /// Buckets placed at once (one per thread), each in its share of the placing memory.
     group: usize,
-    /// Records (slot within the bucket: u32, vertex bytes), when spilling.
+    /// Records, when spilling: the slot within the bucket as the zigzag
+    /// varint of its difference from the bucket's previous record's (1 or
+    /// 2 bytes where corners come in order; a fixed u32 took 4), then the
+    /// vertex bytes.
     files: Option<BucketFiles>,
+    /// Each bucket's last slot within it.
+    prev: Vec<u32>,
     /// The single in-memory bucket, when everything fits.
     mem: Option<Vec<u8>>,
     placed: u64,
@@ -141,13 +241,13 @@ impl SlotBuckets {
         let total = n_slots * vsize as u64;
         if total <= write_mem as u64 {
             let mem = Some(vec![0u8; total as usize]);
-            return Ok(SlotBuckets { vsize, n_slots, per: n_slots.max(3), group: 1, files: None, mem, placed: 0 });
+            return Ok(SlotBuckets { vsize, n_slots, per: n_slots.max(3), group: 1, files: None, prev: Vec::new(), mem, placed: 0 });
         }
         let group = rayon::current_num_threads().max(1);
         let per = ((place_mem / group / vsize) as u64 / 3 * 3).clamp(3, u32::MAX as u64 / 3 * 3);
         let n = n_slots.div_ceil(per) as usize;
-        let files = Some(BucketFiles::create(dir, name, n, 4 + vsize, write_mem)?);
-        Ok(SlotBuckets { vsize, n_slots, per, group, files, mem: None, placed: 0 })
+        let files = Some(BucketFiles::create(dir, name, n, MAX_SLOT_VARINT + vsize, write_mem)?);
+        Ok(SlotBuckets { vsize, n_slots, per, group, files, prev: vec![0; n], mem: None, placed: 0 })
     }
 
     /// Bucket files (0: placed in memory).
@@ -164,9 +264,13 @@ impl SlotBuckets {
             return Ok(());
         }
         let files = self.files.as_mut().expect("slot buckets spill or place in memory");
-        let r = files.record((slot / self.per) as usize)?;
-        r[..4].copy_from_slice(&((slot % self.per) as u32).to_le_bytes());
-        r[4..].copy_from_slice(vertex);
+        let (b, i) = ((slot / self.per) as usize, (slot % self.per) as u32);
+        let r = files.room(b, MAX_SLOT_VARINT + s)?;
+        let d = i as i64 - self.prev[b] as i64;
+        self.prev[b] = i;
+        let n = put_varint(r, ((d << 1) ^ (d >> 63)) as u64);
+        r[n..n + s].copy_from_slice(vertex);
+        files.commit(b, n + s);
         Ok(())
     }
 
@@ -180,7 +284,7 @@ impl SlotBuckets {
             return Ok(0);
         }
         let mut spilled = 0;
-        let rec = 4 + s;
+        let rec = MAX_SLOT_VARINT + s;
         // Flush every bucket first: the write buffers must not sit in
         // memory beside the buckets being placed.
         let buckets = self.files.expect("slot buckets spill or place in memory").finish()?;
@@ -190,27 +294,40 @@ impl SlotBuckets {
         // own thread), then written out in order.
         let numbered: Vec<(usize, (PathBuf, u64))> = buckets.into_iter().enumerate().collect();
         for group in numbered.chunks(self.group) {
-            let placed: Vec<Result<Vec<u8>>> = group
+            let placed: Vec<Result<(Vec<u8>, u64)>> = group
                 .par_iter()
                 .map(|(b, (path, records))| {
                     let first = *b as u64 * self.per;
                     let n = (self.n_slots - first).min(self.per) as usize;
                     assert_eq!(*records, n as u64, "bucket {b} misses corners");
-                    let mut chunk = vec![0u8; (SEQ_BUF / rec).max(1) * rec];
+                    let mut chunk = vec![0u8; SEQ_BUF.max(rec)];
                     // A single large allocation per bucket, freed once written.
                     let mut placed = vec![0u8; n * s];
-                    read_records(path, rec, *records, &mut chunk, |c| {
-                        let i = u32::from_le_bytes(c[..4].try_into().unwrap()) as usize;
-                        placed[i * s..(i + 1) * s].copy_from_slice(&c[4..]);
-                        Ok(())
+                    let (mut prev, mut seen) = (0i64, 0u64);
+                    let bytes = read_varying(path, rec, &mut chunk, |c| {
+                        let at = || Location { file: path.clone(), element: Some("slot record".into()), record: Some(seen), ..Default::default() };
+                        let (z, k) = get_varint(c).ok_or_else(|| Error::input(at(), "damaged scratch slot record"))?;
+                        let i = prev + ((z >> 1) as i64 ^ -((z & 1) as i64));
+                        if !(0..n as i64).contains(&i) || c.len() < k + s {
+                            return Err(Error::input(at(), "damaged scratch slot record"));
+                        }
+                        prev = i;
+                        seen += 1;
+                        let i = i as usize;
+                        placed[i * s..(i + 1) * s].copy_from_slice(&c[k..k + s]);
+                        Ok(k + s)
                     })?;
+                    if seen != *records {
+                        let at = Location { file: path.clone(), ..Default::default() };
+                        return Err(Error::input(at, format!("damaged scratch slot file: {seen} records read, {records} written")));
+                    }
                     let _ = std::fs::remove_file(path);
-                    Ok(placed)
+                    Ok((placed, bytes))
                 })
                 .collect();
             for p in placed {
-                let p = p?;
-                spilled += (p.len() / s * rec) as u64;
+                let (p, bytes) = p?;
+                spilled += bytes;
                 out(&p)?;
             }
             // The group's buffers are freed; below glibc's mmap threshold
@@ -220,5 +337,49 @@ impl SlotBuckets {
             crate::mem::trim();
         }
         Ok(spilled)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn varints_round_trip_and_cut_ones_are_refused() {
+        let mut b = [0u8; 10];
+        for x in [0u64, 1, 127, 128, 300, u32::MAX as u64, u32::MAX as u64 + 1, u64::MAX] {
+            let n = put_varint(&mut b, x);
+            assert_eq!(get_varint(&b[..n]), Some((x, n)), "{x}");
+            assert_eq!(get_varint(&b[..n - 1]), None, "{x} cut");
+        }
+        assert_eq!(put_varint(&mut b, u64::MAX), 10);
+    }
+
+    #[test]
+    fn varying_records_straddling_chunks_are_read_whole() {
+        let d = tempfile::tempdir().unwrap();
+        let mut files = BucketFiles::create(d.path(), "v", 2, 10, 8 << 10).unwrap();
+        let xs: Vec<u64> = (0..20_000u64).map(|i| (i * 2_654_435_761) >> (i % 60)).collect();
+        for (i, &x) in xs.iter().enumerate() {
+            let r = files.room(i % 2, 10).unwrap();
+            let n = put_varint(r, x);
+            files.commit(i % 2, n);
+        }
+        let buckets = files.finish().unwrap();
+        for (b, (path, records)) in buckets.iter().enumerate() {
+            assert_eq!(*records, 10_000);
+            let mut got = Vec::new();
+            // A chunk of 13 bytes: most records straddle two reads.
+            let mut chunk = vec![0u8; 13];
+            let bytes = read_varying(path, 10, &mut chunk, |r| {
+                let (x, n) = get_varint(r).unwrap();
+                got.push(x);
+                Ok(n)
+            })
+            .unwrap();
+            assert_eq!(bytes, std::fs::metadata(path).unwrap().len());
+            let want: Vec<u64> = xs.iter().skip(b).step_by(2).copied().collect();
+            assert_eq!(got, want);
+        }
     }
 }

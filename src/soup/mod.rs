@@ -35,7 +35,7 @@ pub mod format;
 
 use crate::error::{Error, IoContext, Location, Result};
 use crate::input::{Format, InputHeader};
-use crate::io::buckets::{read_records, BucketFiles, SlotBuckets};
+use crate::io::buckets::{get_varint, put_varint, read_varying, BucketFiles, SlotBuckets};
 use crate::io::SEQ_BUF;
 use crate::mesh::{Aabb, Vertex, VertexLayout};
 use crate::ply::read::{BodySink, BodyStats};
@@ -56,10 +56,6 @@ pub struct SoupOptions {
     pub force_external: bool,
     /// Replace an existing soup at the output path (`--force`).
     pub replace: bool,
-    /// The external path's corner records carry their slot in 4 bytes
-    /// while slots stay below this (default 2³²); an input with more slots
-    /// starts phase 1 again with 8-byte slots. Lowered only by tests.
-    pub narrow_slots: u64,
     /// The soup is the caller's scratch (`build`'s, removed once the levels
     /// are built): not synced to disk when it is complete.
     pub scratch: bool,
@@ -67,7 +63,7 @@ pub struct SoupOptions {
 
 impl Default for SoupOptions {
     fn default() -> Self {
-        SoupOptions { mem: crate::mem::DEFAULT_BUDGET, quiet: true, force_external: false, replace: false, narrow_slots: 1 << 32, scratch: false }
+        SoupOptions { mem: crate::mem::DEFAULT_BUDGET, quiet: true, force_external: false, replace: false, scratch: false }
     }
 }
 
@@ -363,12 +359,37 @@ fn build_in_memory(input: &Path, output: &Path, header: &InputHeader, opts: &Sou
 
 // ------------------------------------------------------------------- external
 
-/// A corner record of the external path: the vertex's index within its
-/// slab (u32) and the corner's slot (`slot_bytes`: u32 while slots fit,
-/// else u64), little endian. Narrow records are a third fewer bytes to
-/// write and read back.
-fn corner_rec(slot_bytes: usize) -> usize {
-    4 + slot_bytes
+/// A corner record of the external path, in its slab's bucket: the
+/// vertex's index within its slab, as the zigzag varint of its difference
+/// from the bucket's previous record's, then the slot's difference from
+/// the previous slot (slots only grow within a bucket), a varint. On the
+/// scans and terrains we read a triangle's vertices are near the previous
+/// triangle's, so a record takes 2-4 bytes; fixed records took 8 (a u32
+/// index, a u32 slot) or 12 (u64 slots), and phases 1 and 2 are bound by
+/// the bytes they write and read back (the kernel's copy into the page
+/// cache was a whole core while the caller used half of one).
+const MAX_CORNER_REC: usize = 5 + 10;
+
+/// Writes corner (`local`, `slot`) after `prev` into `out`; gives its length.
+#[inline]
+fn put_corner(out: &mut [u8], prev: &mut (u32, u64), local: u32, slot: u64) -> usize {
+    let d = local as i64 - prev.0 as i64;
+    let n = put_varint(out, ((d << 1) ^ (d >> 63)) as u64);
+    let n = n + put_varint(&mut out[n..], slot - prev.1);
+    *prev = (local, slot);
+    n
+}
+
+/// The corner record at the start of `b` after `prev` (see [`put_corner`]):
+/// (local, slot) and its length; None for a record cut short.
+#[inline]
+fn get_corner(b: &[u8], prev: &mut (u32, u64)) -> Option<(u32, u64, usize)> {
+    let (z, n) = get_varint(b)?;
+    let (ds, m) = get_varint(&b[n..])?;
+    let local = (prev.0 as i64 + ((z >> 1) as i64 ^ -((z & 1) as i64))) as u32;
+    let slot = prev.1.checked_add(ds)?;
+    *prev = (local, slot);
+    Some((local, slot, n + m))
 }
 
 struct ExternalSink<'a> {
@@ -378,14 +399,11 @@ struct ExternalSink<'a> {
     vbuf: Vec<u8>,
     /// Vertices per slab.
     per_slab: u64,
-    /// One bucket of corner records per vertex slab.
+    /// One bucket of corner records per vertex slab, and each bucket's
+    /// last record (`put_corner`).
     corners: BucketFiles,
+    prev: Vec<(u32, u64)>,
     next_tri: u64,
-    /// Bytes of a record's slot (4 or 8), and the slots 4 bytes can hold.
-    slot_bytes: usize,
-    narrow_slots: u64,
-    /// Set when a slot outgrew 4 bytes (phase 1 stops; it starts again wide).
-    overflow: bool,
     /// The bounding box of every vertex (as encoded), for a tap.
     bbox: Aabb,
     /// Per-wedge uvs in triangle order (faces with a `texcoord` list):
@@ -426,19 +444,14 @@ impl BodySink for ExternalSink<'_> {
         self.vfile.write_all(&self.vbuf).ctx(self.vpath, "write vertex file")
     }
     fn triangles(&mut self, batch: &[[u64; 3]]) -> Result<()> {
-        let sb = self.slot_bytes;
         for t in batch {
             let slot0 = self.next_tri * 3;
-            if sb == 4 && slot0 + 3 > self.narrow_slots {
-                self.overflow = true;
-                return Err(Error::Usage("corner slots outgrew 4 bytes".into()));
-            }
             for (c, &vi) in t.iter().enumerate() {
                 // Indices were checked against the vertex count by the reader.
-                let (slab, local) = (vi / self.per_slab, vi % self.per_slab);
-                let r = self.corners.record(slab as usize)?;
-                r[..4].copy_from_slice(&(local as u32).to_le_bytes());
-                r[4..4 + sb].copy_from_slice(&(slot0 + c as u64).to_le_bytes()[..sb]);
+                let (slab, local) = ((vi / self.per_slab) as usize, (vi % self.per_slab) as u32);
+                let r = self.corners.room(slab, MAX_CORNER_REC)?;
+                let n = put_corner(r, &mut self.prev[slab], local, slot0 + c as u64);
+                self.corners.commit(slab, n);
             }
             self.next_tri += 1;
         }
@@ -528,8 +541,6 @@ struct SlabCorners {
     buckets: Vec<(PathBuf, u64)>,
     /// The bounding box of every vertex (as encoded), for a tap.
     vertex_bbox: Aabb,
-    /// Bytes of a corner record's slot (4 or 8).
-    slot_bytes: usize,
     /// The per-wedge uv file, when the faces carry uvs.
     wedges: Option<PathBuf>,
     /// The per-triangle material file, when the faces carry materials.
@@ -540,61 +551,45 @@ struct SlabCorners {
 /// distributed by vertex slab.
 fn distribute_by_slab(input: &Path, header: &InputHeader, opts: &SoupOptions, progress: &Progress, plan: &ExternalPlan, scratch: &Path) -> Result<SlabCorners> {
     let vpath = scratch.join("vertices.bin");
-    // Narrow slots unless the faces alone (one triangle each) outgrow them;
-    // polygons can still do so, and then phase 1 starts again wide.
-    let mut slot_bytes = if header.face_count().saturating_mul(3) <= opts.narrow_slots { 4 } else { 8 };
-    loop {
-        let vfile = File::create(&vpath).ctx(&vpath, "create vertex file")?;
-        let mut sink = ExternalSink {
-            layout: plan.layout,
-            vfile: BufWriter::with_capacity(SEQ_BUF, vfile),
-            vpath: &vpath,
-            vbuf: Vec::new(),
-            per_slab: plan.per_slab,
-            corners: BucketFiles::create(scratch, "corners", plan.n_slabs, corner_rec(slot_bytes), plan.budget)?,
-            next_tri: 0,
-            slot_bytes,
-            narrow_slots: opts.narrow_slots,
-            overflow: false,
-            bbox: Aabb::EMPTY,
-            wedges: None,
-            wpath: scratch.join("wedges.bin"),
-            mats: None,
-            mpath: scratch.join("materials.bin"),
-        };
-        // The reader holds what the corner buckets' and the vertex file's buffers leave.
-        let reader_mem = opts.mem.saturating_sub(sink.corners.buffer_bytes() + SEQ_BUF as u64);
-        let body = match crate::input::read_body(input, header, reader_mem, scratch, &mut sink, progress) {
-            Err(_) if sink.overflow => {
-                // The files are created afresh (truncated) on the next try.
-                drop(sink);
-                slot_bytes = 8;
-                progress.set(0);
-                continue;
-            }
-            r => r?,
-        };
-        if body.triangles == 0 {
-            return Err(no_triangles_error(input, header, &body));
-        }
-        let ExternalSink { vfile, corners, bbox, wedges, wpath, mats, mpath, .. } = sink;
-        vfile.into_inner().map_err(|e| e.into_error()).ctx(&vpath, "write vertex file")?;
-        let wedges = match wedges {
-            Some(w) => {
-                w.into_inner().map_err(|e| e.into_error()).ctx(&wpath, "write wedge uv file")?;
-                Some(wpath)
-            }
-            None => None,
-        };
-        let materials = match mats {
-            Some(w) => {
-                w.into_inner().map_err(|e| e.into_error()).ctx(&mpath, "write material file")?;
-                Some(mpath)
-            }
-            None => None,
-        };
-        return Ok(SlabCorners { body, buckets: corners.finish()?, vpath, vertex_bbox: bbox, slot_bytes, wedges, materials });
+    let vfile = File::create(&vpath).ctx(&vpath, "create vertex file")?;
+    let mut sink = ExternalSink {
+        layout: plan.layout,
+        vfile: BufWriter::with_capacity(SEQ_BUF, vfile),
+        vpath: &vpath,
+        vbuf: Vec::new(),
+        per_slab: plan.per_slab,
+        corners: BucketFiles::create(scratch, "corners", plan.n_slabs, MAX_CORNER_REC, plan.budget)?,
+        prev: vec![(0, 0); plan.n_slabs],
+        next_tri: 0,
+        bbox: Aabb::EMPTY,
+        wedges: None,
+        wpath: scratch.join("wedges.bin"),
+        mats: None,
+        mpath: scratch.join("materials.bin"),
+    };
+    // The reader holds what the corner buckets' and the vertex file's buffers leave.
+    let reader_mem = opts.mem.saturating_sub(sink.corners.buffer_bytes() + SEQ_BUF as u64);
+    let body = crate::input::read_body(input, header, reader_mem, scratch, &mut sink, progress)?;
+    if body.triangles == 0 {
+        return Err(no_triangles_error(input, header, &body));
     }
+    let ExternalSink { vfile, corners, bbox, wedges, wpath, mats, mpath, .. } = sink;
+    vfile.into_inner().map_err(|e| e.into_error()).ctx(&vpath, "write vertex file")?;
+    let wedges = match wedges {
+        Some(w) => {
+            w.into_inner().map_err(|e| e.into_error()).ctx(&wpath, "write wedge uv file")?;
+            Some(wpath)
+        }
+        None => None,
+    };
+    let materials = match mats {
+        Some(w) => {
+            w.into_inner().map_err(|e| e.into_error()).ctx(&mpath, "write material file")?;
+            Some(mpath)
+        }
+        None => None,
+    };
+    Ok(SlabCorners { body, buckets: corners.finish()?, vpath, vertex_bbox: bbox, wedges, materials })
 }
 
 /// What phase 2 leaves for phase 3.
@@ -615,16 +610,15 @@ struct Joined {
 /// from the vertex file), its corners dereferenced and distributed by slot;
 /// the tap sees each triangle's first corner.
 fn join_slabs(plan: &ExternalPlan, scratch: &Path, slabs: SlabCorners, quiet: bool, tap: &mut Option<&mut dyn SoupTap>) -> Result<Joined> {
-    let SlabCorners { body, vpath, buckets: corner_buckets, vertex_bbox, slot_bytes, wedges, materials } = slabs;
+    let SlabCorners { body, vpath, buckets: corner_buckets, vertex_bbox, wedges, materials } = slabs;
     let (layout, s, per_slab, n_vertices) = (plan.layout, plan.layout.size, plan.per_slab, plan.n_vertices);
-    let crec = corner_rec(slot_bytes);
     let n_corners = body.triangles * 3;
     let join_progress = Progress::items(n_corners, "joining", quiet);
     // Phase 3 places a slot range beside what the tap holds.
     let mut buckets = SlotBuckets::new(scratch, "slots", n_corners, s, plan.held, plan.held / 2)?;
     let mut vfile = File::open(&vpath).ctx(&vpath, "open vertex file")?;
     let mut slab = vec![0u8; per_slab.min(n_vertices) as usize * s];
-    let mut chunk = vec![0u8; SEQ_BUF / crec * crec];
+    let mut chunk = vec![0u8; SEQ_BUF];
     let mut done = 0u64;
     let mut corner_bucket_bytes = 0;
     let mut bbox = Aabb::EMPTY;
@@ -642,12 +636,15 @@ fn join_slabs(plan: &ExternalPlan, scratch: &Path, slabs: SlabCorners, quiet: bo
         let n = body.vertices.saturating_sub(k as u64 * per_slab).min(per_slab) as usize;
         let slab = &mut slab[..n * s];
         vfile.read_exact(slab).ctx(&vpath, "read vertex file")?;
-        read_records(&path, crec, records, &mut chunk, |r| {
-            let local = u32::from_le_bytes(r[..4].try_into().unwrap()) as usize;
-            let slot = match slot_bytes {
-                4 => u32::from_le_bytes(r[4..8].try_into().unwrap()) as u64,
-                _ => u64::from_le_bytes(r[4..12].try_into().unwrap()),
+        let mut prev = (0u32, 0u64);
+        let mut seen = 0u64;
+        let bytes = read_varying(&path, MAX_CORNER_REC, &mut chunk, |r| {
+            let Some((local, slot, len)) = get_corner(r, &mut prev).filter(|c| (c.0 as usize) < n && c.1 < n_corners) else {
+                let at = Location { file: path.clone(), element: Some("corner record".into()), record: Some(seen), ..Default::default() };
+                return Err(Error::input(at, "damaged scratch corner record"));
             };
+            seen += 1;
+            let local = local as usize;
             let v = &slab[local * s..(local + 1) * s];
             if let Some(t) = tap.as_mut() {
                 let p = layout.position(v);
@@ -666,10 +663,14 @@ fn join_slabs(plan: &ExternalPlan, scratch: &Path, slabs: SlabCorners, quiet: bo
                 join_progress.set(done);
                 crate::io::signal::check()?;
             }
-            Ok(())
+            Ok(len)
         })?;
+        if seen != records {
+            let at = Location { file: path.clone(), ..Default::default() };
+            return Err(Error::input(at, format!("damaged scratch corner file: {seen} records read, {records} written")));
+        }
         let _ = std::fs::remove_file(&path);
-        corner_bucket_bytes += records * crec as u64;
+        corner_bucket_bytes += bytes;
     }
     debug_assert_eq!(done, n_corners);
     if let Some(t) = tap.as_mut() {
@@ -777,4 +778,33 @@ fn write_slots(
         }
     };
     Ok(Written { header, slot_buckets, slot_bucket_bytes, mode })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn corner_records_round_trip_at_any_index_and_slot() {
+        // Indices up and down within a slab, slots past 2^32 (wider than the
+        // fixed 4-byte slots were).
+        let corners = [(5u32, 0u64), (0, 1), (u32::MAX, 2), (7, 9), (7, 1 << 33), (u32::MAX - 1, (1 << 33) + 3), (0, u64::MAX / 2)];
+        let mut buf = vec![0u8; MAX_CORNER_REC * corners.len()];
+        let (mut prev, mut at) = ((0, 0), 0);
+        for &(l, s) in &corners {
+            at += put_corner(&mut buf[at..], &mut prev, l, s);
+        }
+        let (mut prev, mut off) = ((0, 0), 0);
+        for &(l, s) in &corners {
+            let (gl, gs, n) = get_corner(&buf[off..at], &mut prev).unwrap();
+            assert_eq!((gl, gs), (l, s));
+            assert!(n <= MAX_CORNER_REC);
+            off += n;
+        }
+        assert_eq!(off, at);
+        // A record cut short is refused, not misread.
+        let mut prev = (0, 0);
+        let n = put_corner(&mut buf, &mut prev, 1 << 20, 1 << 40);
+        assert!(get_corner(&buf[..n - 1], &mut (0, 0)).is_none());
+    }
 }
