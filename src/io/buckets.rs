@@ -139,16 +139,18 @@ pub(crate) fn read_records(path: &Path, rec: usize, records: u64, chunk: &mut [u
     Ok(())
 }
 
-/// Reads the variable-length records of the file at `path` (each at most
-/// `max_rec` bytes) through `chunk` (at least `max_rec` bytes): `each` is
-/// given the bytes from a record's start (at least `max_rec` of them, or
-/// all that are left) and returns the record's length. Gives the bytes read.
-pub(crate) fn read_varying(path: &Path, max_rec: usize, chunk: &mut [u8], mut each: impl FnMut(&[u8]) -> Result<usize>) -> Result<u64> {
+/// Reads the `records` variable-length records of the file at `path`
+/// (each at most `max_rec` bytes) through `chunk` (at least `max_rec`
+/// bytes): `each` is given a record's index and the bytes from its start
+/// (at least `max_rec` of them, or all that are left) and returns the
+/// record's length. Gives the bytes read; an error naming the file when
+/// it holds another number of records (a damaged scratch file).
+pub(crate) fn read_varying(path: &Path, max_rec: usize, records: u64, chunk: &mut [u8], mut each: impl FnMut(u64, &[u8]) -> Result<usize>) -> Result<u64> {
     assert!(chunk.len() >= max_rec && max_rec > 0);
     let mut f = File::open(path).ctx(path, "open bucket file")?;
     let total = f.metadata().ctx(path, "read bucket file")?.len();
     let mut left = total;
-    let (mut lo, mut hi) = (0usize, 0usize);
+    let (mut lo, mut hi, mut seen) = (0usize, 0usize, 0u64);
     loop {
         if left > 0 && hi - lo < max_rec {
             chunk.copy_within(lo..hi, 0);
@@ -160,14 +162,34 @@ pub(crate) fn read_varying(path: &Path, max_rec: usize, chunk: &mut [u8], mut ea
             left -= want as u64;
         }
         if lo == hi {
-            return Ok(total);
+            break;
         }
         while lo < hi && (hi - lo >= max_rec || left == 0) {
-            let n = each(&chunk[lo..hi])?;
+            let n = each(seen, &chunk[lo..hi])?;
             debug_assert!(n > 0 && n <= hi - lo);
             lo += n;
+            seen += 1;
         }
     }
+    if seen != records {
+        let at = Location { file: path.to_path_buf(), ..Default::default() };
+        return Err(Error::input(at, format!("damaged scratch file: {seen} records read, {records} written")));
+    }
+    Ok(total)
+}
+
+/// A signed difference as an unsigned varint's value (zigzag: 0, -1, 1,
+/// -2, ... as 0, 1, 2, 3, ...), so small differences of either sign are
+/// short.
+#[inline]
+pub(crate) fn zigzag(d: i64) -> u64 {
+    ((d << 1) ^ (d >> 63)) as u64
+}
+
+/// The difference [`zigzag`] coded.
+#[inline]
+pub(crate) fn unzigzag(z: u64) -> i64 {
+    (z >> 1) as i64 ^ -((z & 1) as i64)
 }
 
 /// Writes `x` as a LEB128 varint (7 bits a byte, low first) at the start
@@ -268,7 +290,7 @@ impl SlotBuckets {
         let r = files.room(b, MAX_SLOT_VARINT + s)?;
         let d = i as i64 - self.prev[b] as i64;
         self.prev[b] = i;
-        let n = put_varint(r, ((d << 1) ^ (d >> 63)) as u64);
+        let n = put_varint(r, zigzag(d));
         r[n..n + s].copy_from_slice(vertex);
         files.commit(b, n + s);
         Ok(())
@@ -303,24 +325,24 @@ impl SlotBuckets {
                     let mut chunk = vec![0u8; SEQ_BUF.max(rec)];
                     // A single large allocation per bucket, freed once written.
                     let mut placed = vec![0u8; n * s];
-                    let (mut prev, mut seen) = (0i64, 0u64);
-                    let bytes = read_varying(path, rec, &mut chunk, |c| {
-                        let at = || Location { file: path.clone(), element: Some("slot record".into()), record: Some(seen), ..Default::default() };
-                        let (z, k) = get_varint(c).ok_or_else(|| Error::input(at(), "damaged scratch slot record"))?;
-                        let i = prev + ((z >> 1) as i64 ^ -((z & 1) as i64));
-                        if !(0..n as i64).contains(&i) || c.len() < k + s {
-                            return Err(Error::input(at(), "damaged scratch slot record"));
+                    let mut prev = 0i64;
+                    let bytes = read_varying(path, rec, *records, &mut chunk, |k, c| {
+                        let bad = || {
+                            Error::input(
+                                Location { file: path.clone(), element: Some("slot record".into()), record: Some(k), ..Default::default() },
+                                "damaged scratch slot record",
+                            )
+                        };
+                        let (z, len) = get_varint(c).ok_or_else(bad)?;
+                        let i = prev + unzigzag(z);
+                        if !(0..n as i64).contains(&i) || c.len() < len + s {
+                            return Err(bad());
                         }
                         prev = i;
-                        seen += 1;
                         let i = i as usize;
-                        placed[i * s..(i + 1) * s].copy_from_slice(&c[k..k + s]);
-                        Ok(k + s)
+                        placed[i * s..(i + 1) * s].copy_from_slice(&c[len..len + s]);
+                        Ok(len + s)
                     })?;
-                    if seen != *records {
-                        let at = Location { file: path.clone(), ..Default::default() };
-                        return Err(Error::input(at, format!("damaged scratch slot file: {seen} records read, {records} written")));
-                    }
                     let _ = std::fs::remove_file(path);
                     Ok((placed, bytes))
                 })
@@ -371,7 +393,7 @@ mod tests {
             let mut got = Vec::new();
             // A chunk of 13 bytes: most records straddle two reads.
             let mut chunk = vec![0u8; 13];
-            let bytes = read_varying(path, 10, &mut chunk, |r| {
+            let bytes = read_varying(path, 10, *records, &mut chunk, |_, r| {
                 let (x, n) = get_varint(r).unwrap();
                 got.push(x);
                 Ok(n)
@@ -380,6 +402,17 @@ mod tests {
             assert_eq!(bytes, std::fs::metadata(path).unwrap().len());
             let want: Vec<u64> = xs.iter().skip(b).step_by(2).copied().collect();
             assert_eq!(got, want);
+            // A count the file does not hold is a damaged file.
+            let e = read_varying(path, 10, *records + 1, &mut chunk, |_, r| Ok(get_varint(r).unwrap().1)).unwrap_err();
+            assert!(e.to_string().contains("10000 records read, 10001 written"), "{e}");
         }
+    }
+
+    #[test]
+    fn zigzag_round_trips_small_differences_short() {
+        for d in [0i64, -1, 1, -2, 63, -64, i64::MAX, i64::MIN] {
+            assert_eq!(unzigzag(zigzag(d)), d);
+        }
+        assert_eq!([0, -1, 1, -2].map(zigzag), [0, 1, 2, 3]);
     }
 }
