@@ -15,6 +15,7 @@
 //!   a third of the soup's time on the calling thread).
 
 pub(crate) mod buckets;
+pub(crate) mod relay;
 mod seq;
 pub(crate) use seq::SeqInput;
 pub mod output;

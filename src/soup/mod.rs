@@ -14,6 +14,10 @@
 //!    there and distributed to bucket files by slot range (slot = 3·triangle + corner);
 //! 3. each slot range placed in memory and written out as triangles, in order.
 //!
+//! Phases 1 and 2 each run on two threads ([`crate::io::relay`]): one
+//! reads (the PLY; a slab's corners) and hands batches to the other, which
+//! codes them into their bucket files in order.
+//!
 //! Invariants of the external path: the disk is only read and written in
 //! sequence; no record is ever compared or merged (corners are distributed by
 //! dense keys, never sorted); the only random access (corner → vertex) is in
@@ -36,6 +40,7 @@ pub mod format;
 use crate::error::{Error, IoContext, Location, Result};
 use crate::input::{Format, InputHeader};
 use crate::io::buckets::{get_varint, put_varint, read_varying, unzigzag, zigzag, BucketFiles, SlotBuckets};
+use crate::io::relay::Hand;
 use crate::io::SEQ_BUF;
 use crate::mesh::{Aabb, Vertex, VertexLayout};
 use crate::ply::read::{BodySink, BodyStats};
@@ -212,8 +217,10 @@ const WEDGE_BATCH: usize = 1 << 14;
 /// First corners per batch shown to a [`SoupTap`] in phase 2.
 const CORNER_BATCH: usize = 1 << 16;
 
-/// I/O buffers held besides the budgeted memory.
-const IO_RESERVE: u64 = 6 * SEQ_BUF as u64;
+/// I/O buffers held besides the budgeted memory, and the batches between
+/// the two threads of phases 1 and 2 (at most `RELAY_DEPTH + 2` of them, a
+/// phase-2 record at most 64 bytes: a slot and the largest vertex, 50).
+const IO_RESERVE: u64 = 6 * SEQ_BUF as u64 + ((RELAY_DEPTH + 2) * RELAY_CORNERS * 64) as u64;
 
 /// Builds a soup from `input` into `output`; see the module doc.
 pub fn build_soup(input: &Path, output: &Path, opts: &SoupOptions) -> Result<SoupReport> {
@@ -392,18 +399,15 @@ fn get_corner(b: &[u8], prev: &mut (u32, u64)) -> Option<(u32, u64, usize)> {
     Some((local, slot, n + m))
 }
 
+/// Phase 1's sink on the reading thread: vertices to the vertex file (and
+/// wedge uvs, materials to theirs); triangles handed in batches of
+/// [`RELAY_TRIS`] to the [`CornerBuckets`] on another thread.
 struct ExternalSink<'a> {
     layout: VertexLayout,
     vfile: BufWriter<File>,
     vpath: &'a Path,
     vbuf: Vec<u8>,
-    /// Vertices per slab.
-    per_slab: u64,
-    /// One bucket of corner records per vertex slab, and each bucket's
-    /// last record (`put_corner`).
-    corners: BucketFiles,
-    prev: Vec<(u32, u64)>,
-    next_tri: u64,
+    hand: Hand<Vec<[u64; 3]>>,
     /// The bounding box of every vertex (as encoded), for a tap.
     bbox: Aabb,
     /// Per-wedge uvs in triangle order (faces with a `texcoord` list):
@@ -413,6 +417,44 @@ struct ExternalSink<'a> {
     /// Per-triangle materials (u16) in triangle order, likewise.
     mats: Option<BufWriter<File>>,
     mpath: PathBuf,
+}
+
+/// Triangles a phase-1 batch hands over (192 KB; a phase-2 batch of as
+/// many corners is larger).
+const RELAY_TRIS: usize = 8192;
+/// Corners a phase-2 batch hands over (each its slot and vertex bytes).
+const RELAY_CORNERS: usize = 8192;
+/// Batches queued between the two threads of phases 1 and 2 (at most
+/// two more exist: one being filled, one being read).
+const RELAY_DEPTH: usize = 2;
+
+/// Phase 1's corner distributor: each triangle's corners to their vertex
+/// slab's bucket, in triangle order.
+struct CornerBuckets {
+    /// Vertices per slab.
+    per_slab: u64,
+    /// One bucket of corner records per vertex slab, and each bucket's
+    /// last record (`put_corner`).
+    corners: BucketFiles,
+    prev: Vec<(u32, u64)>,
+    next_tri: u64,
+}
+
+impl CornerBuckets {
+    fn add(&mut self, batch: &[[u64; 3]]) -> Result<()> {
+        for t in batch {
+            let slot0 = self.next_tri * 3;
+            for (c, &vi) in t.iter().enumerate() {
+                // Indices were checked against the vertex count by the reader.
+                let (slab, local) = ((vi / self.per_slab) as usize, (vi % self.per_slab) as u32);
+                let r = self.corners.room(slab, MAX_CORNER_REC)?;
+                let n = put_corner(r, &mut self.prev[slab], local, slot0 + c as u64);
+                self.corners.commit(slab, n);
+            }
+            self.next_tri += 1;
+        }
+        Ok(())
+    }
 }
 
 impl BodySink for ExternalSink<'_> {
@@ -444,16 +486,11 @@ impl BodySink for ExternalSink<'_> {
         self.vfile.write_all(&self.vbuf).ctx(self.vpath, "write vertex file")
     }
     fn triangles(&mut self, batch: &[[u64; 3]]) -> Result<()> {
-        for t in batch {
-            let slot0 = self.next_tri * 3;
-            for (c, &vi) in t.iter().enumerate() {
-                // Indices were checked against the vertex count by the reader.
-                let (slab, local) = ((vi / self.per_slab) as usize, (vi % self.per_slab) as u32);
-                let r = self.corners.room(slab, MAX_CORNER_REC)?;
-                let n = put_corner(r, &mut self.prev[slab], local, slot0 + c as u64);
-                self.corners.commit(slab, n);
-            }
-            self.next_tri += 1;
+        for part in batch.chunks(RELAY_TRIS) {
+            let mut b = self.hand.spare().unwrap_or_else(|| Vec::with_capacity(RELAY_TRIS));
+            b.clear();
+            b.extend_from_slice(part);
+            self.hand.send(b)?;
         }
         Ok(())
     }
@@ -552,28 +589,49 @@ struct SlabCorners {
 fn distribute_by_slab(input: &Path, header: &InputHeader, opts: &SoupOptions, progress: &Progress, plan: &ExternalPlan, scratch: &Path) -> Result<SlabCorners> {
     let vpath = scratch.join("vertices.bin");
     let vfile = File::create(&vpath).ctx(&vpath, "create vertex file")?;
-    let mut sink = ExternalSink {
-        layout: plan.layout,
-        vfile: BufWriter::with_capacity(SEQ_BUF, vfile),
-        vpath: &vpath,
-        vbuf: Vec::new(),
+    let buckets = CornerBuckets {
         per_slab: plan.per_slab,
         corners: BucketFiles::create(scratch, "corners", plan.n_slabs, MAX_CORNER_REC, plan.budget)?,
         prev: vec![(0, 0); plan.n_slabs],
         next_tri: 0,
-        bbox: Aabb::EMPTY,
-        wedges: None,
-        wpath: scratch.join("wedges.bin"),
-        mats: None,
-        mpath: scratch.join("materials.bin"),
     };
     // The reader holds what the corner buckets' and the vertex file's buffers leave.
-    let reader_mem = opts.mem.saturating_sub(sink.corners.buffer_bytes() + SEQ_BUF as u64);
-    let body = crate::input::read_body(input, header, reader_mem, scratch, &mut sink, progress)?;
+    let reader_mem = opts.mem.saturating_sub(buckets.corners.buffer_bytes() + SEQ_BUF as u64);
+    // This thread reads and parses; the corners are coded into their
+    // buckets on another (each was about half of phase 1).
+    let (read, buckets) = crate::io::relay::relay(
+        RELAY_DEPTH,
+        |hand| {
+            let mut sink = ExternalSink {
+                layout: plan.layout,
+                vfile: BufWriter::with_capacity(SEQ_BUF, vfile),
+                vpath: &vpath,
+                vbuf: Vec::new(),
+                hand,
+                bbox: Aabb::EMPTY,
+                wedges: None,
+                wpath: scratch.join("wedges.bin"),
+                mats: None,
+                mpath: scratch.join("materials.bin"),
+            };
+            let body = crate::input::read_body(input, header, reader_mem, scratch, &mut sink, progress)?;
+            // The hand dropped here ends the distributor's input.
+            let ExternalSink { vfile, bbox, wedges, wpath, mats, mpath, .. } = sink;
+            Ok((body, vfile, bbox, (wedges, wpath), (mats, mpath)))
+        },
+        move |take| {
+            let mut buckets = buckets;
+            while let Some(b) = take.next() {
+                buckets.add(&b)?;
+                take.give_back(b);
+            }
+            Ok(buckets)
+        },
+    )?;
+    let (body, vfile, bbox, (wedges, wpath), (mats, mpath)) = read;
     if body.triangles == 0 {
         return Err(no_triangles_error(input, header, &body));
     }
-    let ExternalSink { vfile, corners, bbox, wedges, wpath, mats, mpath, .. } = sink;
     vfile.into_inner().map_err(|e| e.into_error()).ctx(&vpath, "write vertex file")?;
     let wedges = match wedges {
         Some(w) => {
@@ -589,7 +647,7 @@ fn distribute_by_slab(input: &Path, header: &InputHeader, opts: &SoupOptions, pr
         }
         None => None,
     };
-    Ok(SlabCorners { body, buckets: corners.finish()?, vpath, vertex_bbox: bbox, wedges, materials })
+    Ok(SlabCorners { body, buckets: buckets.corners.finish()?, vpath, vertex_bbox: bbox, wedges, materials })
 }
 
 /// What phase 2 leaves for phase 3.
@@ -615,62 +673,91 @@ fn join_slabs(plan: &ExternalPlan, scratch: &Path, slabs: SlabCorners, quiet: bo
     let n_corners = body.triangles * 3;
     let join_progress = Progress::items(n_corners, "joining", quiet);
     // Phase 3 places a slot range beside what the tap holds.
-    let mut buckets = SlotBuckets::new(scratch, "slots", n_corners, s, plan.held, plan.held / 2)?;
-    let mut vfile = File::open(&vpath).ctx(&vpath, "open vertex file")?;
-    let mut slab = vec![0u8; per_slab.min(n_vertices) as usize * s];
-    let mut chunk = vec![0u8; SEQ_BUF];
-    let mut done = 0u64;
-    let mut corner_bucket_bytes = 0;
-    let mut bbox = Aabb::EMPTY;
-    let with_bbox = tap.is_some();
-    if let Some(t) = tap.as_mut() {
-        t.begin_corners(&vertex_bbox, layout);
-    }
-    // First corners waiting to be shown to the tap.
-    let mut firsts: Vec<[f64; 3]> = Vec::with_capacity(if with_bbox { CORNER_BATCH } else { 0 });
-    // The body may hold fewer vertices than the header's count (an OBJ's
-    // corner count is an upper bound on its distinct corners); the slabs
-    // past them are empty.
-    debug_assert!(body.vertices <= n_vertices);
-    for (k, (path, records)) in corner_buckets.into_iter().enumerate() {
-        let n = body.vertices.saturating_sub(k as u64 * per_slab).min(per_slab) as usize;
-        let slab = &mut slab[..n * s];
-        vfile.read_exact(slab).ctx(&vpath, "read vertex file")?;
-        let mut prev = (0u32, 0u64);
-        let bytes = read_varying(&path, MAX_CORNER_REC, records, &mut chunk, |k, r| {
-            let Some((local, slot, len)) = get_corner(r, &mut prev).filter(|c| (c.0 as usize) < n && c.1 < n_corners) else {
-                let at = Location { file: path.clone(), element: Some("corner record".into()), record: Some(k), ..Default::default() };
-                return Err(Error::input(at, "damaged scratch corner record"));
-            };
-            let local = local as usize;
-            let v = &slab[local * s..(local + 1) * s];
+    let buckets = SlotBuckets::new(scratch, "slots", n_corners, s, plan.held, plan.held / 2)?;
+    // This thread reads the slabs and dereferences their corners; another
+    // appends them to the slot buckets (each about half of phase 2). A
+    // batch holds `RELAY_CORNERS` records: the slot (8 bytes), the vertex.
+    let rec = 8 + s;
+    let ((corner_bucket_bytes, bbox), buckets) = crate::io::relay::relay(
+        RELAY_DEPTH,
+        |hand| {
+            let mut vfile = File::open(&vpath).ctx(&vpath, "open vertex file")?;
+            let mut slab = vec![0u8; per_slab.min(n_vertices) as usize * s];
+            let mut chunk = vec![0u8; SEQ_BUF];
+            let mut done = 0u64;
+            let mut corner_bucket_bytes = 0;
+            let mut bbox = Aabb::EMPTY;
+            let with_bbox = tap.is_some();
             if let Some(t) = tap.as_mut() {
-                let p = layout.position(v);
-                bbox.add(p);
-                if slot % 3 == 0 {
-                    firsts.push(p);
-                    if firsts.len() == CORNER_BATCH {
-                        t.first_corners(&firsts);
-                        firsts.clear();
+                t.begin_corners(&vertex_bbox, layout);
+            }
+            // First corners waiting to be shown to the tap.
+            let mut firsts: Vec<[f64; 3]> = Vec::with_capacity(if with_bbox { CORNER_BATCH } else { 0 });
+            let mut batch: Vec<u8> = Vec::with_capacity(RELAY_CORNERS * rec);
+            // The body may hold fewer vertices than the header's count (an OBJ's
+            // corner count is an upper bound on its distinct corners); the slabs
+            // past them are empty.
+            debug_assert!(body.vertices <= n_vertices);
+            for (k, (path, records)) in corner_buckets.into_iter().enumerate() {
+                let n = body.vertices.saturating_sub(k as u64 * per_slab).min(per_slab) as usize;
+                let slab = &mut slab[..n * s];
+                vfile.read_exact(slab).ctx(&vpath, "read vertex file")?;
+                let mut prev = (0u32, 0u64);
+                let bytes = read_varying(&path, MAX_CORNER_REC, records, &mut chunk, |k, r| {
+                    let Some((local, slot, len)) = get_corner(r, &mut prev).filter(|c| (c.0 as usize) < n && c.1 < n_corners) else {
+                        let at = Location { file: path.clone(), element: Some("corner record".into()), record: Some(k), ..Default::default() };
+                        return Err(Error::input(at, "damaged scratch corner record"));
+                    };
+                    let local = local as usize;
+                    let v = &slab[local * s..(local + 1) * s];
+                    if let Some(t) = tap.as_mut() {
+                        let p = layout.position(v);
+                        bbox.add(p);
+                        if slot % 3 == 0 {
+                            firsts.push(p);
+                            if firsts.len() == CORNER_BATCH {
+                                t.first_corners(&firsts);
+                                firsts.clear();
+                            }
+                        }
                     }
+                    batch.extend_from_slice(&slot.to_le_bytes());
+                    batch.extend_from_slice(v);
+                    if batch.len() == RELAY_CORNERS * rec {
+                        let next = hand.spare().unwrap_or_else(|| Vec::with_capacity(RELAY_CORNERS * rec));
+                        hand.send(std::mem::replace(&mut batch, next))?;
+                        batch.clear();
+                    }
+                    done += 1;
+                    if done % 65536 == 0 {
+                        join_progress.set(done);
+                        crate::io::signal::check()?;
+                    }
+                    Ok(len)
+                })?;
+                let _ = std::fs::remove_file(&path);
+                corner_bucket_bytes += bytes;
+            }
+            if !batch.is_empty() {
+                hand.send(batch)?;
+            }
+            debug_assert_eq!(done, n_corners);
+            if let Some(t) = tap.as_mut() {
+                t.first_corners(&firsts);
+            }
+            Ok((corner_bucket_bytes, bbox))
+        },
+        move |take| {
+            let mut buckets = buckets;
+            while let Some(b) = take.next() {
+                for r in b.chunks_exact(rec) {
+                    buckets.push(u64::from_le_bytes(r[..8].try_into().expect("8 bytes")), &r[8..])?;
                 }
+                take.give_back(b);
             }
-            buckets.push(slot, v)?;
-            done += 1;
-            if done % 65536 == 0 {
-                join_progress.set(done);
-                crate::io::signal::check()?;
-            }
-            Ok(len)
-        })?;
-        let _ = std::fs::remove_file(&path);
-        corner_bucket_bytes += bytes;
-    }
-    debug_assert_eq!(done, n_corners);
-    if let Some(t) = tap.as_mut() {
-        t.first_corners(&firsts);
-    }
-    drop((vfile, slab, chunk, firsts));
+            Ok(buckets)
+        },
+    )?;
     let _ = std::fs::remove_file(&vpath);
     join_progress.finish();
     Ok(Joined { buckets, bbox, corner_bucket_bytes, wedges, materials })
