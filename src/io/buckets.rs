@@ -244,7 +244,8 @@ pub(crate) struct SlotBuckets {
     n_slots: u64,
     /// Slots per bucket (a multiple of 3, so no triangle straddles two buckets).
     per: u64,
-    /// Buckets placed at once (one per thread), each in its share of the placing memory.
+    /// Buckets placed at once (one per thread of half the pool; two groups
+    /// exist at once), each in its share of the placing memory.
     group: usize,
     /// Records, when spilling: the slot within the bucket as the zigzag
     /// varint of its difference from the bucket's previous record's (1 or
@@ -265,8 +266,10 @@ impl SlotBuckets {
             let mem = Some(vec![0u8; total as usize]);
             return Ok(SlotBuckets { vsize, n_slots, per: n_slots.max(3), group: 1, files: None, prev: Vec::new(), mem, placed: 0 });
         }
-        let group = rayon::current_num_threads().max(1);
-        let per = ((place_mem / group / vsize) as u64 / 3 * 3).clamp(3, u32::MAX as u64 / 3 * 3);
+        // Half the threads place a group of buckets while the caller takes
+        // the previous group's triangles: two groups are in memory at once.
+        let group = (rayon::current_num_threads() / 2).max(1);
+        let per = ((place_mem / (2 * group) / vsize) as u64 / 3 * 3).clamp(3, u32::MAX as u64 / 3 * 3);
         let n = n_slots.div_ceil(per) as usize;
         let files = Some(BucketFiles::create(dir, name, n, MAX_SLOT_VARINT + vsize, write_mem)?);
         Ok(SlotBuckets { vsize, n_slots, per, group, files, prev: vec![0; n], mem: None, placed: 0 })
@@ -313,51 +316,64 @@ impl SlotBuckets {
         // Their buffers, freed, back to the system before the placing.
         crate::mem::trim();
         // `group` buckets are placed at once (each read and placed by its
-        // own thread), then written out in order.
+        // own thread) on a placing thread, while this one hands the group
+        // before to `out`: placing and what the caller does with the
+        // triangles (the build's routing to level 0's cells) overlap, and
+        // at most two groups exist (the placer waits for the hand-over).
         let numbered: Vec<(usize, (PathBuf, u64))> = buckets.into_iter().enumerate().collect();
-        for group in numbered.chunks(self.group) {
-            let placed: Vec<Result<(Vec<u8>, u64)>> = group
-                .par_iter()
-                .map(|(b, (path, records))| {
-                    let first = *b as u64 * self.per;
-                    let n = (self.n_slots - first).min(self.per) as usize;
-                    assert_eq!(*records, n as u64, "bucket {b} misses corners");
-                    let mut chunk = vec![0u8; SEQ_BUF.max(rec)];
-                    // A single large allocation per bucket, freed once written.
-                    let mut placed = vec![0u8; n * s];
-                    let mut prev = 0i64;
-                    let bytes = read_varying(path, rec, *records, &mut chunk, |k, c| {
-                        let bad = || {
-                            Error::input(
-                                Location { file: path.clone(), element: Some("slot record".into()), record: Some(k), ..Default::default() },
-                                "damaged scratch slot record",
-                            )
-                        };
-                        let (z, len) = get_varint(c).ok_or_else(bad)?;
-                        let i = prev + unzigzag(z);
-                        if !(0..n as i64).contains(&i) || c.len() < len + s {
-                            return Err(bad());
-                        }
-                        prev = i;
-                        let i = i as usize;
-                        placed[i * s..(i + 1) * s].copy_from_slice(&c[len..len + s]);
-                        Ok(len + s)
-                    })?;
-                    let _ = std::fs::remove_file(path);
-                    Ok((placed, bytes))
-                })
-                .collect();
-            for p in placed {
-                let (p, bytes) = p?;
-                spilled += bytes;
-                out(&p)?;
+        let (per, n_slots, group) = (self.per, self.n_slots, self.group);
+        let place = |(b, (path, records)): &(usize, (PathBuf, u64))| -> Result<(Vec<u8>, u64)> {
+            let first = *b as u64 * per;
+            let n = (n_slots - first).min(per) as usize;
+            assert_eq!(*records, n as u64, "bucket {b} misses corners");
+            let mut chunk = vec![0u8; SEQ_BUF.max(rec)];
+            // A single large allocation per bucket, freed once written.
+            let mut placed = vec![0u8; n * s];
+            let mut prev = 0i64;
+            let bytes = read_varying(path, rec, *records, &mut chunk, |k, c| {
+                let bad = || {
+                    Error::input(
+                        Location { file: path.clone(), element: Some("slot record".into()), record: Some(k), ..Default::default() },
+                        "damaged scratch slot record",
+                    )
+                };
+                let (z, len) = get_varint(c).ok_or_else(bad)?;
+                let i = prev + unzigzag(z);
+                if !(0..n as i64).contains(&i) || c.len() < len + s {
+                    return Err(bad());
+                }
+                prev = i;
+                let i = i as usize;
+                placed[i * s..(i + 1) * s].copy_from_slice(&c[len..len + s]);
+                Ok(len + s)
+            })?;
+            let _ = std::fs::remove_file(path);
+            Ok((placed, bytes))
+        };
+        std::thread::scope(|sc| -> Result<()> {
+            let (tx, rx) = std::sync::mpsc::sync_channel::<Vec<Result<(Vec<u8>, u64)>>>(0);
+            sc.spawn(move || {
+                for g in numbered.chunks(group) {
+                    let placed: Vec<Result<(Vec<u8>, u64)>> = g.par_iter().map(place).collect();
+                    if tx.send(placed).is_err() {
+                        break; // the caller stopped
+                    }
+                }
+            });
+            for placed in rx {
+                for p in placed {
+                    let (p, bytes) = p?;
+                    spilled += bytes;
+                    out(&p)?;
+                }
+                // The group's buffers are freed; below glibc's mmap threshold
+                // (it grows to 32 MiB) they stay in the heap and arenas, and the
+                // next group's come beside them: a 2 × 10^7 soup at --mem 64M
+                // peaked at 86 MiB without this, 63.7 with it.
+                crate::mem::trim();
             }
-            // The group's buffers are freed; below glibc's mmap threshold
-            // (it grows to 32 MiB) they stay in the heap and arenas, and the
-            // next group's come beside them: a 2 × 10^7 soup at --mem 64M
-            // peaked at 86 MiB without this, 63.7 with it.
-            crate::mem::trim();
-        }
+            Ok(())
+        })?;
         Ok(spilled)
     }
 }
