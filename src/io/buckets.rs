@@ -219,6 +219,23 @@ pub(crate) fn get_varint(b: &[u8]) -> Option<(u64, usize)> {
         None => return None,
         _ => {}
     }
+    // Up to 8 bytes at once, without a branch per byte (a corner record's
+    // index difference takes 1 to 3 bytes in no predictable order, and the
+    // per-byte loop's exits were a fifth of phase 2's reading thread): the
+    // first byte whose top bit is clear ends it; byte i's 7 bits go to bit
+    // 7i. The same value and length as the loop below.
+    if let Some(w) = b.get(..8) {
+        let w = u64::from_le_bytes(w.try_into().expect("8 bytes"));
+        let stops = !w & 0x8080_8080_8080_8080;
+        if stops != 0 {
+            let n = stops.trailing_zeros() / 8 + 1;
+            let mut x = 0;
+            for i in 0..8 {
+                x |= (w >> i) & (0x7f << (7 * i));
+            }
+            return Some((x & ((1u64 << (7 * n)) - 1), n as usize));
+        }
+    }
     let mut x = 0u64;
     for (i, &c) in b.iter().enumerate().take(10) {
         x |= ((c & 0x7f) as u64) << (7 * i);
@@ -381,6 +398,23 @@ impl SlotBuckets {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn varints_read_eight_at_once_as_byte_by_byte() {
+        // Every length 1..=10, with and without bytes after the varint (the
+        // eight-byte path needs eight readable bytes).
+        let mut b = [0xffu8; 24];
+        for bits in 0..64 {
+            for x in [1u64 << bits, (1u64 << bits) - 1, (1u64 << bits) | 0x55, u64::MAX >> bits] {
+                let n = put_varint(&mut b, x);
+                for tail in [0usize, 3, 12] {
+                    assert_eq!(get_varint(&b[..n + tail]), Some((x, n)), "{x} with {tail} bytes after");
+                }
+            }
+        }
+        // Eleven continuation bytes: too long either way.
+        assert_eq!(get_varint(&[0x80; 16]), None);
+    }
 
     #[test]
     fn varints_round_trip_and_cut_ones_are_refused() {
