@@ -339,13 +339,20 @@ impl SlotBuckets {
         // at most two groups exist (the placer waits for the hand-over).
         let numbered: Vec<(usize, (PathBuf, u64))> = buckets.into_iter().enumerate().collect();
         let (per, n_slots, group) = (self.per, self.n_slots, self.group);
+        // Buffers of written buckets, for the next ones (at most a group).
+        let spare: std::sync::Mutex<Vec<Vec<u8>>> = std::sync::Mutex::new(Vec::new());
         let place = |(b, (path, records)): &(usize, (PathBuf, u64))| -> Result<(Vec<u8>, u64)> {
             let first = *b as u64 * per;
             let n = (n_slots - first).min(per) as usize;
             assert_eq!(*records, n as u64, "bucket {b} misses corners");
             let mut chunk = vec![0u8; SEQ_BUF.max(rec)];
-            // A single large allocation per bucket, freed once written.
-            let mut placed = vec![0u8; n * s];
+            // One buffer per bucket, a written group's taken again: a new
+            // one per bucket (tens of MB, past glibc's mmap threshold or
+            // trimmed after each group) was faulted in page by page every
+            // time, a third of a build's page faults.
+            let mut placed = spare.lock().expect("placing buffers").pop().unwrap_or_default();
+            placed.clear();
+            placed.resize(n * s, 0);
             let mut prev = 0i64;
             let bytes = read_varying(path, rec, *records, &mut chunk, |k, c| {
                 let bad = || {
@@ -382,11 +389,13 @@ impl SlotBuckets {
                     let (p, bytes) = p?;
                     spilled += bytes;
                     out(&p)?;
+                    spare.lock().expect("placing buffers").push(p);
                 }
-                // The group's buffers are freed; below glibc's mmap threshold
-                // (it grows to 32 MiB) they stay in the heap and arenas, and the
-                // next group's come beside them: a 2 × 10^7 soup at --mem 64M
-                // peaked at 86 MiB without this, 63.7 with it.
+                // The group's other buffers (its read chunks) are freed;
+                // below glibc's mmap threshold (it grows to 32 MiB) they
+                // stay in the heap and arenas, and the next group's come
+                // beside them: a 2 × 10^7 soup at --mem 64M peaked at 86
+                // MiB without this, 63.7 with it.
                 crate::mem::trim();
             }
             Ok(())
