@@ -14,7 +14,7 @@
 //!    there and distributed to bucket files by slot range (slot = 3·triangle + corner);
 //! 3. each slot range placed in memory and written out as triangles, in order.
 //!
-//! Phases 1 and 2 each run on two threads ([`crate::io::relay`]): one
+//! Phases 1 and 2 each run on two threads (`io::relay`): one
 //! reads (the PLY; a slab's corners) and hands batches to the other, which
 //! codes them into their bucket files in order.
 //!
