@@ -52,6 +52,16 @@ impl<M> Take<M> {
     pub(crate) fn give_back(&self, m: M) {
         let _ = self.back.send(m);
     }
+
+    /// `f` on each batch in turn, each given back once done; stops at
+    /// `f`'s first error.
+    pub(crate) fn each(&self, mut f: impl FnMut(&M) -> Result<()>) -> Result<()> {
+        while let Some(m) = self.next() {
+            f(&m)?;
+            self.give_back(m);
+        }
+        Ok(())
+    }
 }
 
 /// Runs `produce` here and `consume` on another thread, joined by a queue
@@ -104,13 +114,13 @@ mod tests {
             },
             |take| {
                 let mut next = 0u64;
-                while let Some(b) = take.next() {
-                    for &x in &b {
+                take.each(|b| {
+                    for &x in b {
                         assert_eq!(x, next);
                         next += 1;
                     }
-                    take.give_back(b);
-                }
+                    Ok(())
+                })?;
                 Ok(next)
             },
         )

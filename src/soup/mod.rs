@@ -621,10 +621,7 @@ fn distribute_by_slab(input: &Path, header: &InputHeader, opts: &SoupOptions, pr
         },
         move |take| {
             let mut buckets = buckets;
-            while let Some(b) = take.next() {
-                buckets.add(&b)?;
-                take.give_back(b);
-            }
+            take.each(|b| buckets.add(b))?;
             Ok(buckets)
         },
     )?;
@@ -749,12 +746,7 @@ fn join_slabs(plan: &ExternalPlan, scratch: &Path, slabs: SlabCorners, quiet: bo
         },
         move |take| {
             let mut buckets = buckets;
-            while let Some(b) = take.next() {
-                for r in b.chunks_exact(rec) {
-                    buckets.push(u64::from_le_bytes(r[..8].try_into().expect("8 bytes")), &r[8..])?;
-                }
-                take.give_back(b);
-            }
+            take.each(|b| b.chunks_exact(rec).try_for_each(|r| buckets.push(u64::from_le_bytes(r[..8].try_into().expect("8 bytes")), &r[8..])))?;
             Ok(buckets)
         },
     )?;
