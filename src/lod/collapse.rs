@@ -229,14 +229,15 @@ pub struct ErrorCurve {
 
 /// Shares of a sampled node's triangles its curve is measured at, as
 /// multiples of the share the level keeps (1/`--level-ratio`; at the
-/// default ratio 2: 0.7, 0.58, 0.48, 0.38, 0.27), at most
-/// [`CURVE_MAX_SHARE`]. Each point is a collapse of the node, and the
-/// curves were a third of a collapse build; fixed shares from 0.85 to 0.15
-/// (seven points) took a third more curve time (Stanford dragon 0.90 s
-/// against 0.68 s) for the same levels (sizes within 0.3 % up to level 6,
-/// RMS within 0.5 % at equal size): the limit is found between the points
-/// around the level's share.
-const CURVE_FACTORS: [f64; 5] = [1.4, 1.16, 0.96, 0.76, 0.54];
+/// default ratio 2: 0.7, 0.48, 0.27), at most [`CURVE_MAX_SHARE`]. Each
+/// point is a collapse of the node, and the curves were a fifth to a
+/// third of a collapse build. Between its points a curve follows a power
+/// law ([`ErrorCurve::at`]): three points so interpolated put each level
+/// nearer its share than five did linearly (Stanford dragon, the README's
+/// 2 M sphere with uvs, normals and colours, a 500 K atlas scan: level
+/// after level 0.45–0.50 of the one below against 0.44–0.50), for 10 %
+/// less build time (`docs/build-costs.md`, "Collapse curves").
+const CURVE_FACTORS: [f64; 3] = [1.4, 0.96, 0.54];
 /// Largest share a curve point is measured at.
 const CURVE_MAX_SHARE: f64 = 0.95;
 
@@ -267,12 +268,22 @@ impl ErrorCurve {
         ErrorCurve { tris: n as u64, points }
     }
 
-    /// Triangles left at error limit `e` (linear between the points; from
-    /// the whole node at error 0; no further than the last point).
+    /// Triangles left at error limit `e`: from the whole node at error 0
+    /// linearly to the first point, then a power law between each two
+    /// points (log triangles linear in log error: collapse's counts fall
+    /// about as the inverse of the error, a convex curve whose chord
+    /// overstated the triangles kept, so levels came out smaller than their
+    /// share); no further than the last point.
     pub fn at(&self, e: f64) -> f64 {
         let mut prev = (0.0, self.tris as f64);
         for &(pe, pt) in &self.points {
             if e < pe {
+                if prev.0 > 0.0 && pt > 0.0 {
+                    // A power law between two measured points: log tris
+                    // linear in log error.
+                    let f = (e / prev.0).ln() / (pe / prev.0).ln();
+                    return prev.1 * (pt / prev.1).powf(f);
+                }
                 let f = if pe > prev.0 { (e - prev.0) / (pe - prev.0) } else { 1.0 };
                 return prev.1 + f * (pt - prev.1);
             }
@@ -461,6 +472,20 @@ mod tests {
         let (e_reg, e_plain) = (vertex_rms(&mesh, &reg.vertices, &reg.triangles), vertex_rms(&mesh, &plain.vertices, &plain.triangles));
         eprintln!("input vertices to output, RMS: regularised {e_reg:.3e}, plain {e_plain:.3e}");
         assert!(e_reg < 0.8 * e_plain, "regularised {e_reg:.3e} against {e_plain:.3e}");
+    }
+
+    /// Between two measured points a curve follows a power law, exactly
+    /// where the counts do (a chord would overstate them in between).
+    #[test]
+    fn curves_interpolate_power_laws_exactly() {
+        let law = |e: f64| 1000.0 / e;
+        let c = ErrorCurve { tris: 10_000, points: [0.2, 0.5, 1.0].iter().map(|&e| (e, law(e))).collect() };
+        for e in [0.25, 0.3, 0.45, 0.7, 0.9] {
+            assert!((c.at(e) - law(e)).abs() < 1e-9 * law(e), "at {e}: {} against {}", c.at(e), law(e));
+        }
+        // From the whole node at error 0 to the first point: linear.
+        assert!((c.at(0.1) - 7500.0).abs() < 1e-9);
+        assert_eq!(c.at(2.0), law(1.0));
     }
 
     /// A curve's points bracket the share its level keeps, whatever the

@@ -576,8 +576,12 @@ fn atlas_seams_simplify_without_tears_or_bleeding() {
             let locked = manifest.levels[l as usize].locked_fraction;
             eprintln!("{name}: level {l}: {} positions, {seams} on seams, {:.1}% locked", islands.len(), 100.0 * locked);
             // Only positions shared between nodes are locked (about 15 % at
-            // 1000-triangle nodes); seams are not.
-            assert!(locked < 0.25, "{name}: level {l}: {:.1}% locked", 100.0 * locked);
+            // 1000-triangle nodes); seams are not: were they, at least the
+            // seams' share would be. Near the top, where a level's nodes
+            // hold a few hundred triangles and most positions are on seams
+            // (79 % at level 5), the shared share grows past a quarter.
+            let seam_share = seams as f64 / islands.len().max(1) as f64;
+            assert!(locked < 0.25f64.max(0.5 * seam_share), "{name}: level {l}: {:.1}% locked, {:.1}% on seams", 100.0 * locked, 100.0 * seam_share);
             seams_at.push(seams);
         }
         // Seams shrink level by level (slower than the surface at first:
