@@ -757,6 +757,24 @@ impl<'a> Splits<'a> {
             .count()
     }
 
+    /// Output triangles after `s` splits as [`Splits::build`] leaves them:
+    /// [`Splits::count_at`] less the folds (a triangle and one of opposite
+    /// orientation on the same three output points, `unfold`) that
+    /// `compact` drops. One pass over the vertices and triangles.
+    pub fn built_count_at(&self, s: u32) -> usize {
+        let a = if self.free.is_empty() { Vec::new() } else { self.assign(s) };
+        let nv = self.mesh.vertices.len();
+        let pos_of = self.seams.as_ref().map(|sm| &sm.pos_of[..]);
+        // The points `compact` compares: a kept vertex (its position where
+        // seams are welded), else its cluster.
+        let point = |v: u32| match self.slot[v as usize] {
+            u32::MAX => pos_of.map_or(v, |p| p[v as usize]) as usize,
+            i => nv + a[i as usize] as usize,
+        };
+        let images: Vec<[usize; 3]> = self.mesh.triangles.iter().map(|t| t.map(point)).filter(|k| k[0] != k[1] && k[1] != k[2] && k[0] != k[2]).collect();
+        unfold(&images).iter().filter(|&&k| k).count()
+    }
+
     /// Output triangles after each of `steps` splits: [`Splits::count_at`]
     /// of each, from one pass over the triangles where no chart joins a
     /// seam cluster (`Splits::births`).
@@ -1689,6 +1707,42 @@ mod tests {
         }
         m.triangles = crate::geom::grid_triangles(n);
         m
+    }
+
+    /// A thin slab (a wavy sheet and its copy a hair below, facing the
+    /// other way, their rims joined): clustering folds its two sides into
+    /// pairs that `build` drops. The curves' built counts are `build`'s
+    /// own at every prefix, folds and all.
+    #[test]
+    fn built_counts_are_what_build_keeps_folds_dropped() {
+        let top = coloured_grid(12);
+        let mut m = top.clone();
+        let nv = top.vertices.len() as u32;
+        for v in &top.vertices {
+            let mut w = *v;
+            w.pos[2] -= 1e-4;
+            m.vertices.push(w);
+        }
+        for t in &top.triangles {
+            m.triangles.push([t[0] + nv, t[2] + nv, t[1] + nv]);
+        }
+        // The rim: each border edge of the top joined to its copy.
+        let n = 13u32;
+        let rim: Vec<(u32, u32)> =
+            (0..12).flat_map(|i| [(i, i + 1), (i * n + 12, (i + 1) * n + 12), (12 * n + i + 1, 12 * n + i), ((i + 1) * n, i * n)]).collect();
+        for (a, b) in rim {
+            m.triangles.push([b, a, a + nv]);
+            m.triangles.push([b, a + nv, b + nv]);
+        }
+        let locked = vec![false; m.vertices.len()];
+        let sp = Splits::new(&m, None, &locked, None, AttrSet::default(), usize::MAX, 0.0);
+        let mut folded = 0;
+        for s in 0..=sp.steps() {
+            let built = sp.build(s, 1e-3).mesh.triangles.len();
+            assert_eq!(sp.built_count_at(s), built, "step {s}");
+            folded += (sp.count_at(s) > built) as u32;
+        }
+        assert!(folded > 0, "no prefix folds: the test no longer tests the folds");
     }
 
     #[test]

@@ -770,7 +770,7 @@ mod tests {
         let scratch = crate::io::scratch_dir(store).unwrap();
         let bbox = crate::soup::format::SoupReader::open(soup).unwrap().header.bbox;
         let l0 = build_octree(soup, scratch.path().join("chunks-0.bin"), &LevelCube::for_level(&bbox, 0), &opts.octree(), None).unwrap();
-        LevelBuilder::new(l0, store, scratch, opts, ClusterNodes { attrs: AttrSet::POSITION_ONLY, rel_tol: opts.rel_tol })
+        LevelBuilder::new(l0, store, scratch, opts, ClusterNodes { attrs: AttrSet::POSITION_ONLY, rel_tol: opts.rel_tol, share: 1.0 / opts.params.level_ratio })
     }
 
     #[test]

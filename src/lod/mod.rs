@@ -213,7 +213,7 @@ pub trait WithSimplifier {
 /// for a mesh with `attrs` (a new simplifier is a type and a line here).
 pub fn with_simplifier<W: WithSimplifier>(opts: &LodOptions, attrs: crate::mesh::AttrSet, w: W) -> W::Out {
     match opts.params.simplifier.resolve(attrs) {
-        Simplifier::Cluster | Simplifier::Auto => w.run(ClusterNodes { attrs, rel_tol: opts.rel_tol }),
+        Simplifier::Cluster | Simplifier::Auto => w.run(ClusterNodes { attrs, rel_tol: opts.rel_tol, share: 1.0 / opts.params.level_ratio }),
         Simplifier::Collapse => w.run(CollapseNodes { attrs, share: 1.0 / opts.params.level_ratio }),
     }
 }

@@ -472,7 +472,10 @@ fn attributes_are_measured_at_the_closest_point() {
     assert!(a["combined"]["color"].is_null(), "no colours to compare: {a}");
     let level = |l: u8| uv(&format!("{}@{l}", store.display()), &["--attributes"])["attributes"]["combined"].clone();
     let (l1, l3) = (level(1), level(3));
-    assert!(l1["samples"].as_u64().unwrap() >= 2 * 200_000 - 10, "{l1}");
+    // Both directions sampled: each face takes its share's whole part and
+    // one more with its fraction's probability, so a direction's count is
+    // the target within a few times √(faces)/2 (about 70 here), never 10.
+    assert!(l1["samples"].as_u64().unwrap().abs_diff(2 * 200_000) <= 1_000, "{l1}");
     let (m1, m3) = (l1["uv"]["mean"].as_f64().unwrap(), l3["uv"]["mean"].as_f64().unwrap());
     assert!(m1 > 0.0 && m1 < 1e-3, "level 1: mean uv difference {m1}");
     assert!(m3 > m1, "level 3 ({m3}) no worse than level 1 ({m1})");
