@@ -93,7 +93,8 @@ struct Cell {
     /// Split step at which the box was created (0: the root).
     created: u32,
     parent: u32,
-    /// Its quadric: `cq[q * cl..(q + 1) * cl]`.
+    /// Its quadric: `cq[q * cl..(q + 1) * cl]` (a member's own row when
+    /// it is one member's leaf).
     q: u32,
 }
 
@@ -504,8 +505,9 @@ impl<'a> Splits<'a> {
         let (sp, mesh, cl) = (self, self.mesh, self.cl);
         let nf = sp.free.len();
         // Each row made on the stack and appended: the table is written
-        // once, not zeroed first.
-        let mut vq = Vec::with_capacity(nf * cl);
+        // once, not zeroed first. Room for the split tree's sums after the
+        // rows (at most one per member, [`Splits::split_cells`]).
+        let mut vq = Vec::with_capacity(2 * nf * cl);
         let mut row = [0.0f64; crate::quadric::MAX_COEFFS];
         for &v in &sp.free {
             // A seam vertex's attributes are its wedge's own: only its
@@ -548,10 +550,13 @@ impl<'a> Splits<'a> {
         // compact clusters).
         let prio = |q: &[f64]| -> f64 { crate::quadric::packed_error_at_mean(dim, q) };
         // Quadrics bottom-up (children are made after their parent: in
-        // reverse, a cell's children are summed before it), stored in that
-        // order: tree cell t's quadric is at `q_at[t]`.
+        // reverse, a cell's children are summed before it), appended to
+        // the members' rows in that order: tree cell t's quadric is row
+        // `q_at[t]`. A one-member leaf's is its member's own row, not a
+        // copy (half the tree's cells: 91 values each at dimension 11).
         let nt = tree.nodes.len();
-        sp.cq = Vec::with_capacity(nt * cl);
+        let nf_rows = rows.q.len() / cl;
+        sp.cq = std::mem::take(&mut rows.q);
         let mut q_at = vec![0u32; nt];
         // Row lengths of every dimension a mesh can have: 3, 5, 6
         // (positions; +uv; +normal or colour), 8, 9 and 11 (+two or three
@@ -566,23 +571,27 @@ impl<'a> Splits<'a> {
             let at = sp.cq.len();
             let n = &tree.nodes[t];
             match n.child {
+                u32::MAX if n.end - n.start == 1 => {
+                    q_at[t] = rows.ids[n.start as usize];
+                    continue;
+                }
                 u32::MAX => {
                     let ids = &rows.ids[n.start as usize..n.end as usize];
                     match cl {
-                        CL3 => sum_rows::<CL3>(&rows.q, ids, cl, &mut sp.cq),
-                        CL5 => sum_rows::<CL5>(&rows.q, ids, cl, &mut sp.cq),
-                        CL6 => sum_rows::<CL6>(&rows.q, ids, cl, &mut sp.cq),
-                        CL8 => sum_rows::<CL8>(&rows.q, ids, cl, &mut sp.cq),
-                        CL9 => sum_rows::<CL9>(&rows.q, ids, cl, &mut sp.cq),
-                        CL11 => sum_rows::<CL11>(&rows.q, ids, cl, &mut sp.cq),
-                        _ => sum_rows::<0>(&rows.q, ids, cl, &mut sp.cq),
+                        CL3 => sum_rows::<CL3>(&mut sp.cq, nf_rows, ids, cl),
+                        CL5 => sum_rows::<CL5>(&mut sp.cq, nf_rows, ids, cl),
+                        CL6 => sum_rows::<CL6>(&mut sp.cq, nf_rows, ids, cl),
+                        CL8 => sum_rows::<CL8>(&mut sp.cq, nf_rows, ids, cl),
+                        CL9 => sum_rows::<CL9>(&mut sp.cq, nf_rows, ids, cl),
+                        CL11 => sum_rows::<CL11>(&mut sp.cq, nf_rows, ids, cl),
+                        _ => sum_rows::<0>(&mut sp.cq, nf_rows, ids, cl),
                     }
                 }
                 c => {
+                    // Written once as the sum (not a copy of one child
+                    // then added to: the same bits, one pass fewer).
                     let (a, b) = (q_at[c as usize] as usize * cl, q_at[c as usize + 1] as usize * cl);
-                    sp.cq.extend_from_within(a..a + cl);
-                    let (done, new) = sp.cq.split_at_mut(at);
-                    add(new, &done[b..b + cl]);
+                    sum_two(&mut sp.cq, a, b, cl);
                 }
             }
             q_at[t] = (at / cl) as u32;
@@ -1495,17 +1504,28 @@ impl Tree {
     }
 }
 
-/// Appends the sum of rows `ids` of `q` (`cl` values each, in that order)
-/// to `out`. `CL`: the row length when it is one of the common ones (the
-/// sum then unrolls), 0 for any other (`cl`).
-fn sum_rows<const CL: usize>(q: &[f64], ids: &[u32], cl: usize, out: &mut Vec<f64>) {
+/// Appends the sum of rows `ids` of `q` (`cl` values each, in that order;
+/// all below row `rows`) to `q`. `CL`: the row length when it is one of
+/// the common ones (the sum then unrolls), 0 for any other (`cl`).
+fn sum_rows<const CL: usize>(q: &mut Vec<f64>, rows: usize, ids: &[u32], cl: usize) {
     let cl = if CL > 0 { CL } else { cl };
-    let at = out.len();
-    let row = |i: u32| &q[i as usize * cl..(i as usize + 1) * cl];
-    out.extend_from_slice(row(ids[0]));
-    let acc = &mut out[at..at + cl];
+    let at = q.len();
+    q.extend_from_within(ids[0] as usize * cl..(ids[0] as usize + 1) * cl);
+    let (done, acc) = q.split_at_mut(at);
+    let row = |i: u32| &done[i as usize * cl..(i as usize + 1) * cl];
     for &i in &ids[1..] {
+        debug_assert!((i as usize) < rows);
         add(acc, row(i));
+    }
+}
+
+/// Appends rows `a..a + cl` and `b..b + cl` of `q`, summed, to `q`.
+fn sum_two(q: &mut Vec<f64>, a: usize, b: usize, cl: usize) {
+    let at = q.len();
+    q.resize(at + cl, 0.0);
+    let (done, new) = q.split_at_mut(at);
+    for ((n, x), y) in new.iter_mut().zip(&done[a..a + cl]).zip(&done[b..b + cl]) {
+        *n = x + y;
     }
 }
 
