@@ -194,7 +194,7 @@ impl Seams {
 type Root = (usize, usize, [f64; 3], [f64; 3]);
 
 /// Union-find root with path halving.
-fn find_root(parent: &mut [u32], mut x: u32) -> u32 {
+pub(super) fn find_root(parent: &mut [u32], mut x: u32) -> u32 {
     while parent[x as usize] != x {
         parent[x as usize] = parent[parent[x as usize] as usize];
         x = parent[x as usize];
@@ -202,7 +202,7 @@ fn find_root(parent: &mut [u32], mut x: u32) -> u32 {
     x
 }
 
-fn union(parent: &mut [u32], a: u32, b: u32) {
+pub(super) fn union(parent: &mut [u32], a: u32, b: u32) {
     let (ra, rb) = (find_root(parent, a), find_root(parent, b));
     if ra != rb {
         parent[ra.max(rb) as usize] = ra.min(rb);
