@@ -555,7 +555,6 @@ impl<'a> Splits<'a> {
         // `q_at[t]`. A one-member leaf's is its member's own row, not a
         // copy (half the tree's cells: 91 values each at dimension 11).
         let nt = tree.nodes.len();
-        let nf_rows = rows.q.len() / cl;
         sp.cq = std::mem::take(&mut rows.q);
         let mut q_at = vec![0u32; nt];
         // Row lengths of every dimension a mesh can have: 3, 5, 6
@@ -578,18 +577,19 @@ impl<'a> Splits<'a> {
                 u32::MAX => {
                     let ids = &rows.ids[n.start as usize..n.end as usize];
                     match cl {
-                        CL3 => sum_rows::<CL3>(&mut sp.cq, nf_rows, ids, cl),
-                        CL5 => sum_rows::<CL5>(&mut sp.cq, nf_rows, ids, cl),
-                        CL6 => sum_rows::<CL6>(&mut sp.cq, nf_rows, ids, cl),
-                        CL8 => sum_rows::<CL8>(&mut sp.cq, nf_rows, ids, cl),
-                        CL9 => sum_rows::<CL9>(&mut sp.cq, nf_rows, ids, cl),
-                        CL11 => sum_rows::<CL11>(&mut sp.cq, nf_rows, ids, cl),
-                        _ => sum_rows::<0>(&mut sp.cq, nf_rows, ids, cl),
+                        CL3 => sum_rows::<CL3>(&mut sp.cq, ids, cl),
+                        CL5 => sum_rows::<CL5>(&mut sp.cq, ids, cl),
+                        CL6 => sum_rows::<CL6>(&mut sp.cq, ids, cl),
+                        CL8 => sum_rows::<CL8>(&mut sp.cq, ids, cl),
+                        CL9 => sum_rows::<CL9>(&mut sp.cq, ids, cl),
+                        CL11 => sum_rows::<CL11>(&mut sp.cq, ids, cl),
+                        _ => sum_rows::<0>(&mut sp.cq, ids, cl),
                     }
                 }
                 c => {
-                    // Written once as the sum (not a copy of one child
-                    // then added to: the same bits, one pass fewer).
+                    // The children's sum written into a zeroed row (not a
+                    // copy of one child, then read again and added to): the
+                    // same bits, one read of the new row fewer.
                     let (a, b) = (q_at[c as usize] as usize * cl, q_at[c as usize + 1] as usize * cl);
                     sum_two(&mut sp.cq, a, b, cl);
                 }
@@ -752,18 +752,27 @@ impl<'a> Splits<'a> {
             return self.mesh.triangles.len();
         }
         let a = self.assign(s);
-        let pos_of = self.seams.as_ref().map(|sm| &sm.pos_of[..]);
+        let point = self.landing(&a);
         self.mesh
             .triangles
             .iter()
             .filter(|t| {
-                let r = t.map(|v| match self.slot[v as usize] {
-                    u32::MAX => pos_of.map_or(v, |p| p[v as usize]) as u64,
-                    i => (1u64 << 32) | a[i as usize] as u64,
-                });
+                let r = t.map(&point);
                 r[0] != r[1] && r[1] != r[2] && r[0] != r[2]
             })
             .count()
+    }
+
+    /// The point each vertex lands on under assignment `a` (as `compact`
+    /// compares them): a kept vertex's own (its position where seams are
+    /// welded), else its cluster's, numbered after the vertices.
+    fn landing<'s>(&'s self, a: &'s [u32]) -> impl Fn(u32) -> usize + 's {
+        let nv = self.mesh.vertices.len();
+        let pos_of = self.seams.as_ref().map(|sm| &sm.pos_of[..]);
+        move |v| match self.slot[v as usize] {
+            u32::MAX => pos_of.map_or(v, |p| p[v as usize]) as usize,
+            i => nv + a[i as usize] as usize,
+        }
     }
 
     /// Output triangles after `s` splits as [`Splits::build`] leaves them:
@@ -772,15 +781,8 @@ impl<'a> Splits<'a> {
     /// `compact` drops. One pass over the vertices and triangles.
     pub fn built_count_at(&self, s: u32) -> usize {
         let a = if self.free.is_empty() { Vec::new() } else { self.assign(s) };
-        let nv = self.mesh.vertices.len();
-        let pos_of = self.seams.as_ref().map(|sm| &sm.pos_of[..]);
-        // The points `compact` compares: a kept vertex (its position where
-        // seams are welded), else its cluster.
-        let point = |v: u32| match self.slot[v as usize] {
-            u32::MAX => pos_of.map_or(v, |p| p[v as usize]) as usize,
-            i => nv + a[i as usize] as usize,
-        };
-        let images: Vec<[usize; 3]> = self.mesh.triangles.iter().map(|t| t.map(point)).filter(|k| k[0] != k[1] && k[1] != k[2] && k[0] != k[2]).collect();
+        let point = self.landing(&a);
+        let images: Vec<[usize; 3]> = self.mesh.triangles.iter().map(|t| t.map(&point)).filter(|k| k[0] != k[1] && k[1] != k[2] && k[0] != k[2]).collect();
         unfold(&images).iter().filter(|&&k| k).count()
     }
 
@@ -1153,6 +1155,41 @@ pub fn cluster_node(mesh: &IndexedMesh, locked: &[bool], attrs: AttrSet, target:
     (o.mesh, o.stats)
 }
 
+/// The open edges (used by one triangle) whose smaller end is among
+/// `from`, as (smaller end, other end, its triangle): found per smaller end
+/// from the triangles around it, a few entries sorted per vertex instead of
+/// a hash map of every edge (which cost ~100 ns a triangle at level 0).
+pub(super) fn open_edges(mesh: &IndexedMesh, (first, around): (&[u32], &[u32]), from: impl IntoIterator<Item = u32>) -> Vec<(u32, u32, u32)> {
+    let mut open = Vec::new();
+    let mut ends: Vec<(u32, u32)> = Vec::new();
+    for a in from {
+        ends.clear();
+        let mut last = u32::MAX;
+        for &ti in &around[first[a as usize] as usize..first[a as usize + 1] as usize] {
+            if ti == last {
+                continue; // listed once per corner at a
+            }
+            last = ti;
+            let t = mesh.triangles[ti as usize];
+            for c in 0..3 {
+                let (x, y) = (t[c], t[(c + 1) % 3]);
+                if x == a && y > a {
+                    ends.push((y, ti));
+                } else if y == a && x > a {
+                    ends.push((x, ti));
+                }
+            }
+        }
+        ends.sort_unstable();
+        for run in ends.chunk_by(|x, y| x.0 == y.0) {
+            if let [(b, ti)] = run {
+                open.push((a, *b, *ti));
+            }
+        }
+    }
+    open
+}
+
 /// Weight of a border edge's constraint plane, per squared edge length
 /// (a triangle's plane weighs its area, about half that).
 const BORDER_WEIGHT: f64 = 1.0;
@@ -1194,38 +1231,7 @@ fn add_border_planes(
     stride: usize,
     va: &mut [f64],
 ) {
-    // Open edges (used by one triangle), found per smaller end from the
-    // triangles around it: a few entries sorted per vertex instead of a
-    // hash map of every edge (which cost ~100 ns a triangle at level 0).
-    let nv = mesh.vertices.len();
-    let mut open: Vec<(u32, u32, u32)> = Vec::new();
-    let mut ends: Vec<(u32, u32)> = Vec::new();
-    for a in 0..nv as u32 {
-        ends.clear();
-        let mut last = u32::MAX;
-        for &ti in &around[first[a as usize] as usize..first[a as usize + 1] as usize] {
-            if ti == last {
-                continue; // listed once per corner at a
-            }
-            last = ti;
-            let t = mesh.triangles[ti as usize];
-            for c in 0..3 {
-                let (x, y) = (t[c], t[(c + 1) % 3]);
-                if x == a && y > a {
-                    ends.push((y, ti));
-                } else if y == a && x > a {
-                    ends.push((x, ti));
-                }
-            }
-        }
-        ends.sort_unstable();
-        for run in ends.chunk_by(|x, y| x.0 == y.0) {
-            if let [(b, ti)] = run {
-                open.push((a, *b, *ti));
-            }
-        }
-    }
-    for (a, b, ti) in open {
+    for (a, b, ti) in open_edges(mesh, (&first[..], &around[..]), 0..mesh.vertices.len() as u32) {
         // An open edge between two locked vertices is a seam with another
         // node (or an attribute seam), not the mesh's border: a plane
         // there would be carried up with the vertices' quadrics and pull
@@ -1505,16 +1511,15 @@ impl Tree {
 }
 
 /// Appends the sum of rows `ids` of `q` (`cl` values each, in that order;
-/// all below row `rows`) to `q`. `CL`: the row length when it is one of
-/// the common ones (the sum then unrolls), 0 for any other (`cl`).
-fn sum_rows<const CL: usize>(q: &mut Vec<f64>, rows: usize, ids: &[u32], cl: usize) {
+/// members' rows) to `q`. `CL`: the row length when it is one of the
+/// common ones (the sum then unrolls), 0 for any other (`cl`).
+fn sum_rows<const CL: usize>(q: &mut Vec<f64>, ids: &[u32], cl: usize) {
     let cl = if CL > 0 { CL } else { cl };
     let at = q.len();
     q.extend_from_within(ids[0] as usize * cl..(ids[0] as usize + 1) * cl);
     let (done, acc) = q.split_at_mut(at);
     let row = |i: u32| &done[i as usize * cl..(i as usize + 1) * cl];
     for &i in &ids[1..] {
-        debug_assert!((i as usize) < rows);
         add(acc, row(i));
     }
 }

@@ -474,21 +474,12 @@ fn hole_centres(
     if !free.contains(&true) || output.triangles.is_empty() {
         return Vec::new();
     }
-    // Open edges between border vertices: (a, b) of one triangle and no
-    // triangle around a holding b twice over (a manifold edge is in two).
+    // Border vertices joined by open edges (both ends of one are on the
+    // border, so its smaller end is among them).
     let mut parent: Vec<u32> = (0..nv as u32).collect();
-    for a in (0..nv).filter(|&a| open[a]) {
-        let fan = &around[first[a] as usize..first[a + 1] as usize];
-        for &t in fan {
-            for b in input.triangles[t as usize] {
-                if b as usize == a || !open[b as usize] || (b as usize) < a {
-                    continue;
-                }
-                let shared = fan.iter().filter(|&&u| input.triangles[u as usize].contains(&b)).count();
-                if shared == 1 {
-                    cluster::union(&mut parent, a as u32, b);
-                }
-            }
+    for (a, b, _) in cluster::open_edges(input, (first, around), (0..nv as u32).filter(|&v| open[v as usize])) {
+        if open[b as usize] {
+            cluster::union(&mut parent, a, b);
         }
     }
     // Per piece with a free vertex: its centroid and its images.

@@ -247,10 +247,8 @@ impl SplitCurve {
         // every count scaled by that ratio (the level's limit falls near
         // it; measured at 0.7 and 1.4 × the share too and interpolated,
         // the levels moved by under 0.005 for three times the passes).
-        let near = (0..counts.len()).filter(|&k| counts[k].1 > 0.0).min_by(|&a, &b| {
-            let want = share * tris as f64;
-            (counts[a].1 - want).abs().total_cmp(&(counts[b].1 - want).abs())
-        });
+        let want = share * tris as f64;
+        let near = (0..counts.len()).filter(|&k| counts[k].1 > 0.0).min_by(|&a, &b| (counts[a].1 - want).abs().total_cmp(&(counts[b].1 - want).abs()));
         if let Some(k) = near {
             let f = sp.built_count_at(counts[k].0) as f64 / counts[k].1;
             for c in counts.iter_mut() {
