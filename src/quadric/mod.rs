@@ -539,7 +539,9 @@ fn half_gradient_at<const M: usize>(a: &[[f64; M]; M], b: &[f64], x: &[f64], n: 
 /// singular, or not finite): the caller takes the full eigen-decomposition.
 /// About a sixth of the work of the full decomposition at dimension 9,
 /// whose QL steps were a fifth of a build with normals and colours
-/// (`docs/build-costs.md`).
+/// (`docs/build-costs.md`). Inlined: with a constant `n` (the sized
+/// solve) its loops unroll.
+#[inline(always)]
 fn schur_pinv<const M: usize>(a: &[[f64; M]; M], n: usize, rel_tol: f64, r: &[f64], out: &mut [f64]) -> Option<usize> {
     let k = n - 3;
     // LDLᵀ of S, L unit lower triangular (strictly lower part in `l`).
