@@ -1105,53 +1105,10 @@ impl<'a> Splits<'a> {
     /// position, packed, with attributes eliminated when `eliminate`
     /// ([`crate::quadric::eliminate_attrs`]).
     fn row_into(&self, v: u32, p: &[f64], eliminate: bool, q: &mut [f64]) {
-        // Each dimension a mesh can have as a constant: the loops below
-        // unroll and the slices' bounds are checked once (row_into was 6 %
-        // of the samples of a build with uvs, normals and colours).
-        match self.space.dim {
-            3 => self.row_into_n::<3>(v, p, eliminate, q),
-            5 => self.row_into_n::<5>(v, p, eliminate, q),
-            6 => self.row_into_n::<6>(v, p, eliminate, q),
-            8 => self.row_into_n::<8>(v, p, eliminate, q),
-            9 => self.row_into_n::<9>(v, p, eliminate, q),
-            11 => self.row_into_n::<11>(v, p, eliminate, q),
-            _ => self.row_into_n::<0>(v, p, eliminate, q),
-        }
-    }
-
-    /// [`Splits::row_into`] at dimension `N` (0: the space's).
-    #[inline(always)]
-    fn row_into_n<const N: usize>(&self, v: u32, p: &[f64], eliminate: bool, q: &mut [f64]) {
-        let dim = if N > 0 { N } else { self.space.dim };
-        let (p, q) = (&p[..dim], &mut q[..Quadric::coeff_len(dim)]);
-        let (al, cs) = (dim * (dim + 1) / 2, carry_len(dim));
-        // Cleared only for a seam vertex (most rows take the carried values as they are).
-        let mut t: [f64; crate::quadric::MAX_COEFFS];
-        let c = &self.va[v as usize * cs..(v as usize + 1) * cs];
-        let c = if eliminate {
-            t = [0.0; crate::quadric::MAX_COEFFS];
-            let t = &mut t[..cs];
-            t.copy_from_slice(c);
-            crate::quadric::eliminate_attrs(dim, t, crate::quadric::DEFAULT_REL_TOL);
-            &t[..]
-        } else {
-            c
-        };
-        let a = &c[..al];
-        // The trace stands for the area (only its being non-zero matters).
-        let area = (0..dim).map(|k| a[diag_at(dim, k)]).sum::<f64>().max(f64::MIN_POSITIVE);
-        crate::quadric::packed_at_point(dim, a, p, area, q);
-        // The exact input quadric about p: its gradient there too (a
-        // representative of a curved patch is not on its planes). The
-        // residual e is left out, so priorities measure what a split
-        // can still gain; the build adds the members' back.
-        let g = &c[al..al + dim];
-        let mut e = q[al + dim];
-        for k in 0..dim {
-            q[al + k] += g[k];
-            e -= 2.0 * g[k] * p[k];
-        }
-        q[al + dim] = e;
+        // Each dimension a mesh can have as a constant (`sized!`): the
+        // loops unroll and the slices' bounds are checked once (row_into
+        // was 6 % of the samples of a build with uvs, normals and colours).
+        crate::quadric::sized!(self.space.dim, row_into_n(self, v, p, eliminate, q))
     }
 
     fn rep_a(&self, c: usize) -> &[f64] {
@@ -1159,6 +1116,40 @@ impl<'a> Splits<'a> {
         let at = self.cells[c].q as usize * self.cl;
         &self.cq[at..at + al]
     }
+}
+
+/// [`Splits::row_into`] at dimension `dim` (a constant where inlined).
+#[inline(always)]
+fn row_into_n(dim: usize, sp: &Splits, v: u32, p: &[f64], eliminate: bool, q: &mut [f64]) {
+    let (p, q) = (&p[..dim], &mut q[..Quadric::coeff_len(dim)]);
+    let (al, cs) = (dim * (dim + 1) / 2, carry_len(dim));
+    // Cleared only for a seam vertex (most rows take the carried values as they are).
+    let mut t: [f64; crate::quadric::MAX_COEFFS];
+    let c = &sp.va[v as usize * cs..(v as usize + 1) * cs];
+    let c = if eliminate {
+        t = [0.0; crate::quadric::MAX_COEFFS];
+        let t = &mut t[..cs];
+        t.copy_from_slice(c);
+        crate::quadric::eliminate_attrs(dim, t, crate::quadric::DEFAULT_REL_TOL);
+        &t[..]
+    } else {
+        c
+    };
+    let a = &c[..al];
+    // The trace stands for the area (only its being non-zero matters).
+    let area = (0..dim).map(|k| a[diag_at(dim, k)]).sum::<f64>().max(f64::MIN_POSITIVE);
+    crate::quadric::packed_at_point(dim, a, p, area, q);
+    // The exact input quadric about p: its gradient there too (a
+    // representative of a curved patch is not on its planes). The
+    // residual e is left out, so priorities measure what a split
+    // can still gain; the build adds the members' back.
+    let g = &c[al..al + dim];
+    let mut e = q[al + dim];
+    for k in 0..dim {
+        q[al + k] += g[k];
+        e -= 2.0 * g[k] * p[k];
+    }
+    q[al + dim] = e;
 }
 
 /// Simplifies `mesh` towards `target` triangles (see the module doc).

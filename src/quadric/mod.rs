@@ -248,6 +248,7 @@ macro_rules! sized {
         }
     };
 }
+pub(crate) use sized;
 
 /// [`Quadric::at_point`] written straight into stored coefficients
 /// (`out.len() ≥ coeff_len(dim)`, overwritten): no struct, no copies — the
