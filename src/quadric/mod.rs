@@ -76,9 +76,12 @@ impl AttrWeights {
     /// Fraction of the extent a full uv swing weighs
     /// ([`AttrWeights::for_extent`]).
     pub const EXTENT_FRACTION: f64 = 0.1;
-    /// Fraction of the extent a full colour swing, or a unit change of
-    /// the normal, weighs ([`AttrWeights::for_extent`]).
+    /// Fraction of the extent a full colour swing weighs
+    /// ([`AttrWeights::for_extent`]).
     pub const SHADING_FRACTION: f64 = 0.01;
+    /// Fraction of the extent a unit change of the normal weighs
+    /// ([`AttrWeights::for_extent`]).
+    pub const NORMAL_FRACTION: f64 = 0.001;
 
     /// The same weight for every attribute.
     pub fn uniform(w: f64) -> AttrWeights {
@@ -88,20 +91,25 @@ impl AttrWeights {
     /// Weights for a cell (or mesh) whose bounding-box diagonal is `diag`:
     /// a full uv swing counts like a positional offset of a tenth of the
     /// diagonal ([`Self::EXTENT_FRACTION`]: uvs address a texture, where a
-    /// small shift shows), a full colour swing (0 → 1) or a unit change of
-    /// the normal (60°) like a hundredth ([`Self::SHADING_FRACTION`]), so
-    /// attribute variation informs the solution without buying its
-    /// clusters with geometry. Colours and normals weighed a tenth until
-    /// 2026-12-06: at coarse levels, where cells are large, that spent the
-    /// clusters on sub-LSB colour and sub-degree normal changes. On the
-    /// README's 2 M sphere and a 1 M scan with normals and colours a
-    /// hundredth cut the levels' Hausdorff distance 2–4× and their RMS up
-    /// to 4.7× (coarse levels), colour and normal errors the same or lower
-    /// (`docs/levels-of-detail.md`, "Quadrics"). A non-finite or zero
-    /// `diag` counts as 1.
+    /// small shift shows), a full colour swing (0 → 1) like a hundredth
+    /// ([`Self::SHADING_FRACTION`]) and a unit change of the normal (60°)
+    /// like a thousandth ([`Self::NORMAL_FRACTION`]), so attribute
+    /// variation informs the solution without buying its clusters with
+    /// geometry. Colours and normals weighed a tenth until 2026-12-06: at
+    /// coarse levels, where cells are large, that spent the clusters on
+    /// sub-LSB colour and sub-degree normal changes; a hundredth cut the
+    /// README's 2 M sphere's and a 1 M scan's Hausdorff distance 2–4× and
+    /// their RMS up to 4.7×. Normals a hundredth until 2026-12-07: a rough
+    /// surface's normals (a terrain's, a scan's) still took its coarse
+    /// clusters; a thousandth cut a 1 M terrain's RMS up to 2.3× and a 1 M
+    /// scan's Hausdorff distance up to 3.9× at coarse levels, normals as
+    /// near the input's (0.97–1.01× over levels 2–8); a smooth sphere's
+    /// coarsest levels, where the normals' spread stood in for curvature,
+    /// lost up to 1.17× in RMS. Measured in `docs/levels-of-detail.md`,
+    /// "Quadrics". A non-finite or zero `diag` counts as 1.
     pub fn for_extent(diag: f64) -> AttrWeights {
         let d = if diag.is_finite() && diag != 0.0 { diag.abs() } else { 1.0 };
-        AttrWeights { uv: d * Self::EXTENT_FRACTION, normal: d * Self::SHADING_FRACTION, color: d * Self::SHADING_FRACTION }
+        AttrWeights { uv: d * Self::EXTENT_FRACTION, normal: d * Self::NORMAL_FRACTION, color: d * Self::SHADING_FRACTION }
     }
 }
 
