@@ -309,7 +309,7 @@ fn smooth_colors(simp: octolod::manifest::Simplifier) {
 /// quadrics and made small-node levels 2–4× worse.
 #[test]
 fn small_nodes_are_as_accurate_as_one_big_node() {
-    use octolod::metro::{compare, load_store_level, Mesh, Options};
+    use octolod::metro::Mesh;
     use octolod::pipeline::build_store;
     let d = tempfile::tempdir().unwrap();
     let (ply, input) = common::gen_ply(d.path(), Shape::Sphere, 200_000, 0);
@@ -319,12 +319,7 @@ fn small_nodes_are_as_accurate_as_one_big_node() {
         let out = d.path().join(format!("s{leaf}.octolod"));
         build_store(&ply, &out, &common::build_options(common::BuildParams { mem: 64 << 20, leaf_tris: leaf, ..Default::default() })).unwrap();
         let s = Store::open(&out).unwrap();
-        let mut per = Vec::new();
-        for l in 2..=4u8 {
-            let b = load_store_level(&out, l).unwrap();
-            let r = compare(&a, &b, &Options { samples: Some(200_000), ..Default::default() }).unwrap();
-            per.push((b.triangles.len() as f64, r.combined.rms));
-        }
+        let per = sizes_and_rms(&a, &out, 2..=4);
         if leaf == 1024 {
             assert!(s.nodes.iter().filter(|n| n.level == 3).count() >= 8, "level 3 should have many nodes");
         }
@@ -337,6 +332,19 @@ fn small_nodes_are_as_accurate_as_one_big_node() {
     }
 }
 
+/// Per level of the store at `dir` in `levels`: its triangle count and
+/// metro's combined RMS distance to the input `a` (200 K samples a direction).
+fn sizes_and_rms(a: &octolod::metro::Mesh, dir: &std::path::Path, levels: std::ops::RangeInclusive<u8>) -> Vec<(f64, f64)> {
+    use octolod::metro::{compare, load_store_level, Options};
+    levels
+        .map(|l| {
+            let b = load_store_level(dir, l).unwrap();
+            let r = compare(a, &b, &Options { samples: Some(200_000), ..Default::default() }).unwrap();
+            (b.triangles.len() as f64, r.combined.rms)
+        })
+        .collect()
+}
+
 /// Normals that do not follow the coarse geometry (a rough terrain's) do
 /// not buy its clusters: the terrain built with its normals is, level by
 /// level at equal size, about as near the input as the same terrain built
@@ -345,7 +353,7 @@ fn small_nodes_are_as_accurate_as_one_big_node() {
 /// thousandth, 1.03, 1.08, 1.14 and 1.20×.
 #[test]
 fn rough_normals_do_not_take_the_clusters() {
-    use octolod::metro::{compare, load_store_level, Mesh, Options};
+    use octolod::metro::Mesh;
     let d = tempfile::tempdir().unwrap();
     let mut per = Vec::new();
     for attrs in [0, AttrSet::NORMAL] {
@@ -353,14 +361,7 @@ fn rough_normals_do_not_take_the_clusters() {
         let params = common::BuildParams { leaf_tris: 4000, ..Default::default() };
         let dir = common::build_store_at(d.path(), &ply, &common::build_options(params));
         let a = Mesh::from_vertices(&input.vertices, input.triangles.clone());
-        let levels: Vec<(f64, f64)> = (2..=5u8)
-            .map(|l| {
-                let b = load_store_level(&dir, l).unwrap();
-                let r = compare(&a, &b, &Options { samples: Some(200_000), ..Default::default() }).unwrap();
-                (b.triangles.len() as f64, r.combined.rms)
-            })
-            .collect();
-        per.push(levels);
+        per.push(sizes_and_rms(&a, &dir, 2..=5));
     }
     for (l, (plain, normals)) in per[0].iter().zip(&per[1]).enumerate() {
         // RMS about ∝ 1/size at these levels: compare at equal size.
