@@ -496,6 +496,13 @@ struct BuildArgs {
     /// Build levels up to this one only (default: up to the root).
     #[arg(long)]
     levels: Option<u8>,
+    /// How the levels above level 0 get an input's normals: average
+    /// (out of the quadric, each vertex the mean of those it stands for:
+    /// faster), carry (in the quadric, 3 more dimensions: keeps creases) or
+    /// auto (average unless level 0 has creases; a plan makes it carry).
+    /// Level 0 keeps the input's.
+    #[arg(long, default_value = "auto")]
+    normals: octolod::manifest::Normals,
 }
 
 impl BuildArgs {
@@ -513,6 +520,7 @@ impl BuildArgs {
             level_ratio: self.level_ratio,
             root_tris: self.root_tris,
             levels: self.levels,
+            normals: self.normals,
             ..Default::default()
         };
         octolod::lod::check_params(&params)?;
@@ -981,14 +989,22 @@ fn info(dir: &std::path::Path) -> Result<()> {
     let s = octolod::store::Store::open(dir)?;
     let h = &s.header;
     out!("store: {}", dir.display());
+    let manifest = octolod::manifest::Manifest::read(dir).ok();
+    // Averaged normals are not in the quadrics.
+    let averaged = manifest.as_ref().is_some_and(|m| h.attrs.normal() && m.params.normals == octolod::manifest::Normals::Average);
     out!(
         "attributes: {} (quadric dimension {}){}",
         h.attrs.describe(),
-        h.attrs.quadric_dim(),
-        if h.derived_normals { ", normals computed at build time" } else { "" }
+        manifest.as_ref().map_or(h.attrs.quadric_dim(), |m| m.quadric_dim),
+        if h.derived_normals {
+            ", normals computed at build time"
+        } else if averaged {
+            ", normals averaged"
+        } else {
+            ""
+        }
     );
     out!("nodes: {}, levels: {}, root: {} triangles", s.nodes.len(), h.levels, s.nodes[s.root()].tris);
-    let manifest = octolod::manifest::Manifest::read(dir).ok();
     if let Some(m) = &manifest {
         out!("simplifier: {}", m.params.simplifier.name());
         for t in &m.textures {

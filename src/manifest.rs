@@ -204,6 +204,10 @@ pub struct BuildParams {
     /// The node simplifier (`cluster` for stores built before it was a choice).
     #[serde(default = "cluster")]
     pub simplifier: Simplifier,
+    /// Where the levels' normals come from (`carry` for stores built before
+    /// it was a choice).
+    #[serde(default = "carry")]
+    pub normals: Normals,
 }
 
 impl Default for BuildParams {
@@ -216,12 +220,65 @@ impl Default for BuildParams {
             root_tris: 4096,
             levels: None,
             simplifier: Simplifier::Cluster,
+            normals: Normals::Auto,
         }
     }
 }
 
 fn cluster() -> Simplifier {
     Simplifier::Cluster
+}
+
+fn carry() -> Normals {
+    Normals::Carry
+}
+
+/// How the levels above level 0 get an input's normals (`--normals`; an
+/// input without normals gets them from its geometry at every level,
+/// whatever this says). Level 0 always keeps the input's.
+///
+/// [`Normals::Auto`] is resolved before level 0 is simplified (by the
+/// level builder, from level 0's own normals; a plan, which cannot test
+/// them in its one pass, makes it `carry`): a manifest records what was
+/// used. Measured in `docs/build-costs.md`, "Normals averaged".
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Normals {
+    /// In the quadric with the other attributes (three more dimensions),
+    /// solved with each representative: the two sides of a crease keep
+    /// their own normals.
+    Carry,
+    /// Out of the quadric (clustering only: edge collapse carries them); a
+    /// representative's normal is the area-weighted mean of the normals of
+    /// the vertices it stands for. Builds about 1.3× faster than `carry`
+    /// at normals about as near the input's; a crease's sides blur.
+    Average,
+    /// `average` unless level 0 has creases (a position whose vertices'
+    /// normals differ by more than 10°) or the simplifier is edge collapse.
+    Auto,
+}
+
+impl Normals {
+    /// The name `--normals` takes.
+    pub fn name(self) -> &'static str {
+        match self {
+            Normals::Carry => "carry",
+            Normals::Average => "average",
+            Normals::Auto => "auto",
+        }
+    }
+}
+
+impl std::str::FromStr for Normals {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        match s {
+            "carry" => Ok(Normals::Carry),
+            "average" => Ok(Normals::Average),
+            "auto" => Ok(Normals::Auto),
+            _ => Err(format!("unknown normals mode {s:?} (auto, average or carry)")),
+        }
+    }
 }
 
 /// Wall-clock seconds per stage.

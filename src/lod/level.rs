@@ -25,7 +25,7 @@ use crate::error::{Error, Result};
 use crate::geom::pos_bits;
 use crate::geom::{cross, sub};
 use crate::io::ScratchDir;
-use crate::manifest::LevelReport;
+use crate::manifest::{LevelReport, Normals};
 use crate::mesh::{Aabb, AttrSet, IndexedMesh, VertexLayout};
 use crate::progress::Progress;
 use crate::store::{encode_payload, NodeRec, PackWriter, StoreHeader, NO_NODE};
@@ -48,6 +48,9 @@ struct Config<'a, S> {
     /// Payloads' vertices: with normals, derived when the input has none.
     payload_layout: VertexLayout,
     derived: bool,
+    /// Where the levels' normals come from; `None` until level 0 has been
+    /// tested (`--normals auto`, [`NormalFit`]).
+    normals: Option<Normals>,
     /// Gathered vertices are welded by their bytes; with no attribute those
     /// are the position's, so each vertex is a position of its own.
     unique_positions: bool,
@@ -68,6 +71,61 @@ impl<S> Config<'_, S> {
     #[inline]
     fn extra_locked(&self, p: &[f64; 3]) -> bool {
         self.extra_locks.as_ref().is_some_and(|l| l.contains(&pos_bits(*p)))
+    }
+}
+
+/// Creases in an input's normals, over the positions of a sample of level
+/// 0's nodes (those no other node holds): a position whose vertices'
+/// normals differ by more than [`NormalFit::CREASE_DEGREES`] is on one (a
+/// hard edge, each side's faces keeping their own normal). Averaged
+/// normals would blur it; carried ones keep each side's (its wedges are
+/// seams of the quadric's attributes).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub(super) struct NormalFit {
+    pub positions: u64,
+    pub creases: u64,
+}
+
+impl NormalFit {
+    /// Wedges further apart than this make a crease.
+    pub const CREASE_DEGREES: f64 = 10.0;
+
+    /// Adds a position holding vertices with these normals.
+    pub fn add(&mut self, normals: impl Iterator<Item = [f32; 3]>) {
+        self.positions += 1;
+        let unit = |n: [f32; 3]| {
+            let n = n.map(|x| x as f64);
+            let l = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+            (l > 0.0 && l.is_finite()).then(|| n.map(|x| x / l))
+        };
+        let cos_max = Self::CREASE_DEGREES.to_radians().cos();
+        let mut first: Option<Option<[f64; 3]>> = None;
+        for n in normals {
+            let n = unit(n);
+            match first {
+                None => first = Some(n),
+                Some(f) => {
+                    let apart = match (f, n) {
+                        (Some(a), Some(b)) => (0..3).map(|k| a[k] * b[k]).sum::<f64>() < cos_max,
+                        (None, None) => false,
+                        _ => true,
+                    };
+                    if apart {
+                        self.creases += 1;
+                        return;
+                    }
+                }
+            }
+        }
+    }
+
+    pub fn merge(self, o: NormalFit) -> NormalFit {
+        NormalFit { positions: self.positions + o.positions, creases: self.creases + o.creases }
+    }
+
+    /// No crease seen: the normals may be averaged.
+    pub fn smooth(&self) -> bool {
+        self.creases == 0
     }
 }
 
@@ -155,6 +213,13 @@ impl<'a, S: NodeSimplifier> LevelBuilder<'a, S> {
     pub fn new(l0: Level0, dir: &'a Path, scratch: ScratchDir, opts: &'a LodOptions, simplifier: S) -> LevelBuilder<'a, S> {
         let attrs = l0.header.attrs;
         let threads = rayon::current_num_threads().max(1);
+        let normals = match opts.params.normals {
+            _ if !attrs.normal() => Some(Normals::Carry),
+            Normals::Auto => None,
+            // Edge collapse carries them, whatever was asked.
+            _ if !simplifier.averages_normals() => Some(Normals::Carry),
+            n => Some(n),
+        };
         let cfg = Config {
             opts,
             dir,
@@ -164,6 +229,7 @@ impl<'a, S: NodeSimplifier> LevelBuilder<'a, S> {
             layout: VertexLayout::new(attrs),
             payload_layout: VertexLayout::new(attrs.with(AttrSet::NORMAL, true)),
             derived: !attrs.normal(),
+            normals,
             unique_positions: attrs.quadric_dim() == 3,
             a_len: simplifier.carried_len(),
             hist_cap: (opts.params.mem / 256).max(1 << 16) as usize,
@@ -229,6 +295,9 @@ impl<'a, S: NodeSimplifier> LevelBuilder<'a, S> {
         let progress = Progress::items(2 * lv.ids.len() as u64, &format!("level {level}"), self.cfg.opts.quiet);
         let mut rep = LevelReport { level, nodes: lv.ids.len() as u64, triangles: lv.triangles, error_min: f64::INFINITY, ..Default::default() };
         let mut shared = self.shared_vertices(&lv, &progress)?;
+        if self.cfg.normals.is_none() {
+            self.resolve_normals(&lv, &shared.resolved)?;
+        }
         let (tau, predicted) = self.threshold(&lv, &shared.resolved)?;
         let next_tiling = self.partition_next(&lv, &shared.hist, predicted);
         rep.tau = tau;
@@ -331,6 +400,47 @@ impl<'a, S: NodeSimplifier> LevelBuilder<'a, S> {
         )?;
         let (resolved, stats) = sorter.resolve((mem / 4) as usize, cfg.scratch.path(), cfg.scratch.path().join("shared.bin"))?;
         Ok(SharedPass { resolved, stats, hist })
+    }
+
+    /// `--normals auto`, before level 0 is simplified: its normals are
+    /// averaged out of the quadrics ([`Normals::Average`]) unless the
+    /// sampled nodes show a crease ([`NormalFit`]) or the simplifier
+    /// cannot leave them out; then carried.
+    fn resolve_normals(&mut self, lv: &LevelNodes, resolved: &Resolved) -> Result<()> {
+        let fit = self.normal_fit(lv, resolved)?;
+        let average = fit.smooth() && self.cfg.simplifier.average_normals();
+        debug_assert_eq!(average, self.cfg.simplifier.averages_normals());
+        if average {
+            self.cfg.a_len = self.cfg.simplifier.carried_len();
+        }
+        self.cfg.normals = Some(if average { Normals::Average } else { Normals::Carry });
+        Ok(())
+    }
+
+    /// Level 0's creases: the nodes the threshold samples, each position
+    /// no other node holds.
+    fn normal_fit(&self, lv: &LevelNodes, resolved: &Resolved) -> Result<NormalFit> {
+        let (cfg, cur) = (&self.cfg, self.cur.as_ref().expect("a current level"));
+        let stride = (lv.ids.len() / SAMPLED_NODES).max(1);
+        let picked: Vec<usize> = (0..lv.ids.len()).filter(|k| k % stride == 0).collect();
+        let mut reader = resolved.reopen()?;
+        let sets = picked.iter().map(|&k| reader.take((lv.base + k) as u32)).collect::<Result<Vec<_>>>()?;
+        let fits = picked
+            .par_iter()
+            .zip(sets.par_iter())
+            .map(|(&k, set)| {
+                let g = cur.chunks.gather(lv.ids[k])?;
+                let w = Welded::new(&g.mesh, cfg.unique_positions);
+                let mut fit = NormalFit::default();
+                for (p, at) in w.pos.iter().enumerate() {
+                    if !set.contains_key(&pos_bits(*at)) && !cfg.extra_locked(at) {
+                        fit.add(w.verts_at(p).iter().map(|&v| g.mesh.vertices[v as usize].normal));
+                    }
+                }
+                Ok(fit)
+            })
+            .collect::<Vec<Result<NormalFit>>>();
+        fits.into_iter().try_fold(NormalFit::default(), |a, f| Ok(a.merge(f?)))
     }
 
     /// Step 3, threshold: the simplifier's curves of a sample of nodes
@@ -497,6 +607,8 @@ impl<'a, S: NodeSimplifier> LevelBuilder<'a, S> {
         let Dag { mut nodes, children: node_children, .. } = self.dag;
         let (children, parents) = link_dag(&mut nodes, &node_children);
         crate::store::sync_packs(self.cfg.dir, &nodes)?;
+        // Never resolved: nothing was simplified (a single level).
+        let normals = self.cfg.normals.unwrap_or(Normals::Carry);
         let header = StoreHeader {
             attrs: self.cfg.attrs,
             derived_normals: self.cfg.derived,
@@ -506,7 +618,8 @@ impl<'a, S: NodeSimplifier> LevelBuilder<'a, S> {
             store_id,
             bbox: self.cfg.bbox,
         };
-        Ok(Built { header, nodes, children, parents, levels: self.reports, octree: self.octree })
+        let quadric_dim = super::quadric_attrs(self.cfg.attrs, normals).quadric_dim();
+        Ok(Built { header, nodes, children, parents, levels: self.reports, octree: self.octree, normals, quadric_dim })
     }
 }
 
@@ -770,7 +883,13 @@ mod tests {
         let scratch = crate::io::scratch_dir(store).unwrap();
         let bbox = crate::soup::format::SoupReader::open(soup).unwrap().header.bbox;
         let l0 = build_octree(soup, scratch.path().join("chunks-0.bin"), &LevelCube::for_level(&bbox, 0), &opts.octree(), None).unwrap();
-        LevelBuilder::new(l0, store, scratch, opts, ClusterNodes { attrs: AttrSet::POSITION_ONLY, rel_tol: opts.rel_tol, share: 1.0 / opts.params.level_ratio })
+        LevelBuilder::new(
+            l0,
+            store,
+            scratch,
+            opts,
+            ClusterNodes { attrs: AttrSet::POSITION_ONLY, rel_tol: opts.rel_tol, share: 1.0 / opts.params.level_ratio, average_normals: false },
+        )
     }
 
     #[test]
@@ -896,5 +1015,24 @@ mod tests {
         assert_eq!(of(0), (0, 0, 0, 1));
         assert_eq!(of(1), (0, 0, 1, 2));
         assert_eq!(of(5), (4, 2, 6, 0));
+    }
+
+    /// A crease is a position whose vertices' normals are more than 10°
+    /// apart (or one has none); one vertex, or wedges alike, is none.
+    #[test]
+    fn normal_fit_sees_creases_only() {
+        let tilt = |deg: f64| [deg.to_radians().sin() as f32, 0.0, deg.to_radians().cos() as f32];
+        let mut f = NormalFit::default();
+        f.add([tilt(0.0)].into_iter());
+        f.add([tilt(0.0), tilt(9.0), tilt(-0.5)].into_iter());
+        f.add([[0.0; 3], [0.0; 3]].into_iter());
+        assert_eq!(f, NormalFit { positions: 3, creases: 0 });
+        assert!(f.smooth());
+        let mut g = NormalFit::default();
+        g.add([tilt(0.0), tilt(3.0), tilt(45.0)].into_iter());
+        g.add([tilt(0.0), [f32::NAN, 0.0, 1.0]].into_iter());
+        assert_eq!(g, NormalFit { positions: 2, creases: 2 });
+        assert!(!g.smooth() && !f.merge(g).smooth());
+        assert_eq!(f.merge(g).positions, 5);
     }
 }

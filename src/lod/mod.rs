@@ -105,6 +105,11 @@ pub struct Built {
     pub parents: Vec<u32>,
     pub levels: Vec<LevelReport>,
     pub octree: OctreeReport,
+    /// How the levels' normals were made (`auto` resolved; `carry` for an
+    /// input without normals, whose levels derive theirs).
+    pub normals: crate::manifest::Normals,
+    /// The quadrics' dimension (without derived normals).
+    pub quadric_dim: usize,
 }
 
 /// Most levels built: halving from 2^40 triangles takes 30. A build that
@@ -211,11 +216,25 @@ pub trait WithSimplifier {
 
 /// The one place a simplifier is chosen: runs `w` with `opts`' simplifier
 /// for a mesh with `attrs` (a new simplifier is a type and a line here).
+/// With `--normals average` clustering leaves normals out of its quadrics
+/// (`auto` decides once level 0 is tested, [`level::LevelBuilder`]).
 pub fn with_simplifier<W: WithSimplifier>(opts: &LodOptions, attrs: crate::mesh::AttrSet, w: W) -> W::Out {
     match opts.params.simplifier.resolve(attrs) {
-        Simplifier::Cluster | Simplifier::Auto => w.run(ClusterNodes { attrs, rel_tol: opts.rel_tol, share: 1.0 / opts.params.level_ratio }),
+        Simplifier::Cluster | Simplifier::Auto => {
+            let mut s = ClusterNodes { attrs, rel_tol: opts.rel_tol, share: 1.0 / opts.params.level_ratio, average_normals: false };
+            if attrs.normal() && opts.params.normals == crate::manifest::Normals::Average {
+                s.average_normals();
+            }
+            w.run(s)
+        }
         Simplifier::Collapse => w.run(CollapseNodes { attrs, share: 1.0 / opts.params.level_ratio }),
     }
+}
+
+/// The attributes the quadrics model for an input with `attrs` whose
+/// normals were `normals` (resolved; averaged ones are not modelled).
+pub fn quadric_attrs(attrs: crate::mesh::AttrSet, normals: crate::manifest::Normals) -> crate::mesh::AttrSet {
+    attrs.with(crate::mesh::AttrSet::NORMAL, attrs.normal() && normals != crate::manifest::Normals::Average)
 }
 
 /// Builds the levels from `from` up to the top, then links the DAG under

@@ -47,6 +47,12 @@ pub trait NodeSimplifier: Sync {
     type Curve: Send;
     /// Quadric values each vertex carries between levels (0: none).
     fn carried_len(&self) -> usize;
+    /// Leaves the normals out of its quadrics and gives each output vertex
+    /// the mean of those it stands for ([`crate::manifest::Normals::Average`]);
+    /// false (nothing changed) where it cannot.
+    fn average_normals(&mut self) -> bool;
+    /// Whether it averages normals.
+    fn averages_normals(&self) -> bool;
     /// The curve of one sampled node.
     fn curve(&self, node: &NodeInput) -> Self::Curve;
     /// The level's limit at which the sampled nodes keep `share` of their
@@ -66,6 +72,9 @@ pub struct ClusterNodes {
     /// The share of its triangles a level keeps (1/`--level-ratio`): the
     /// sampled curves count exactly around it.
     pub share: f64,
+    /// The mesh has normals the quadrics leave out: a representative's is
+    /// its members' area-weighted mean ([`crate::manifest::Normals::Average`]).
+    pub average_normals: bool,
 }
 
 impl NodeSimplifier for ClusterNodes {
@@ -73,6 +82,16 @@ impl NodeSimplifier for ClusterNodes {
 
     fn carried_len(&self) -> usize {
         crate::quadric::carry_len(self.attrs.quadric_dim())
+    }
+
+    fn average_normals(&mut self) -> bool {
+        self.attrs = self.attrs.with(AttrSet::NORMAL, false);
+        self.average_normals = true;
+        true
+    }
+
+    fn averages_normals(&self) -> bool {
+        self.average_normals
     }
 
     fn curve(&self, n: &NodeInput) -> SplitCurve {
@@ -85,9 +104,13 @@ impl NodeSimplifier for ClusterNodes {
     }
 
     fn simplify(&self, n: &NodeInput, tau: f64, as_stored: &dyn Fn(&mut IndexedMesh)) -> Simplified {
+        let area = self.average_normals.then(|| vertex_areas(n.mesh));
         let run = |locked: &[bool]| {
             let sp = Splits::to_threshold(n.mesh, n.carried, locked, n.pos_of, self.attrs, tau);
             let mut out = sp.build(sp.steps(), self.rel_tol);
+            if let Some(area) = &area {
+                average_normals(n.mesh, area, &mut out);
+            }
             as_stored(&mut out.mesh);
             let error = node_error(n.mesh, &out);
             (out, error)
@@ -100,6 +123,43 @@ impl NodeSimplifier for ClusterNodes {
         // node's own.
         let locked = out.kept_from.iter().map(|&k| k != u32::MAX && n.locked[k as usize]).collect();
         Simplified { clamped: out.stats.clamped, mesh: out.mesh, carried: out.a, locked, error }
+    }
+}
+
+/// A third of the area of the triangles around each vertex.
+fn vertex_areas(m: &IndexedMesh) -> Vec<f64> {
+    let mut a = vec![0.0; m.vertices.len()];
+    for t in &m.triangles {
+        let c = t.map(|v| m.vertices[v as usize].pos);
+        let n = crate::geom::cross(crate::geom::sub(c[1], c[0]), crate::geom::sub(c[2], c[0]));
+        let third = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt() / 6.0;
+        for &v in t {
+            a[v as usize] += third;
+        }
+    }
+    a
+}
+
+/// Each representative's normal: the area-weighted mean of its members'
+/// (unit length; its template's where they cancel). Kept vertices keep
+/// their own.
+fn average_normals(input: &IndexedMesh, area: &[f64], out: &mut super::cluster::NodeOut) {
+    for o in 0..out.mesh.vertices.len() {
+        let members = &out.members[out.members_first[o] as usize..out.members_first[o + 1] as usize];
+        if out.kept_from[o] != u32::MAX || members.is_empty() {
+            continue;
+        }
+        let mut s = [0.0f64; 3];
+        for &m in members {
+            let (v, w) = (&input.vertices[m as usize], area[m as usize]);
+            for (x, &n) in s.iter_mut().zip(&v.normal) {
+                *x += w * n as f64;
+            }
+        }
+        let l = (s[0] * s[0] + s[1] * s[1] + s[2] * s[2]).sqrt();
+        if l > 0.0 && l.is_finite() {
+            out.mesh.vertices[o].normal = s.map(|x| (x / l) as f32);
+        }
     }
 }
 
@@ -118,6 +178,16 @@ impl NodeSimplifier for CollapseNodes {
 
     fn carried_len(&self) -> usize {
         0
+    }
+
+    /// meshoptimizer's collapse keeps a survivor's own attributes: its
+    /// normals stay in the attributes it weighs.
+    fn average_normals(&mut self) -> bool {
+        false
+    }
+
+    fn averages_normals(&self) -> bool {
+        false
     }
 
     fn curve(&self, n: &NodeInput) -> collapse::ErrorCurve {
@@ -346,7 +416,7 @@ mod tests {
 
     #[test]
     fn both_simplifiers_meet_the_chosen_limit() {
-        check(&ClusterNodes { attrs: AttrSet::default(), rel_tol: 1e-3, share: 0.5 });
+        check(&ClusterNodes { attrs: AttrSet::default(), rel_tol: 1e-3, share: 0.5, average_normals: false });
         check(&CollapseNodes { attrs: AttrSet::default(), share: 0.5 });
     }
 
@@ -357,7 +427,7 @@ mod tests {
         let locked: Vec<bool> = m.vertices.iter().map(|v| v.pos[0] == 0.0 || v.pos[0] == 1.0 || v.pos[1] == 0.0 || v.pos[1] == 1.0).collect();
         let ring = locked.iter().filter(|&&l| l).count();
         let cl: [&dyn Fn(&NodeInput) -> Simplified; 2] =
-            [&|n| ClusterNodes { attrs: AttrSet::default(), rel_tol: 1e-3, share: 0.5 }.simplify(n, 1e-2, &|_| {}), &|n| {
+            [&|n| ClusterNodes { attrs: AttrSet::default(), rel_tol: 1e-3, share: 0.5, average_normals: false }.simplify(n, 1e-2, &|_| {}), &|n| {
                 CollapseNodes { attrs: AttrSet::default(), share: 0.5 }.simplify(n, 1e-2, &|_| {})
             }];
         for f in cl {
@@ -405,7 +475,7 @@ mod tests {
         assert_eq!(high(&sp.build(sp.steps(), 1e-3).mesh), 0, "the box survived the clustering alone: the test no longer tests the repair");
         let outs = [
             CollapseNodes { attrs, share: 0.5 }.simplify(&node, limit, &|_| {}),
-            ClusterNodes { attrs, rel_tol: 1e-3, share: 0.5 }.simplify(&node, tau, &|_| {}),
+            ClusterNodes { attrs, rel_tol: 1e-3, share: 0.5, average_normals: false }.simplify(&node, tau, &|_| {}),
         ];
         for (out, name) in outs.iter().zip(["collapse", "cluster"]) {
             assert_eq!(high(&out.mesh), 12, "{name}: the box is kept whole");

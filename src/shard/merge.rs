@@ -25,7 +25,7 @@ use crate::lod::level::{LevelBuilder, Paused};
 use crate::lod::octree::OctreeReport;
 use crate::lod::simplifier::NodeSimplifier;
 use crate::lod::{build_levels, with_simplifier, Built, LodOptions, WithSimplifier};
-use crate::manifest::{LevelReport, Manifest, ManifestSeconds};
+use crate::manifest::{BuildParams, LevelReport, Manifest, ManifestSeconds};
 use crate::mesh::VertexLayout;
 use crate::soup::format::SoupHeader;
 use crate::store::{pack_file, pack_file_part, write_index, MAX_PARTS, PAGE};
@@ -98,11 +98,11 @@ pub fn merge(plan: &Plan, shards: &[PathBuf], out: &Path, o: MergeOptions) -> Re
         version: crate::store::format_version(&built.nodes),
         input: plan.input.path.clone(),
         attributes: attrs.describe(),
-        quadric_dim: attrs.quadric_dim(),
+        quadric_dim: built.quadric_dim,
         derived_normals: built.header.derived_normals,
         nodes: built.nodes.len() as u64,
         triangles: header.triangles,
-        params: lo.params.clone(),
+        params: BuildParams { normals: built.normals, ..lo.params.clone() },
         seconds: ManifestSeconds { soup: 0.0, partition: 0.0, levels: seconds, total: seconds },
         disk_bytes,
         levels: built.levels.clone(),

@@ -386,7 +386,16 @@ pub fn plan(input: &Path, out: &Path, opts: &PlanOptions, force: bool) -> Result
         input: id,
         // Every shard and the merge use the one simplifier the input's
         // attributes choose (a plan never records `auto`).
-        params: BuildParams { simplifier: opts.params.simplifier.resolve(header.attrs), ..opts.params.clone() },
+        // `--normals auto` tests level 0, which one pass cannot: the
+        // shards carry the normals, so they all agree.
+        params: BuildParams {
+            simplifier: opts.params.simplifier.resolve(header.attrs),
+            normals: match opts.params.normals {
+                crate::manifest::Normals::Auto => crate::manifest::Normals::Carry,
+                n => n,
+            },
+            ..opts.params.clone()
+        },
         shard_levels,
         triangles: s.triangles,
         vertices: stats.vertices,

@@ -6,6 +6,7 @@
 use crate::common;
 use crate::common::{build_with, crack_report, random_cut, Rng, SIMPLIFIERS};
 use octolod::gen::Shape;
+use octolod::manifest::Normals;
 use octolod::mesh::IndexedMesh;
 use octolod::mesh::{AttrSet, Vertex};
 use octolod::pipeline::{extract, CutSpec};
@@ -358,7 +359,8 @@ fn rough_normals_do_not_take_the_clusters() {
     let mut per = Vec::new();
     for attrs in [0, AttrSet::NORMAL] {
         let (ply, input) = common::gen_ply_seeded(d.path(), Shape::Terrain, 200_000, attrs, 1);
-        let params = common::BuildParams { leaf_tris: 4000, ..Default::default() };
+        // In the quadric, where the weight matters (`auto` averages them).
+        let params = common::BuildParams { leaf_tris: 4000, normals: Normals::Carry, ..Default::default() };
         let dir = common::build_store_at(d.path(), &ply, &common::build_options(params));
         let a = Mesh::from_vertices(&input.vertices, input.triangles.clone());
         per.push(sizes_and_rms(&a, &dir, 2..=5));
@@ -368,6 +370,90 @@ fn rough_normals_do_not_take_the_clusters() {
         let ratio = (normals.1 * normals.0) / (plain.1 * plain.0);
         assert!(ratio < 1.3, "level {}: with normals {normals:?}, without {plain:?}: {ratio:.2}x", l + 2);
     }
+}
+
+/// `--normals auto` averages a smooth sphere's normals out of the quadric
+/// (dimension 3, not 6): level 0 keeps the input's bit for bit, the levels
+/// above hold unit normals about as near the input's as carried ones. A
+/// sphere whose normals are split along a crease carries them (dimension
+/// 6), as `--normals carry` does.
+#[test]
+fn normals_are_averaged_out_of_the_quadric_unless_creased() {
+    use octolod::geom::{Bvh, Mesh};
+    use octolod::manifest::Manifest;
+    let d = tempfile::tempdir().unwrap();
+    let (ply, input) = common::gen_ply_seeded(d.path(), Shape::Sphere, 40_000, AttrSet::NORMAL, 3);
+    let bvh = Bvh::new(&Mesh::from_vertices(&input.vertices, input.triangles.clone()));
+    let key = |p: [f64; 3]| p.map(|x| (x as f32).to_bits());
+    let given: HashMap<[u32; 3], [f32; 3]> = input.vertices.iter().map(|v| (key(v.pos), v.normal)).collect();
+    let build = |ply: &std::path::Path, normals: Normals| {
+        let dir = d.path().join(format!("{}-{}.octolod", ply.file_stem().unwrap().to_string_lossy(), normals.name()));
+        let params = common::BuildParams { leaf_tris: 2000, normals, ..Default::default() };
+        octolod::pipeline::build_store(ply, &dir, &common::build_options(params)).unwrap();
+        (Store::open(&dir).unwrap(), Manifest::read(&dir).unwrap())
+    };
+    // Mean angle (degrees) of levels 1–4's normals from the input's at the
+    // closest point; level 0's must be the input's own.
+    let angle = |s: &Store| {
+        let (mut sum, mut n) = (0.0f64, 0usize);
+        for i in 0..s.nodes.len() {
+            for v in s.read_node(i).unwrap().mesh.vertices {
+                if s.nodes[i].level == 0 {
+                    assert_eq!(given.get(&key(v.pos)), Some(&v.normal), "node {i}: level 0 keeps the input's normals");
+                    continue;
+                }
+                if s.nodes[i].level > 4 {
+                    continue;
+                }
+                let c = bvh.closest(v.pos).unwrap();
+                let w = input.vertices[input.triangles[c.triangle as usize][0] as usize].normal;
+                let nl = v.normal.iter().map(|&x| x as f64 * x as f64).sum::<f64>().sqrt();
+                assert!((nl - 1.0).abs() < 1e-3, "node {i}: normal of length {nl}");
+                let cos = (0..3).map(|k| w[k] as f64 * v.normal[k] as f64).sum::<f64>() / nl;
+                sum += cos.clamp(-1.0, 1.0).acos().to_degrees();
+                n += 1;
+            }
+        }
+        assert!(n > 1000, "{n} vertices above level 0");
+        sum / n as f64
+    };
+    let (s, m) = build(&ply, Normals::Auto);
+    assert_eq!((m.params.normals, m.quadric_dim), (Normals::Average, 3));
+    let averaged = angle(&s);
+    let (s, m) = build(&ply, Normals::Carry);
+    assert_eq!((m.params.normals, m.quadric_dim), (Normals::Carry, 6));
+    let carried = angle(&s);
+    eprintln!("sphere, levels 1-4: normals {averaged:.3}° from the input's averaged, {carried:.3}° carried");
+    assert!(averaged < 1.2 * carried + 0.1, "averaged normals {averaged:.3}° from the input's, carried {carried:.3}°");
+    // A crease: the wedges of every vertex with x > 0 face +x.
+    let mut creased = input.clone();
+    let twin: Vec<u32> = input
+        .vertices
+        .iter()
+        .map(|v| {
+            if v.pos[0] <= 0.0 {
+                return u32::MAX;
+            }
+            creased.vertices.push(Vertex { normal: [1.0, 0.0, 0.0], ..*v });
+            creased.vertices.len() as u32 - 1
+        })
+        .collect();
+    // Triangles wholly in x > 0 take the +x wedges: a seam along x = 0's side.
+    for t in creased.triangles.iter_mut() {
+        if t.iter().all(|&v| twin[v as usize] != u32::MAX) {
+            *t = t.map(|v| twin[v as usize]);
+        }
+    }
+    let cply = d.path().join("creased.ply");
+    octolod::ply::write::write_ply(
+        &cply,
+        &octolod::ply::write::PlyWriteOptions { attrs: AttrSet(AttrSet::NORMAL), ..Default::default() },
+        &creased.vertices,
+        &creased.triangles,
+    )
+    .unwrap();
+    let (_, m) = build(&cply, Normals::Auto);
+    assert_eq!((m.params.normals, m.quadric_dim), (Normals::Carry, 6), "a creased sphere's normals are carried");
 }
 
 /// Normals, colours and uvs are carried through either simplifier: unit
@@ -381,7 +467,18 @@ fn attributes_are_carried() {
     for simp in SIMPLIFIERS {
         for shape in [Shape::Sphere, Shape::Terrain] {
             let d = tempfile::tempdir().unwrap();
-            let (s, input) = build_with(d.path(), shape, 20_000, AttrSet::NORMAL | AttrSet::COLOR | AttrSet::UV, 800, simp);
+            // Carried (`auto` would average these).
+            let (ply, input) = common::gen_ply(d.path(), shape, 20_000, AttrSet::NORMAL | AttrSet::COLOR | AttrSet::UV);
+            let params = common::BuildParams {
+                mem: 4 << 20,
+                leaf_tris: 800,
+                max_depth: 12,
+                root_tris: 256,
+                simplifier: simp,
+                normals: Normals::Carry,
+                ..Default::default()
+            };
+            let s = octolod::store::Store::open(&common::build_store_at(d.path(), &ply, &common::build_options(params))).unwrap();
             let name = format!("{} ({})", shape.name(), simp.name());
             assert!(s.header.attrs.normal() && s.header.attrs.color() && s.header.attrs.uv() && !s.header.derived_normals);
             let bvh = Bvh::new(&Mesh::from_vertices(&input.vertices, input.triangles.clone()));

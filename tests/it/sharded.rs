@@ -41,10 +41,17 @@ fn rms(input: &Path, store: &Path, level: u8) -> (f64, u64) {
 /// (at about its size), the same number of levels give or take one, a root
 /// as small; DAG invariants and crack-free cuts.
 fn against_monolithic(shape: Shape, tris: u64, leaf: u64, closed: bool, simplifier: &str) {
+    against_monolithic_with(shape, tris, leaf, closed, simplifier, 0, &[]);
+}
+
+/// [`against_monolithic`] for an input with `attrs`, both builds given
+/// `extra` flags; gives the sharded store (and the directory holding it).
+fn against_monolithic_with(shape: Shape, tris: u64, leaf: u64, closed: bool, simplifier: &str, attrs: u32, extra: &[&str]) -> (tempfile::TempDir, Store) {
     let d = tempfile::tempdir().unwrap();
-    let (input, input_mesh) = gen_ply(d.path(), shape, tris, 0);
+    let (input, input_mesh) = gen_ply(d.path(), shape, tris, attrs);
     let leaf = leaf.to_string();
-    let flags = ["--leaf-tris", &leaf, "--simplifier", simplifier];
+    let mut flags = vec!["--leaf-tris", &leaf, "--simplifier", simplifier];
+    flags.extend_from_slice(extra);
     let mono = d.path().join("mono.octolod");
     let mut args = vec!["-q", "build", s(&input), "-o", s(&mono), "--mem", "64M"];
     args.extend_from_slice(&flags);
@@ -67,6 +74,7 @@ fn against_monolithic(shape: Shape, tris: u64, leaf: u64, closed: bool, simplifi
         assert!((ts as f64 / tm as f64 - 1.0).abs() < 0.1, "{name}: level {l}: {ts} triangles against {tm}");
         assert!(rs <= 1.1 * rm, "{name}: level {l}: RMS {rs:e} against the monolithic {rm:e}");
     }
+    (d, sh)
 }
 
 #[test]
@@ -74,9 +82,23 @@ fn a_sharded_terrain_is_as_good_as_a_monolithic_one() {
     against_monolithic(Shape::Terrain, 60_000, 500, false, "cluster");
 }
 
+/// With normals the plan says to average: the shards and the merge leave
+/// them out of the quadric (dimension 3), and every level above 0 holds
+/// unit normals near the sphere's.
 #[test]
 fn a_sharded_closed_sphere_has_closed_cuts() {
-    against_monolithic(Shape::Sphere, 40_000, 1000, true, "cluster");
+    let (_d, sh) = against_monolithic_with(Shape::Sphere, 40_000, 1000, true, "cluster", octolod::mesh::AttrSet::NORMAL, &["--normals", "average"]);
+    let m = octolod::manifest::Manifest::read(&sh.dir).unwrap();
+    assert_eq!((m.params.normals, m.quadric_dim), (octolod::manifest::Normals::Average, 3));
+    let c = sh.header.bbox.center();
+    for i in (0..sh.nodes.len()).filter(|&i| sh.nodes[i].level > 0) {
+        for v in sh.read_node(i).unwrap().mesh.vertices {
+            let r = [0, 1, 2].map(|k| v.pos[k] - c[k]);
+            let cos = (0..3).map(|k| r[k] * v.normal[k] as f64).sum::<f64>() / (0..3).map(|k| r[k] * r[k]).sum::<f64>().sqrt();
+            let len = (0..3).map(|k| v.normal[k] as f64 * v.normal[k] as f64).sum::<f64>().sqrt();
+            assert!((len - 1.0).abs() < 1e-3 && cos > 0.7, "node {i}: normal {:?} at {:?}", v.normal, v.pos);
+        }
+    }
 }
 
 #[test]

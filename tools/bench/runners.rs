@@ -144,6 +144,7 @@ fn run_octolod(a: &RunOne) -> Result<BuildOut> {
             levels.push(LevelOut { level: l, triangles: nf, vertices: nv, nodes: lr.map(|x| x.nodes), error_bound_max: lr.map(|x| x.error_max), path });
         }
     }
+    let quadric_dim = octolod::manifest::Manifest::read(&store_dir).ok().map(|m| m.quadric_dim);
     std::fs::remove_dir_all(&store_dir).with_context(|| format!("remove {}", store_dir.display()))?;
     Ok(BuildOut {
         method: Method::Octolod,
@@ -153,7 +154,8 @@ fn run_octolod(a: &RunOne) -> Result<BuildOut> {
         mem: opts.params.mem,
         input_triangles: r.soup.header.triangles,
         attributes: r.soup.header.attrs.describe(),
-        quadric_dim: r.soup.header.attrs.quadric_dim() as u64,
+        // The dimension used (normals the levels derive are not in it).
+        quadric_dim: quadric_dim.unwrap_or_else(|| r.soup.header.attrs.quadric_dim()) as u64,
         soup_seconds: r.seconds[0],
         octree_seconds: r.seconds[1],
         simplify_seconds: r.seconds[2],
@@ -247,6 +249,7 @@ fn run_octolod_cli(a: &RunOne, bl: &Baseline) -> Result<BuildOut> {
             });
         }
     }
+    let quadric_dim = octolod::manifest::Manifest::read(&store_dir).ok().map(|m| m.quadric_dim);
     std::fs::remove_dir_all(&store_dir).with_context(|| format!("remove {}", store_dir.display()))?;
     Ok(BuildOut {
         method: Method::Octolod,
@@ -256,7 +259,7 @@ fn run_octolod_cli(a: &RunOne, bl: &Baseline) -> Result<BuildOut> {
         mem,
         input_triangles: sum.triangles.unwrap_or_else(|| header.face_count()),
         attributes: header.attrs.describe(),
-        quadric_dim: header.attrs.quadric_dim() as u64,
+        quadric_dim: quadric_dim.unwrap_or_else(|| header.attrs.quadric_dim()) as u64,
         soup_seconds: sum.soup.unwrap_or(f64::NAN),
         octree_seconds: sum.octree.unwrap_or(f64::NAN),
         simplify_seconds: sum.simplify.unwrap_or(f64::NAN),
