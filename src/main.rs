@@ -1119,7 +1119,13 @@ fn ply_info(input: &std::path::Path, header_only: bool, quiet: bool) -> Result<(
     out!("vertices: {}", h.vertex_count());
     out!("faces: {}", h.face_count());
     out!("attributes: {}", h.attrs.describe());
-    out!("quadric dimension: {}", h.attrs.quadric_dim());
+    if h.attrs.normal() {
+        // `build --normals auto` averages normals without creases out of it.
+        let averaged = h.attrs.with(octolod::mesh::AttrSet::NORMAL, false).quadric_dim();
+        out!("quadric dimension: {} ({averaged} where build averages the normals)", h.attrs.quadric_dim());
+    } else {
+        out!("quadric dimension: {}", h.attrs.quadric_dim());
+    }
     // The texture slots a store would copy, by material id.
     let slots = h.texture_sources(input, true);
     if !slots.is_empty() {

@@ -82,6 +82,8 @@ fn build_info_extract_and_simplify_give_what_they_report_and_leave_only_outputs(
     let text = out(&octolod_ok(&["info", s(&store)]));
     // Smooth normals are averaged out of the quadric (`--normals auto`).
     assert!(text.contains("quadric dimension 3), normals averaged"), "{text}");
+    let ply_info = out(&octolod_ok(&["ply-info", s(&ply), "--header-only"]));
+    assert!(ply_info.contains("quadric dimension: 6 (3 where build averages the normals)"), "{ply_info}");
     let level_lines: Vec<&str> = text.lines().filter(|l| l.trim_start().chars().next().is_some_and(|c| c.is_ascii_digit())).collect();
     assert!(level_lines.len() >= 3, "{text}");
     // Level 0 back out: every input triangle.
