@@ -499,7 +499,7 @@ struct BuildArgs {
     /// How the levels above level 0 get an input's normals: average
     /// (out of the quadric, each vertex the mean of those it stands for:
     /// faster), carry (in the quadric, 3 more dimensions: keeps creases) or
-    /// auto (average unless level 0 has creases; a plan makes it carry).
+    /// auto (average unless the input's normals have creases).
     /// Level 0 keeps the input's.
     #[arg(long, default_value = "auto")]
     normals: octolod::manifest::Normals,

@@ -237,10 +237,10 @@ fn carry() -> Normals {
 /// input without normals gets them from its geometry at every level,
 /// whatever this says). Level 0 always keeps the input's.
 ///
-/// [`Normals::Auto`] is resolved before level 0 is simplified (by the
-/// level builder, from level 0's own normals; a plan, which cannot test
-/// them in its one pass, makes it `carry`): a manifest records what was
-/// used. Measured in `docs/build-costs.md`, "Normals averaged".
+/// [`Normals::Auto`] is resolved before level 0 is simplified: by the
+/// level builder from a sample of level 0's nodes, by a plan from a
+/// hash-chosen share of the input's positions in its one pass (so every
+/// shard agrees); a manifest or plan records what was used. Measured in `docs/build-costs.md`, "Normals averaged".
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Normals {
@@ -253,8 +253,9 @@ pub enum Normals {
     /// the vertices it stands for. Builds about 1.3× faster than `carry`
     /// at normals about as near the input's; a crease's sides blur.
     Average,
-    /// `average` unless level 0 has creases (a position whose vertices'
-    /// normals differ by more than 10°) or the simplifier is edge collapse.
+    /// `average` unless the input's normals have creases (a position whose
+    /// vertices' normals differ by more than 10°) or the simplifier is edge
+    /// collapse.
     Auto,
 }
 

@@ -86,35 +86,31 @@ pub(super) struct NormalFit {
     pub creases: u64,
 }
 
+/// Two normals of one position more than [`NormalFit::CREASE_DEGREES`]
+/// apart, or one of them unusable (zero, not finite) and not the other.
+pub(crate) fn creased(a: [f32; 3], b: [f32; 3]) -> bool {
+    let unit = |n: [f32; 3]| {
+        let n = n.map(|x| x as f64);
+        let l = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+        (l > 0.0 && l.is_finite()).then(|| n.map(|x| x / l))
+    };
+    match (unit(a), unit(b)) {
+        (Some(a), Some(b)) => (0..3).map(|k| a[k] * b[k]).sum::<f64>() < NormalFit::CREASE_DEGREES.to_radians().cos(),
+        (None, None) => false,
+        _ => true,
+    }
+}
+
 impl NormalFit {
     /// Wedges further apart than this make a crease.
     pub const CREASE_DEGREES: f64 = 10.0;
 
     /// Adds a position holding vertices with these normals.
-    pub fn add(&mut self, normals: impl Iterator<Item = [f32; 3]>) {
+    pub fn add(&mut self, mut normals: impl Iterator<Item = [f32; 3]>) {
         self.positions += 1;
-        let unit = |n: [f32; 3]| {
-            let n = n.map(|x| x as f64);
-            let l = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-            (l > 0.0 && l.is_finite()).then(|| n.map(|x| x / l))
-        };
-        let cos_max = Self::CREASE_DEGREES.to_radians().cos();
-        let mut first: Option<Option<[f64; 3]>> = None;
-        for n in normals {
-            let n = unit(n);
-            match first {
-                None => first = Some(n),
-                Some(f) => {
-                    let apart = match (f, n) {
-                        (Some(a), Some(b)) => (0..3).map(|k| a[k] * b[k]).sum::<f64>() < cos_max,
-                        (None, None) => false,
-                        _ => true,
-                    };
-                    if apart {
-                        self.creases += 1;
-                        return;
-                    }
-                }
+        if let Some(first) = normals.next() {
+            if normals.any(|n| creased(first, n)) {
+                self.creases += 1;
             }
         }
     }

@@ -5,7 +5,7 @@
 
 use crate::error::{Error, IoContext, Location, Result};
 use crate::geom::Rng;
-use crate::manifest::BuildParams;
+use crate::manifest::{BuildParams, Normals};
 use crate::mesh::{Aabb, Vertex};
 use crate::ply::read::BodySink;
 use crate::progress::Progress;
@@ -222,6 +222,59 @@ struct Sampler {
     rng: Rng,
     triangles: u64,
     file: std::path::PathBuf,
+    /// With input normals: their creases, for `--normals auto`.
+    probe: Option<CreaseProbe>,
+}
+
+/// Creases in an input's normals, in one pass (`--normals auto`, as the
+/// level builder tests level 0 in a whole build): the positions whose
+/// hash falls in a share that halves whenever `cap` positions are held,
+/// with every vertex at each (a position is in or out whole), the first
+/// normal kept; a later vertex there more than 10° off is a crease
+/// ([`crate::lod::level::creased`]).
+struct CreaseProbe {
+    /// Positions kept: hash & mask == 0.
+    mask: u64,
+    first: rustc_hash::FxHashMap<[u64; 3], [f32; 3]>,
+    cap: usize,
+    creases: u64,
+}
+
+impl CreaseProbe {
+    fn new(cap: usize) -> CreaseProbe {
+        CreaseProbe { mask: 0, first: Default::default(), cap, creases: 0 }
+    }
+
+    fn hash(k: &[u64; 3]) -> u64 {
+        let mut h = k[0] ^ k[1].rotate_left(21) ^ k[2].rotate_left(42);
+        // splitmix64's finaliser.
+        h = (h ^ (h >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        h = (h ^ (h >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        h ^ (h >> 31)
+    }
+
+    fn add(&mut self, v: &Vertex) {
+        let k = crate::geom::pos_bits(v.pos);
+        if Self::hash(&k) & self.mask != 0 {
+            return;
+        }
+        match self.first.entry(k) {
+            std::collections::hash_map::Entry::Occupied(e) => self.creases += crate::lod::level::creased(*e.get(), v.normal) as u64,
+            std::collections::hash_map::Entry::Vacant(e) => {
+                e.insert(v.normal);
+                if self.first.len() > self.cap {
+                    self.mask = self.mask << 1 | 1;
+                    let m = self.mask;
+                    self.first.retain(|k, _| Self::hash(k) & m == 0);
+                }
+            }
+        }
+    }
+
+    /// Enough positions seen and no crease.
+    fn smooth(&self) -> bool {
+        self.creases == 0 && self.first.len() >= 64
+    }
 }
 
 impl BodySink for Sampler {
@@ -233,6 +286,9 @@ impl BodySink for Sampler {
             ));
         }
         for v in batch {
+            if let Some(p) = &mut self.probe {
+                p.add(v);
+            }
             self.bbox.add(v.pos);
             if self.sample.len() < self.cap {
                 self.sample.push(v.pos);
@@ -346,13 +402,20 @@ pub fn plan(input: &Path, out: &Path, opts: &PlanOptions, force: bool) -> Result
     let progress = Progress::bytes(id.bytes, "planning", opts.quiet);
     let header = crate::input::read_header(input, &progress)?;
     let cap = ((opts.params.mem / 4 / 24) as usize).clamp(1 << 12, MAX_SAMPLE);
-    let mut s = Sampler { bbox: Aabb::EMPTY, seen: 0, cap, sample: Vec::new(), rng: Rng::new(0x5eed_0c70), triangles: 0, file: input.to_path_buf() };
+    let probe = header.attrs.normal().then(|| CreaseProbe::new(((opts.params.mem / 16 / 64) as usize).clamp(1 << 12, 1 << 20)));
+    let mut s = Sampler { bbox: Aabb::EMPTY, seen: 0, cap, sample: Vec::new(), rng: Rng::new(0x5eed_0c70), triangles: 0, file: input.to_path_buf(), probe };
     let scratch = crate::io::scratch_dir(out)?;
     let stats = crate::input::read_body(input, &header, opts.params.mem, scratch.path(), &mut s, &progress)?;
     progress.finish();
     if s.triangles == 0 || s.sample.is_empty() {
         return Err(Error::input(Location { file: input.to_path_buf(), ..Default::default() }, "no triangles to plan"));
     }
+    let simplifier = opts.params.simplifier.resolve(header.attrs);
+    let normals = match (opts.params.normals, &s.probe) {
+        (Normals::Auto, Some(p)) if simplifier == crate::manifest::Simplifier::Cluster && p.smooth() => Normals::Average,
+        (Normals::Auto, _) => Normals::Carry,
+        (n, _) => n,
+    };
     let mut split = Vec::new();
     let mut parts = Vec::new();
     let total = s.sample.len() as u64;
@@ -386,16 +449,9 @@ pub fn plan(input: &Path, out: &Path, opts: &PlanOptions, force: bool) -> Result
         input: id,
         // Every shard and the merge use the one simplifier the input's
         // attributes choose (a plan never records `auto`).
-        // `--normals auto` tests level 0, which one pass cannot: the
-        // shards carry the normals, so they all agree.
-        params: BuildParams {
-            simplifier: opts.params.simplifier.resolve(header.attrs),
-            normals: match opts.params.normals {
-                crate::manifest::Normals::Auto => crate::manifest::Normals::Carry,
-                n => n,
-            },
-            ..opts.params.clone()
-        },
+        // `--normals auto` is resolved here too, from the pass's creases,
+        // so every shard and the merge agree.
+        params: BuildParams { simplifier, normals, ..opts.params.clone() },
         shard_levels,
         triangles: s.triangles,
         vertices: stats.vertices,
@@ -485,5 +541,28 @@ mod tests {
         q.plan_id = q.content_id();
         std::fs::write(&path, serde_json::to_string(&q).unwrap()).unwrap();
         assert!(Plan::read(&path).is_err());
+    }
+
+    /// Every vertex at a kept position is compared, however many the
+    /// share keeps: a crease is found whether or not the probe shrank.
+    #[test]
+    fn the_crease_probe_sees_wedges_apart_at_any_share() {
+        let v = |i: u64, n: [f32; 3]| Vertex { pos: [i as f64, (i * 7 % 13) as f64, 0.5], normal: n, ..Default::default() };
+        for cap in [1 << 12, 100] {
+            let mut p = CreaseProbe::new(cap);
+            for i in 0..5000 {
+                p.add(&v(i, [0.0, 0.0, 1.0]));
+                // A second wedge alike (a uv seam): no crease.
+                p.add(&v(i, [0.0, 0.05, 1.0]));
+            }
+            assert!(p.smooth(), "cap {cap}: {} creases", p.creases);
+            assert_eq!(p.mask != 0, cap < 5000, "cap {cap}");
+            assert!(p.first.len() <= cap);
+            for i in 0..5000 {
+                p.add(&v(i, [1.0, 0.0, 0.0]));
+            }
+            assert!(!p.smooth() && p.creases as usize >= p.first.len(), "cap {cap}: {} creases over {}", p.creases, p.first.len());
+        }
+        assert!(!CreaseProbe::new(100).smooth(), "nothing seen decides nothing");
     }
 }

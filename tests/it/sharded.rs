@@ -82,12 +82,15 @@ fn a_sharded_terrain_is_as_good_as_a_monolithic_one() {
     against_monolithic(Shape::Terrain, 60_000, 500, false, "cluster");
 }
 
-/// With normals the plan says to average: the shards and the merge leave
-/// them out of the quadric (dimension 3), and every level above 0 holds
-/// unit normals near the sphere's.
+/// With normals and no crease the plan resolves `--normals auto` to
+/// average: the shards and the merge leave them out of the quadric
+/// (dimension 3), and every level above 0 holds unit normals near the
+/// sphere's.
 #[test]
 fn a_sharded_closed_sphere_has_closed_cuts() {
-    let (_d, sh) = against_monolithic_with(Shape::Sphere, 40_000, 1000, true, "cluster", octolod::mesh::AttrSet::NORMAL, &["--normals", "average"]);
+    let (_d, sh) = against_monolithic_with(Shape::Sphere, 40_000, 1000, true, "cluster", octolod::mesh::AttrSet::NORMAL, &[]);
+    let plan = json(&std::fs::read(_d.path().join("plan.json")).unwrap());
+    assert_eq!(plan["params"]["normals"], "average");
     let m = octolod::manifest::Manifest::read(&sh.dir).unwrap();
     assert_eq!((m.params.normals, m.quadric_dim), (octolod::manifest::Normals::Average, 3));
     let c = sh.header.bbox.center();
