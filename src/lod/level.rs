@@ -12,7 +12,7 @@
 //! `measure_far` and `advance`; at the end
 //! `link_dag`.
 
-use super::chunks::{split_by_target, ChunkEncoder, ChunkFile};
+use super::chunks::{split_by_target, ChunkEncoder, ChunkFile, Gathered};
 use super::measure::{remeasure_far, FarNode, NodeError};
 use super::octree::{Level0, OctreeReport};
 use super::ordered::ordered;
@@ -23,7 +23,7 @@ use super::welded::Welded;
 use super::{centroid, next_up_f32, tri_centroid, Built, LeafStats, LodOptions, HIST_DEPTH, MAX_LEVELS, SAMPLED_NODES};
 use crate::error::{Error, Result};
 use crate::geom::pos_bits;
-use crate::geom::{cross, sub};
+use crate::geom::{cross, dot, sub};
 use crate::io::ScratchDir;
 use crate::manifest::{LevelReport, Normals};
 use crate::mesh::{Aabb, AttrSet, IndexedMesh, VertexLayout};
@@ -91,11 +91,11 @@ pub(super) struct NormalFit {
 pub(crate) fn creased(a: [f32; 3], b: [f32; 3]) -> bool {
     let unit = |n: [f32; 3]| {
         let n = n.map(|x| x as f64);
-        let l = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+        let l = dot(n, n).sqrt();
         (l > 0.0 && l.is_finite()).then(|| n.map(|x| x / l))
     };
     match (unit(a), unit(b)) {
-        (Some(a), Some(b)) => (0..3).map(|k| a[k] * b[k]).sum::<f64>() < NormalFit::CREASE_DEGREES.to_radians().cos(),
+        (Some(a), Some(b)) => dot(a, b) < NormalFit::CREASE_DEGREES.to_radians().cos(),
         (None, None) => false,
         _ => true,
     }
@@ -416,27 +416,42 @@ impl<'a, S: NodeSimplifier> LevelBuilder<'a, S> {
     /// Level 0's creases: the nodes the threshold samples, each position
     /// no other node holds.
     fn normal_fit(&self, lv: &LevelNodes, resolved: &Resolved) -> Result<NormalFit> {
+        let fits = self.each_sampled(lv, resolved, |g, w, shared| {
+            let mut fit = NormalFit::default();
+            for (p, at) in w.pos.iter().enumerate() {
+                if !shared(at) {
+                    fit.add(w.verts_at(p).iter().map(|&v| g.mesh.vertices[v as usize].normal));
+                }
+            }
+            fit
+        })?;
+        Ok(fits.into_iter().fold(NormalFit::default(), NormalFit::merge))
+    }
+
+    /// `f` of each node the level samples (every `SAMPLED_NODES`-th part),
+    /// in parallel: the node gathered, welded, and whether a position is
+    /// shared (with another node or shard).
+    fn each_sampled<T: Send>(
+        &self,
+        lv: &LevelNodes,
+        resolved: &Resolved,
+        f: impl Fn(&Gathered, &Welded, &dyn Fn(&[f64; 3]) -> bool) -> T + Sync,
+    ) -> Result<Vec<T>> {
         let (cfg, cur) = (&self.cfg, self.cur.as_ref().expect("a current level"));
         let stride = (lv.ids.len() / SAMPLED_NODES).max(1);
         let picked: Vec<usize> = (0..lv.ids.len()).filter(|k| k % stride == 0).collect();
         let mut reader = resolved.reopen()?;
         let sets = picked.iter().map(|&k| reader.take((lv.base + k) as u32)).collect::<Result<Vec<_>>>()?;
-        let fits = picked
+        let out: Vec<Result<T>> = picked
             .par_iter()
             .zip(sets.par_iter())
             .map(|(&k, set)| {
                 let g = cur.chunks.gather(lv.ids[k])?;
                 let w = Welded::new(&g.mesh, cfg.unique_positions);
-                let mut fit = NormalFit::default();
-                for (p, at) in w.pos.iter().enumerate() {
-                    if !set.contains_key(&pos_bits(*at)) && !cfg.extra_locked(at) {
-                        fit.add(w.verts_at(p).iter().map(|&v| g.mesh.vertices[v as usize].normal));
-                    }
-                }
-                Ok(fit)
+                Ok(f(&g, &w, &|p: &[f64; 3]| set.contains_key(&pos_bits(*p)) || cfg.extra_locked(p)))
             })
-            .collect::<Vec<Result<NormalFit>>>();
-        fits.into_iter().try_fold(NormalFit::default(), |a, f| Ok(a.merge(f?)))
+            .collect();
+        out.into_iter().collect()
     }
 
     /// Step 3, threshold: the simplifier's curves of a sample of nodes
@@ -447,23 +462,12 @@ impl<'a, S: NodeSimplifier> LevelBuilder<'a, S> {
         if lv.is_final {
             return Ok((0.0, 1.0));
         }
-        let (cfg, cur) = (&self.cfg, self.cur.as_ref().expect("a current level"));
-        let stride = (lv.ids.len() / SAMPLED_NODES).max(1);
-        let picked: Vec<usize> = (0..lv.ids.len()).filter(|k| k % stride == 0).collect();
-        let mut reader = resolved.reopen()?;
-        let sets = picked.iter().map(|&k| reader.take((lv.base + k) as u32)).collect::<Result<Vec<_>>>()?;
-        let curves: Vec<Result<S::Curve>> = picked
-            .par_iter()
-            .zip(sets.par_iter())
-            .map(|(&k, set)| {
-                let g = cur.chunks.gather(lv.ids[k])?;
-                let w = Welded::new(&g.mesh, cfg.unique_positions);
-                let locked = w.locks_at(|pi| set.contains_key(&pos_bits(w.pos[pi])) || cfg.extra_locked(&w.pos[pi]));
-                let carried = (lv.level > 0).then_some(&g.a[..]);
-                Ok(cfg.simplifier.curve(&NodeInput { mesh: &g.mesh, carried, locked: &locked, pos_of: Some(&w.pos_of) }))
-            })
-            .collect();
-        let curves = curves.into_iter().collect::<Result<Vec<_>>>()?;
+        let cfg = &self.cfg;
+        let curves = self.each_sampled(lv, resolved, |g, w, shared| {
+            let locked = w.locks_at(|pi| shared(&w.pos[pi]));
+            let carried = (lv.level > 0).then_some(&g.a[..]);
+            cfg.simplifier.curve(&NodeInput { mesh: &g.mesh, carried, locked: &locked, pos_of: Some(&w.pos_of) })
+        })?;
         Ok(cfg.simplifier.choose_limit(&curves, 1.0 / cfg.opts.params.level_ratio))
     }
 

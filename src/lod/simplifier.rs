@@ -130,9 +130,7 @@ impl NodeSimplifier for ClusterNodes {
 fn vertex_areas(m: &IndexedMesh) -> Vec<f64> {
     let mut a = vec![0.0; m.vertices.len()];
     for t in &m.triangles {
-        let c = t.map(|v| m.vertices[v as usize].pos);
-        let n = crate::geom::cross(crate::geom::sub(c[1], c[0]), crate::geom::sub(c[2], c[0]));
-        let third = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt() / 6.0;
+        let third = crate::geom::tri_area(t.map(|v| m.vertices[v as usize].pos)) / 3.0;
         for &v in t {
             a[v as usize] += third;
         }
@@ -156,7 +154,7 @@ fn average_normals(input: &IndexedMesh, area: &[f64], out: &mut super::cluster::
                 *x += w * n as f64;
             }
         }
-        let l = (s[0] * s[0] + s[1] * s[1] + s[2] * s[2]).sqrt();
+        let l = crate::geom::dot(s, s).sqrt();
         if l > 0.0 && l.is_finite() {
             out.mesh.vertices[o].normal = s.map(|x| (x / l) as f32);
         }

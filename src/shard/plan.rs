@@ -246,11 +246,7 @@ impl CreaseProbe {
     }
 
     fn hash(k: &[u64; 3]) -> u64 {
-        let mut h = k[0] ^ k[1].rotate_left(21) ^ k[2].rotate_left(42);
-        // splitmix64's finaliser.
-        h = (h ^ (h >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        h = (h ^ (h >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        h ^ (h >> 31)
+        crate::geom::mix64(k[0] ^ k[1].rotate_left(21) ^ k[2].rotate_left(42))
     }
 
     fn add(&mut self, v: &Vertex) {
