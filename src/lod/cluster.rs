@@ -66,6 +66,9 @@ pub struct NodeOut {
     /// quadrics did not see go (a thin part folded away, a floating piece
     /// merged into one point).
     pub predicted: f64,
+    /// The same per output vertex: its representative's √(residual ÷
+    /// area), 0 for a kept vertex.
+    pub vertex_predicted: Vec<f64>,
     /// The input's triangles around each vertex
     /// (`vertex_triangles`) where the clustering made them (level
     /// 0's border planes): the node error's input side reuses them.
@@ -1044,6 +1047,7 @@ impl<'a> Splits<'a> {
         }
         st.clusters = reps.len() as u64;
         let mut predicted2 = 0.0f64;
+        let mut rep_predicted2 = vec![0.0f64; reps.len()];
         for r in 0..reps.len() {
             let a = match rep_own_a[r] {
                 u32::MAX => self.rep_a(rep_cell[r] as usize),
@@ -1053,6 +1057,7 @@ impl<'a> Splits<'a> {
             let e = rep_ge[r * (dim + 1) + dim];
             if area > 0.0 && e.is_finite() {
                 predicted2 = predicted2.max(e / area);
+                rep_predicted2[r] = e / area;
             }
         }
         let (mesh, src) = compact(self.mesh, &remap, &reps, self.seams.as_ref().map(|sm| (sm, &rep_cell[..])));
@@ -1098,7 +1103,8 @@ impl<'a> Splits<'a> {
             }
         }
         let kept_from = src.iter().map(|&k| if k < nv { k as u32 } else { u32::MAX }).collect();
-        NodeOut { mesh, a: out_a, kept_from, members_first, members, stats: st, predicted: predicted2.sqrt(), in_fans: self.in_fans.clone() }
+        let vertex_predicted = src.iter().map(|&k| if k < nv { 0.0 } else { rep_predicted2[k - nv].sqrt() }).collect();
+        NodeOut { mesh, a: out_a, kept_from, members_first, members, stats: st, predicted: predicted2.sqrt(), vertex_predicted, in_fans: self.in_fans.clone() }
     }
 
     /// Vertex `v`'s row (embedded at `p`): its quadric about its own
