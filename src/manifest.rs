@@ -237,10 +237,13 @@ fn carry() -> Normals {
 /// input without normals gets them from its geometry at every level,
 /// whatever this says). Level 0 always keeps the input's.
 ///
-/// [`Normals::Auto`] is resolved before level 0 is simplified: by the
-/// level builder from a sample of level 0's nodes, by a plan from a
-/// hash-chosen share of the input's positions in its one pass (so every
-/// shard agrees); a manifest or plan records what was used. Measured in `docs/build-costs.md`, "Normals averaged".
+/// [`Normals::Auto`] is resolved before level 0 is simplified, by one
+/// test (`lod::level::CreaseProbe`: a hash-chosen share of the
+/// input's positions) in the pass that reads the input's vertices: the
+/// soup stage's in a whole build, the plan's in a sharded one, so both
+/// decide alike (the level builder tests a sample of level 0's nodes only
+/// where no such pass ran). A manifest or plan records what was used.
+/// Measured in `docs/build-costs.md`, "Normals averaged".
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Normals {
@@ -260,6 +263,17 @@ pub enum Normals {
 }
 
 impl Normals {
+    /// `auto` resolved for `simplifier` (resolved) from the input's crease
+    /// test (`smooth`: no crease seen; `None`: not tested, stays `auto`):
+    /// only clustering averages.
+    pub fn resolved(self, simplifier: Simplifier, smooth: Option<bool>) -> Normals {
+        match (self, smooth) {
+            (Normals::Auto, Some(true)) if simplifier == Simplifier::Cluster => Normals::Average,
+            (Normals::Auto, Some(_)) => Normals::Carry,
+            (n, _) => n,
+        }
+    }
+
     /// The name `--normals` takes.
     pub fn name(self) -> &'static str {
         match self {

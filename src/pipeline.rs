@@ -60,7 +60,7 @@ pub fn build_store(input: &Path, output: &Path, opts: &BuildOptions) -> Result<B
     let _input = crate::io::protect(input);
     let out = AtomicDir::create(output, OutputKind::Store, opts.force)?;
     let soup_path = out.path().join("input.soup");
-    let lo = LodOptions { params: opts.params.clone(), quiet: opts.quiet, ..Default::default() };
+    let mut lo = LodOptions { params: opts.params.clone(), quiet: opts.quiet, ..Default::default() };
     // On the soup's external path, level 0 is partitioned as the soup is
     // made (its cells counted in phase 2, its triangles routed in phase 3),
     // and the soup file is not written.
@@ -72,6 +72,10 @@ pub fn build_store(input: &Path, output: &Path, opts: &BuildOptions) -> Result<B
         false => first.take_level0(&soup.header)?,
     };
     let t1 = Instant::now();
+    // `--normals auto` from the creases the soup's vertex pass saw (as a
+    // plan decides it for a sharded build).
+    let simplifier = opts.params.simplifier.resolve(soup.header.attrs);
+    lo.params.normals = lo.params.normals.resolved(simplifier, soup.smooth_normals);
     let source = match l0 {
         Some(l0) => Level0Source::Routed(l0),
         None => Level0Source::Soup(&soup_path, Some(first)),

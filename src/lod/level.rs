@@ -49,7 +49,7 @@ struct Config<'a, S> {
     payload_layout: VertexLayout,
     derived: bool,
     /// Where the levels' normals come from; `None` until level 0 has been
-    /// tested (`--normals auto`, [`NormalFit`]).
+    /// tested (`--normals auto` unresolved by the caller, [`NormalFit`]).
     normals: Option<Normals>,
     /// Gathered vertices are welded by their bytes; with no attribute those
     /// are the position's, so each vertex is a position of its own.
@@ -122,6 +122,63 @@ impl NormalFit {
     /// No crease seen: the normals may be averaged.
     pub fn smooth(&self) -> bool {
         self.creases == 0
+    }
+}
+
+/// Creases in an input's normals, in one pass over its vertices: the one
+/// test of `--normals auto` for whole builds (the soup stage's vertex
+/// pass, [`crate::soup::SoupReport::smooth_normals`]) and sharded ones (the
+/// plan's pass), so both decide alike. The positions whose hash falls in a
+/// share that halves whenever [`CreaseProbe::POSITIONS`] are held, with
+/// every vertex at each (a position is in or out whole), the first normal
+/// kept; a later vertex there more than [`NormalFit::CREASE_DEGREES`] off
+/// is a crease ([`creased`]). A fixed number of positions, not a share of
+/// `--mem`: the decision is the input's alone (about 3 MB held).
+pub(crate) struct CreaseProbe {
+    /// Positions kept: hash & mask == 0.
+    mask: u64,
+    first: rustc_hash::FxHashMap<[u64; 3], [f32; 3]>,
+    cap: usize,
+    creases: u64,
+}
+
+impl CreaseProbe {
+    /// Positions held at most.
+    pub const POSITIONS: usize = 1 << 16;
+
+    pub fn new() -> CreaseProbe {
+        Self::with_cap(Self::POSITIONS)
+    }
+
+    fn with_cap(cap: usize) -> CreaseProbe {
+        CreaseProbe { mask: 0, first: Default::default(), cap, creases: 0 }
+    }
+
+    fn hash(k: &[u64; 3]) -> u64 {
+        crate::geom::mix64(k[0] ^ k[1].rotate_left(21) ^ k[2].rotate_left(42))
+    }
+
+    pub fn add(&mut self, v: &crate::mesh::Vertex) {
+        let k = pos_bits(v.pos);
+        if Self::hash(&k) & self.mask != 0 {
+            return;
+        }
+        match self.first.entry(k) {
+            std::collections::hash_map::Entry::Occupied(e) => self.creases += creased(*e.get(), v.normal) as u64,
+            std::collections::hash_map::Entry::Vacant(e) => {
+                e.insert(v.normal);
+                if self.first.len() > self.cap {
+                    self.mask = self.mask << 1 | 1;
+                    let m = self.mask;
+                    self.first.retain(|k, _| Self::hash(k) & m == 0);
+                }
+            }
+        }
+    }
+
+    /// Enough positions seen and no crease.
+    pub fn smooth(&self) -> bool {
+        self.creases == 0 && self.first.len() >= 64
     }
 }
 
@@ -398,10 +455,12 @@ impl<'a, S: NodeSimplifier> LevelBuilder<'a, S> {
         Ok(SharedPass { resolved, stats, hist })
     }
 
-    /// `--normals auto`, before level 0 is simplified: its normals are
-    /// averaged out of the quadrics ([`Normals::Average`]) unless the
-    /// sampled nodes show a crease ([`NormalFit`]) or the simplifier
-    /// cannot leave them out; then carried.
+    /// `--normals auto` still unresolved (a caller whose input was not read
+    /// by a vertex pass with a [`CreaseProbe`]: `build` and `plan` resolve
+    /// it there), before level 0 is simplified: its normals are averaged
+    /// out of the quadrics ([`Normals::Average`]) unless the sampled nodes
+    /// show a crease ([`NormalFit`]) or the simplifier cannot leave them
+    /// out; then carried.
     fn resolve_normals(&mut self, lv: &LevelNodes, resolved: &Resolved) -> Result<()> {
         let fit = self.normal_fit(lv, resolved)?;
         let average = fit.smooth() && self.cfg.simplifier.average_normals();
@@ -864,6 +923,29 @@ mod tests {
     use crate::manifest::BuildParams;
     use crate::soup::format::SoupWriter;
     use std::collections::HashMap;
+
+    /// Every vertex at a kept position is compared, however many the
+    /// share keeps: a crease is found whether or not the probe shrank.
+    #[test]
+    fn the_crease_probe_sees_wedges_apart_at_any_share() {
+        let v = |i: u64, n: [f32; 3]| crate::mesh::Vertex { pos: [i as f64, (i * 7 % 13) as f64, 0.5], normal: n, ..Default::default() };
+        for cap in [1 << 12, 100] {
+            let mut p = CreaseProbe::with_cap(cap);
+            for i in 0..5000 {
+                p.add(&v(i, [0.0, 0.0, 1.0]));
+                // A second wedge alike (a uv seam): no crease.
+                p.add(&v(i, [0.0, 0.05, 1.0]));
+            }
+            assert!(p.smooth(), "cap {cap}: {} creases", p.creases);
+            assert_eq!(p.mask != 0, cap < 5000, "cap {cap}");
+            assert!(p.first.len() <= cap);
+            for i in 0..5000 {
+                p.add(&v(i, [1.0, 0.0, 0.0]));
+            }
+            assert!(!p.smooth() && p.creases as usize >= p.first.len(), "cap {cap}: {} creases over {}", p.creases, p.first.len());
+        }
+        assert!(!CreaseProbe::with_cap(100).smooth(), "nothing seen decides nothing");
+    }
 
     /// A generated shape's soup in `dir`, and the options of a small build.
     fn setup(dir: &Path, shape: Shape, tris: u64) -> (std::path::PathBuf, LodOptions) {

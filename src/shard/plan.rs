@@ -5,7 +5,8 @@
 
 use crate::error::{Error, IoContext, Location, Result};
 use crate::geom::Rng;
-use crate::manifest::{BuildParams, Normals};
+use crate::lod::level::CreaseProbe;
+use crate::manifest::BuildParams;
 use crate::mesh::{Aabb, Vertex};
 use crate::ply::read::BodySink;
 use crate::progress::Progress;
@@ -226,53 +227,6 @@ struct Sampler {
     probe: Option<CreaseProbe>,
 }
 
-/// Creases in an input's normals, in one pass (`--normals auto`, as the
-/// level builder tests level 0 in a whole build): the positions whose
-/// hash falls in a share that halves whenever `cap` positions are held,
-/// with every vertex at each (a position is in or out whole), the first
-/// normal kept; a later vertex there more than 10° off is a crease
-/// ([`crate::lod::level::creased`]).
-struct CreaseProbe {
-    /// Positions kept: hash & mask == 0.
-    mask: u64,
-    first: rustc_hash::FxHashMap<[u64; 3], [f32; 3]>,
-    cap: usize,
-    creases: u64,
-}
-
-impl CreaseProbe {
-    fn new(cap: usize) -> CreaseProbe {
-        CreaseProbe { mask: 0, first: Default::default(), cap, creases: 0 }
-    }
-
-    fn hash(k: &[u64; 3]) -> u64 {
-        crate::geom::mix64(k[0] ^ k[1].rotate_left(21) ^ k[2].rotate_left(42))
-    }
-
-    fn add(&mut self, v: &Vertex) {
-        let k = crate::geom::pos_bits(v.pos);
-        if Self::hash(&k) & self.mask != 0 {
-            return;
-        }
-        match self.first.entry(k) {
-            std::collections::hash_map::Entry::Occupied(e) => self.creases += crate::lod::level::creased(*e.get(), v.normal) as u64,
-            std::collections::hash_map::Entry::Vacant(e) => {
-                e.insert(v.normal);
-                if self.first.len() > self.cap {
-                    self.mask = self.mask << 1 | 1;
-                    let m = self.mask;
-                    self.first.retain(|k, _| Self::hash(k) & m == 0);
-                }
-            }
-        }
-    }
-
-    /// Enough positions seen and no crease.
-    fn smooth(&self) -> bool {
-        self.creases == 0 && self.first.len() >= 64
-    }
-}
-
 impl BodySink for Sampler {
     fn vertices(&mut self, first: u64, batch: &[Vertex]) -> Result<()> {
         if let Some(k) = batch.iter().position(|v| !v.pos.iter().all(|x| x.is_finite())) {
@@ -398,7 +352,7 @@ pub fn plan(input: &Path, out: &Path, opts: &PlanOptions, force: bool) -> Result
     let progress = Progress::bytes(id.bytes, "planning", opts.quiet);
     let header = crate::input::read_header(input, &progress)?;
     let cap = ((opts.params.mem / 4 / 24) as usize).clamp(1 << 12, MAX_SAMPLE);
-    let probe = header.attrs.normal().then(|| CreaseProbe::new(((opts.params.mem / 16 / 64) as usize).clamp(1 << 12, 1 << 20)));
+    let probe = header.attrs.normal().then(CreaseProbe::new);
     let mut s = Sampler { bbox: Aabb::EMPTY, seen: 0, cap, sample: Vec::new(), rng: Rng::new(0x5eed_0c70), triangles: 0, file: input.to_path_buf(), probe };
     let scratch = crate::io::scratch_dir(out)?;
     let stats = crate::input::read_body(input, &header, opts.params.mem, scratch.path(), &mut s, &progress)?;
@@ -407,11 +361,9 @@ pub fn plan(input: &Path, out: &Path, opts: &PlanOptions, force: bool) -> Result
         return Err(Error::input(Location { file: input.to_path_buf(), ..Default::default() }, "no triangles to plan"));
     }
     let simplifier = opts.params.simplifier.resolve(header.attrs);
-    let normals = match (opts.params.normals, &s.probe) {
-        (Normals::Auto, Some(p)) if simplifier == crate::manifest::Simplifier::Cluster && p.smooth() => Normals::Average,
-        (Normals::Auto, _) => Normals::Carry,
-        (n, _) => n,
-    };
+    // Without normals there is nothing to average: `carry` (a plan never
+    // records `auto`).
+    let normals = opts.params.normals.resolved(simplifier, Some(s.probe.as_ref().is_some_and(CreaseProbe::smooth)));
     let mut split = Vec::new();
     let mut parts = Vec::new();
     let total = s.sample.len() as u64;
@@ -537,28 +489,5 @@ mod tests {
         q.plan_id = q.content_id();
         std::fs::write(&path, serde_json::to_string(&q).unwrap()).unwrap();
         assert!(Plan::read(&path).is_err());
-    }
-
-    /// Every vertex at a kept position is compared, however many the
-    /// share keeps: a crease is found whether or not the probe shrank.
-    #[test]
-    fn the_crease_probe_sees_wedges_apart_at_any_share() {
-        let v = |i: u64, n: [f32; 3]| Vertex { pos: [i as f64, (i * 7 % 13) as f64, 0.5], normal: n, ..Default::default() };
-        for cap in [1 << 12, 100] {
-            let mut p = CreaseProbe::new(cap);
-            for i in 0..5000 {
-                p.add(&v(i, [0.0, 0.0, 1.0]));
-                // A second wedge alike (a uv seam): no crease.
-                p.add(&v(i, [0.0, 0.05, 1.0]));
-            }
-            assert!(p.smooth(), "cap {cap}: {} creases", p.creases);
-            assert_eq!(p.mask != 0, cap < 5000, "cap {cap}");
-            assert!(p.first.len() <= cap);
-            for i in 0..5000 {
-                p.add(&v(i, [1.0, 0.0, 0.0]));
-            }
-            assert!(!p.smooth() && p.creases as usize >= p.first.len(), "cap {cap}: {} creases over {}", p.creases, p.first.len());
-        }
-        assert!(!CreaseProbe::new(100).smooth(), "nothing seen decides nothing");
     }
 }

@@ -42,6 +42,7 @@ use crate::input::{Format, InputHeader};
 use crate::io::buckets::{get_varint, put_varint, read_varying, unzigzag, zigzag, BucketFiles, SlotBuckets};
 use crate::io::relay::Hand;
 use crate::io::SEQ_BUF;
+use crate::lod::level::CreaseProbe;
 use crate::mesh::{Aabb, Vertex, VertexLayout};
 use crate::ply::read::{BodySink, BodyStats};
 use crate::progress::Progress;
@@ -94,6 +95,10 @@ pub struct SoupReport {
     /// False when a [`SoupTap`] took phase 3's triangles and no soup file
     /// was written (the header is still the soup's).
     pub written: bool,
+    /// With input normals: whether they have no crease, as the vertex pass
+    /// saw them (`lod::level::CreaseProbe`); `build` resolves
+    /// `--normals auto` from it. `None` without normals.
+    pub smooth_normals: Option<bool>,
 }
 
 impl SoupReport {
@@ -279,10 +284,13 @@ struct InMemorySink<'a> {
     wedges: Vec<[[f32; 2]; 3]>,
     /// Per-triangle materials of the next triangle batch.
     mats: Vec<u16>,
+    /// With normals: their creases.
+    probe: Option<CreaseProbe>,
 }
 
 impl BodySink for InMemorySink<'_> {
     fn vertices(&mut self, first: u64, batch: &[Vertex]) -> Result<()> {
+        probe_all(&mut self.probe, batch);
         let s = self.layout.size;
         debug_assert_eq!(self.table.len(), first as usize * s);
         let at = self.table.len();
@@ -323,6 +331,15 @@ impl BodySink for InMemorySink<'_> {
     }
 }
 
+/// Shows a batch of vertices to the crease probe, where there is one.
+fn probe_all(probe: &mut Option<CreaseProbe>, batch: &[Vertex]) {
+    if let Some(p) = probe {
+        for v in batch {
+            p.add(v);
+        }
+    }
+}
+
 /// Sets the material of one encoded vertex `rec` (the layout's last two
 /// bytes, little endian; see [`VertexLayout`]).
 fn set_material(layout: &VertexLayout, rec: &mut [u8], m: u16) {
@@ -340,10 +357,12 @@ fn build_in_memory(input: &Path, output: &Path, header: &InputHeader, opts: &Sou
         rec: vec![0; 3 * layout.size],
         wedges: Vec::new(),
         mats: Vec::new(),
+        probe: header.attrs.normal().then(CreaseProbe::new),
     };
     // The vertex table takes up to ¾ of the budget (see `build_soup_tapped`); the reader holds the rest.
     let scratch = crate::io::parent_dir(output);
     let body = crate::input::read_body(input, header, opts.mem / 4, &scratch, &mut sink, progress)?;
+    let smooth_normals = sink.probe.take().map(|p| p.smooth());
     drop(sink);
     if body.triangles == 0 {
         return Err(no_triangles_error(input, header, &body));
@@ -361,6 +380,7 @@ fn build_in_memory(input: &Path, output: &Path, header: &InputHeader, opts: &Sou
         phase_seconds: [0.0; 3],
         seconds: 0.0,
         written: true,
+        smooth_normals,
     })
 }
 
@@ -417,6 +437,8 @@ struct ExternalSink<'a> {
     /// Per-triangle materials (u16) in triangle order, likewise.
     mats: Option<BufWriter<File>>,
     mpath: PathBuf,
+    /// With normals: their creases.
+    probe: Option<CreaseProbe>,
 }
 
 /// Triangles a phase-1 batch hands over (192 KB; a phase-2 batch of as
@@ -477,6 +499,7 @@ impl BodySink for ExternalSink<'_> {
         w.write_all(&bytes).ctx(&self.mpath, "write material file")
     }
     fn vertices(&mut self, _first: u64, batch: &[Vertex]) -> Result<()> {
+        probe_all(&mut self.probe, batch);
         let s = self.layout.size;
         self.vbuf.resize(batch.len() * s, 0);
         for (k, v) in batch.iter().enumerate() {
@@ -513,6 +536,7 @@ fn build_external(
     let slabs = distribute_by_slab(input, header, opts, progress, &plan, scratch.path())?;
     progress.finish();
     let body = slabs.body;
+    let smooth_normals = slabs.smooth_normals;
 
     let t1 = Instant::now();
     crate::mem::trim();
@@ -535,6 +559,7 @@ fn build_external(
         phase_seconds,
         seconds: 0.0,
         written: written.mode == TapMode::Sees,
+        smooth_normals,
     })
 }
 
@@ -582,6 +607,8 @@ struct SlabCorners {
     wedges: Option<PathBuf>,
     /// The per-triangle material file, when the faces carry materials.
     materials: Option<PathBuf>,
+    /// [`SoupReport::smooth_normals`].
+    smooth_normals: Option<bool>,
 }
 
 /// Phase 1: one pass over the PLY; vertices to the vertex file, corners
@@ -613,11 +640,12 @@ fn distribute_by_slab(input: &Path, header: &InputHeader, opts: &SoupOptions, pr
                 wpath: scratch.join("wedges.bin"),
                 mats: None,
                 mpath: scratch.join("materials.bin"),
+                probe: header.attrs.normal().then(CreaseProbe::new),
             };
             let body = crate::input::read_body(input, header, reader_mem, scratch, &mut sink, progress)?;
             // The hand dropped here ends the distributor's input.
-            let ExternalSink { vfile, bbox, wedges, wpath, mats, mpath, .. } = sink;
-            Ok((body, vfile, bbox, (wedges, wpath), (mats, mpath)))
+            let ExternalSink { vfile, bbox, wedges, wpath, mats, mpath, probe, .. } = sink;
+            Ok((body, vfile, bbox, (wedges, wpath), (mats, mpath), probe.map(|p| p.smooth())))
         },
         move |take| {
             let mut buckets = buckets;
@@ -625,7 +653,7 @@ fn distribute_by_slab(input: &Path, header: &InputHeader, opts: &SoupOptions, pr
             Ok(buckets)
         },
     )?;
-    let (body, vfile, bbox, (wedges, wpath), (mats, mpath)) = read;
+    let (body, vfile, bbox, (wedges, wpath), (mats, mpath), smooth_normals) = read;
     if body.triangles == 0 {
         return Err(no_triangles_error(input, header, &body));
     }
@@ -644,7 +672,7 @@ fn distribute_by_slab(input: &Path, header: &InputHeader, opts: &SoupOptions, pr
         }
         None => None,
     };
-    Ok(SlabCorners { body, buckets: buckets.corners.finish()?, vpath, vertex_bbox: bbox, wedges, materials })
+    Ok(SlabCorners { body, buckets: buckets.corners.finish()?, vpath, vertex_bbox: bbox, wedges, materials, smooth_normals })
 }
 
 /// What phase 2 leaves for phase 3.
@@ -665,7 +693,7 @@ struct Joined {
 /// from the vertex file), its corners dereferenced and distributed by slot;
 /// the tap sees each triangle's first corner.
 fn join_slabs(plan: &ExternalPlan, scratch: &Path, slabs: SlabCorners, quiet: bool, tap: &mut Option<&mut dyn SoupTap>) -> Result<Joined> {
-    let SlabCorners { body, vpath, buckets: corner_buckets, vertex_bbox, wedges, materials } = slabs;
+    let SlabCorners { body, vpath, buckets: corner_buckets, vertex_bbox, wedges, materials, .. } = slabs;
     let (layout, s, per_slab, n_vertices) = (plan.layout, plan.layout.size, plan.per_slab, plan.n_vertices);
     let n_corners = body.triangles * 3;
     let join_progress = Progress::items(n_corners, "joining", quiet);
