@@ -137,7 +137,10 @@ impl NormalFit {
 pub(crate) struct CreaseProbe {
     /// Positions kept: hash & mask == 0.
     mask: u64,
-    first: rustc_hash::FxHashMap<[u64; 3], [f32; 3]>,
+    /// The first normal at each position kept, by the position's 64-bit
+    /// hash (two positions sharing one would only add a crease: the safe
+    /// side).
+    first: rustc_hash::FxHashMap<u64, [f32; 3]>,
     cap: usize,
     creases: u64,
 }
@@ -158,19 +161,37 @@ impl CreaseProbe {
         crate::geom::mix64(k[0] ^ k[1].rotate_left(21) ^ k[2].rotate_left(42))
     }
 
-    pub fn add(&mut self, v: &crate::mesh::Vertex) {
-        let k = pos_bits(v.pos);
-        if Self::hash(&k) & self.mask != 0 {
-            return;
+    /// Every vertex of a batch: most positions fall outside the share and
+    /// cost a hash. Inserts grow with log(vertices / held), so the probe is
+    /// a fixed cost of tens of ms: `octolod soup` of a 2 M-triangle sphere
+    /// with normals, `perf`, 9.7 % of the samples with a call per vertex
+    /// and 24-byte keys, 5.8 % in this loop with 8-byte ones (its time
+    /// 0.29-0.34 s, without a probe 0.27-0.36 s).
+    pub fn add_all(&mut self, batch: &[crate::mesh::Vertex]) {
+        for v in batch {
+            let h = Self::hash(&pos_bits(v.pos));
+            if h & self.mask == 0 {
+                self.held(h, v.normal);
+            }
         }
-        match self.first.entry(k) {
-            std::collections::hash_map::Entry::Occupied(e) => self.creases += creased(*e.get(), v.normal) as u64,
+    }
+
+    #[cfg(test)]
+    fn add(&mut self, v: &crate::mesh::Vertex) {
+        self.add_all(std::slice::from_ref(v));
+    }
+
+    /// A vertex at a position in the share.
+    #[inline(never)]
+    fn held(&mut self, h: u64, normal: [f32; 3]) {
+        match self.first.entry(h) {
+            std::collections::hash_map::Entry::Occupied(e) => self.creases += creased(*e.get(), normal) as u64,
             std::collections::hash_map::Entry::Vacant(e) => {
-                e.insert(v.normal);
+                e.insert(normal);
                 if self.first.len() > self.cap {
                     self.mask = self.mask << 1 | 1;
                     let m = self.mask;
-                    self.first.retain(|k, _| Self::hash(k) & m == 0);
+                    self.first.retain(|h, _| h & m == 0);
                 }
             }
         }

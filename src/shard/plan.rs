@@ -235,10 +235,10 @@ impl BodySink for Sampler {
                 "a non-finite coordinate",
             ));
         }
+        if let Some(p) = &mut self.probe {
+            p.add_all(batch);
+        }
         for v in batch {
-            if let Some(p) = &mut self.probe {
-                p.add(v);
-            }
             self.bbox.add(v.pos);
             if self.sample.len() < self.cap {
                 self.sample.push(v.pos);

@@ -334,9 +334,7 @@ impl BodySink for InMemorySink<'_> {
 /// Shows a batch of vertices to the crease probe, where there is one.
 fn probe_all(probe: &mut Option<CreaseProbe>, batch: &[Vertex]) {
     if let Some(p) = probe {
-        for v in batch {
-            p.add(v);
-        }
+        p.add_all(batch);
     }
 }
 
