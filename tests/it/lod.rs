@@ -425,33 +425,9 @@ fn normals_are_averaged_out_of_the_quadric_unless_creased() {
     let carried = angle(&s);
     eprintln!("sphere, levels 1-4: normals {averaged:.3}° from the input's averaged, {carried:.3}° carried");
     assert!(averaged < 1.2 * carried + 0.1, "averaged normals {averaged:.3}° from the input's, carried {carried:.3}°");
-    // A crease: the wedges of every vertex with x > 0 face +x.
-    let mut creased = input.clone();
-    let twin: Vec<u32> = input
-        .vertices
-        .iter()
-        .map(|v| {
-            if v.pos[0] <= 0.0 {
-                return u32::MAX;
-            }
-            creased.vertices.push(Vertex { normal: [1.0, 0.0, 0.0], ..*v });
-            creased.vertices.len() as u32 - 1
-        })
-        .collect();
-    // Triangles wholly in x > 0 take the +x wedges: a seam along x = 0's side.
-    for t in creased.triangles.iter_mut() {
-        if t.iter().all(|&v| twin[v as usize] != u32::MAX) {
-            *t = t.map(|v| twin[v as usize]);
-        }
-    }
-    let cply = d.path().join("creased.ply");
-    octolod::ply::write::write_ply(
-        &cply,
-        &octolod::ply::write::PlyWriteOptions { attrs: AttrSet(AttrSet::NORMAL), ..Default::default() },
-        &creased.vertices,
-        &creased.triangles,
-    )
-    .unwrap();
+    // A crease: the wedges of every vertex with x > 0 face +x (a seam
+    // along x = 0's side).
+    let (cply, _) = common::creased_ply(d.path(), &input, |v| v.pos[0] > 0.0);
     let (_, m) = build(&cply, Normals::Auto);
     assert_eq!((m.params.normals, m.quadric_dim), (Normals::Carry, 6), "a creased sphere's normals are carried");
 }

@@ -112,39 +112,14 @@ fn a_sharded_closed_sphere_has_closed_cuts() {
 #[test]
 fn whole_and_sharded_builds_resolve_auto_normals_alike() {
     use octolod::manifest::{Manifest, Normals};
-    use octolod::mesh::{AttrSet, Vertex};
+    use octolod::mesh::AttrSet;
     let d = tempfile::tempdir().unwrap();
     let (smooth, input) = gen_ply(d.path(), Shape::Sphere, 60_000, AttrSet::NORMAL);
     let top = input.vertices.iter().map(|v| v.pos[2]).fold(f64::NEG_INFINITY, f64::max);
     let bottom = input.vertices.iter().map(|v| v.pos[2]).fold(f64::INFINITY, f64::min);
     // The cap's triangles take twins of their corners facing +x.
-    let mut creased = input.clone();
-    let twin: Vec<u32> = input
-        .vertices
-        .iter()
-        .map(|v| {
-            if v.pos[2] < top - 0.002 * (top - bottom) {
-                return u32::MAX;
-            }
-            creased.vertices.push(Vertex { normal: [1.0, 0.0, 0.0], ..*v });
-            creased.vertices.len() as u32 - 1
-        })
-        .collect();
-    let capped = twin.iter().filter(|&&t| t != u32::MAX).count();
+    let (cply, capped) = crate::common::creased_ply(d.path(), &input, |v| v.pos[2] >= top - 0.002 * (top - bottom));
     assert!(capped > 5 && capped * 100 < input.vertices.len(), "{capped} of {} positions in the cap", input.vertices.len());
-    for t in creased.triangles.iter_mut() {
-        if t.iter().all(|&v| twin[v as usize] != u32::MAX) {
-            *t = t.map(|v| twin[v as usize]);
-        }
-    }
-    let cply = d.path().join("creased.ply");
-    octolod::ply::write::write_ply(
-        &cply,
-        &octolod::ply::write::PlyWriteOptions { attrs: AttrSet(AttrSet::NORMAL), ..Default::default() },
-        &creased.vertices,
-        &creased.triangles,
-    )
-    .unwrap();
     for (ply, want) in [(&smooth, Normals::Average), (&cply, Normals::Carry)] {
         let (store, plan) = (d.path().join("whole.octolod"), d.path().join("plan.json"));
         octolod_ok(&["-q", "--force", "build", s(ply), "-o", s(&store), "--mem", "64M", "--leaf-tris", "500"]);

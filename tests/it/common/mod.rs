@@ -50,6 +50,34 @@ pub fn gen_ply_seeded(dir: &Path, shape: Shape, tris: u64, attrs: u32, seed: u64
 /// Both node simplifiers of the hierarchy, for tests run on each.
 pub const SIMPLIFIERS: [Simplifier; 2] = [Simplifier::Cluster, Simplifier::Collapse];
 
+/// `input` with a crease: the vertices `in_crease` picks get a twin whose
+/// normal faces +x, taken by every triangle wholly among them, so the rim
+/// of that region holds two wedges with normals apart. Written as
+/// `dir/creased.ply` (positions and normals); gives its path and how many
+/// vertices were twinned.
+pub fn creased_ply(dir: &Path, input: &IndexedMesh, in_crease: impl Fn(&Vertex) -> bool) -> (PathBuf, usize) {
+    let mut creased = input.clone();
+    let twin: Vec<u32> = input
+        .vertices
+        .iter()
+        .map(|v| {
+            if !in_crease(v) {
+                return u32::MAX;
+            }
+            creased.vertices.push(Vertex { normal: [1.0, 0.0, 0.0], ..*v });
+            creased.vertices.len() as u32 - 1
+        })
+        .collect();
+    for t in creased.triangles.iter_mut() {
+        if t.iter().all(|&v| twin[v as usize] != u32::MAX) {
+            *t = t.map(|v| twin[v as usize]);
+        }
+    }
+    let ply = dir.join("creased.ply");
+    write_ply(&ply, &PlyWriteOptions { attrs: AttrSet(AttrSet::NORMAL), ..Default::default() }, &creased.vertices, &creased.triangles).unwrap();
+    (ply, creased.vertices.len() - input.vertices.len())
+}
+
 /// Builds a store from a PLY with small nodes (`leaf` triangles) under a small budget.
 pub fn build_from(dir: &Path, ply: &Path, leaf: u64) -> Store {
     build_from_with(dir, ply, leaf, Simplifier::Cluster)
