@@ -241,8 +241,8 @@ fn carry() -> Normals {
 /// test (`lod::level::CreaseProbe`: a hash-chosen share of the
 /// input's positions) in the pass that reads the input's vertices: the
 /// soup stage's in a whole build, the plan's in a sharded one, so both
-/// decide alike (the level builder tests a sample of level 0's nodes only
-/// where no such pass ran). A manifest or plan records what was used.
+/// decide alike (the level builder carries normals `auto` reaches it
+/// with). A manifest or plan records what was used.
 /// Measured in `docs/build-costs.md`, "Normals averaged".
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]

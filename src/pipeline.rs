@@ -121,7 +121,7 @@ pub fn build_store(input: &Path, output: &Path, opts: &BuildOptions) -> Result<B
         nodes: report.nodes,
         triangles: report.soup.header.triangles,
         // The simplifier the levels were made with (`auto` resolved).
-        params: BuildParams { simplifier: opts.params.simplifier.resolve(built.header.attrs), normals: built.normals, ..opts.params.clone() },
+        params: BuildParams { simplifier, normals: built.normals, ..opts.params.clone() },
         seconds: ManifestSeconds { soup: seconds[0], partition: seconds[1], levels: seconds[2], total: seconds[3] },
         disk_bytes,
         levels: report.levels.clone(),

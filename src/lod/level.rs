@@ -12,7 +12,7 @@
 //! `measure_far` and `advance`; at the end
 //! `link_dag`.
 
-use super::chunks::{split_by_target, ChunkEncoder, ChunkFile, Gathered};
+use super::chunks::{split_by_target, ChunkEncoder, ChunkFile};
 use super::measure::{remeasure_far, FarNode, NodeError};
 use super::octree::{Level0, OctreeReport};
 use super::ordered::ordered;
@@ -48,9 +48,9 @@ struct Config<'a, S> {
     /// Payloads' vertices: with normals, derived when the input has none.
     payload_layout: VertexLayout,
     derived: bool,
-    /// Where the levels' normals come from; `None` until level 0 has been
-    /// tested (`--normals auto` unresolved by the caller, [`NormalFit`]).
-    normals: Option<Normals>,
+    /// Where the levels' normals come from (`auto` resolved by the caller,
+    /// [`Normals::resolved`]).
+    normals: Normals,
     /// Gathered vertices are welded by their bytes; with no attribute those
     /// are the position's, so each vertex is a position of its own.
     unique_positions: bool,
@@ -74,20 +74,11 @@ impl<S> Config<'_, S> {
     }
 }
 
-/// Creases in an input's normals, over the positions of a sample of level
-/// 0's nodes (those no other node holds): a position whose vertices'
-/// normals differ by more than [`NormalFit::CREASE_DEGREES`] is on one (a
-/// hard edge, each side's faces keeping their own normal). Averaged
-/// normals would blur it; carried ones keep each side's (its wedges are
-/// seams of the quadric's attributes).
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub(super) struct NormalFit {
-    pub positions: u64,
-    pub creases: u64,
-}
-
-/// Two normals of one position more than [`NormalFit::CREASE_DEGREES`]
-/// apart, or one of them unusable (zero, not finite) and not the other.
+/// Two normals of one position more than [`CreaseProbe::CREASE_DEGREES`]
+/// apart, or one of them unusable (zero, not finite) and not the other: a
+/// crease (a hard edge, each side's faces keeping their own normal).
+/// Averaged normals would blur it; carried ones keep each side's (its
+/// wedges are seams of the quadric's attributes).
 pub(crate) fn creased(a: [f32; 3], b: [f32; 3]) -> bool {
     let unit = |n: [f32; 3]| {
         let n = n.map(|x| x as f64);
@@ -95,33 +86,9 @@ pub(crate) fn creased(a: [f32; 3], b: [f32; 3]) -> bool {
         (l > 0.0 && l.is_finite()).then(|| n.map(|x| x / l))
     };
     match (unit(a), unit(b)) {
-        (Some(a), Some(b)) => dot(a, b) < NormalFit::CREASE_DEGREES.to_radians().cos(),
+        (Some(a), Some(b)) => dot(a, b) < CreaseProbe::CREASE_DEGREES.to_radians().cos(),
         (None, None) => false,
         _ => true,
-    }
-}
-
-impl NormalFit {
-    /// Wedges further apart than this make a crease.
-    pub const CREASE_DEGREES: f64 = 10.0;
-
-    /// Adds a position holding vertices with these normals.
-    pub fn add(&mut self, mut normals: impl Iterator<Item = [f32; 3]>) {
-        self.positions += 1;
-        if let Some(first) = normals.next() {
-            if normals.any(|n| creased(first, n)) {
-                self.creases += 1;
-            }
-        }
-    }
-
-    pub fn merge(self, o: NormalFit) -> NormalFit {
-        NormalFit { positions: self.positions + o.positions, creases: self.creases + o.creases }
-    }
-
-    /// No crease seen: the normals may be averaged.
-    pub fn smooth(&self) -> bool {
-        self.creases == 0
     }
 }
 
@@ -131,8 +98,8 @@ impl NormalFit {
 /// plan's pass), so both decide alike. The positions whose hash falls in a
 /// share that halves whenever [`CreaseProbe::POSITIONS`] are held, with
 /// every vertex at each (a position is in or out whole), the first normal
-/// kept; a later vertex there more than [`NormalFit::CREASE_DEGREES`] off
-/// is a crease ([`creased`]). A fixed number of positions, not a share of
+/// kept; a later vertex there more than [`CreaseProbe::CREASE_DEGREES`]
+/// off is a crease ([`creased`]). A fixed number of positions, not a share of
 /// `--mem`: the decision is the input's alone (about 3 MB held).
 pub(crate) struct CreaseProbe {
     /// Positions kept: hash & mask == 0.
@@ -146,6 +113,9 @@ pub(crate) struct CreaseProbe {
 }
 
 impl CreaseProbe {
+    /// Wedges further apart than this make a crease.
+    pub const CREASE_DEGREES: f64 = 10.0;
+
     /// Positions held at most.
     pub const POSITIONS: usize = 1 << 16;
 
@@ -288,11 +258,10 @@ impl<'a, S: NodeSimplifier> LevelBuilder<'a, S> {
         let attrs = l0.header.attrs;
         let threads = rayon::current_num_threads().max(1);
         let normals = match opts.params.normals {
-            _ if !attrs.normal() => Some(Normals::Carry),
-            Normals::Auto => None,
-            // Edge collapse carries them, whatever was asked.
-            _ if !simplifier.averages_normals() => Some(Normals::Carry),
-            n => Some(n),
+            // Unresolved (no vertex pass tested the input): carried, as a
+            // creased input's are.
+            _ if !attrs.normal() || !simplifier.averages_normals() => Normals::Carry,
+            n => n,
         };
         let cfg = Config {
             opts,
@@ -369,9 +338,6 @@ impl<'a, S: NodeSimplifier> LevelBuilder<'a, S> {
         let progress = Progress::items(2 * lv.ids.len() as u64, &format!("level {level}"), self.cfg.opts.quiet);
         let mut rep = LevelReport { level, nodes: lv.ids.len() as u64, triangles: lv.triangles, error_min: f64::INFINITY, ..Default::default() };
         let mut shared = self.shared_vertices(&lv, &progress)?;
-        if self.cfg.normals.is_none() {
-            self.resolve_normals(&lv, &shared.resolved)?;
-        }
         let (tau, predicted) = self.threshold(&lv, &shared.resolved)?;
         let next_tiling = self.partition_next(&lv, &shared.hist, predicted);
         rep.tau = tau;
@@ -476,64 +442,6 @@ impl<'a, S: NodeSimplifier> LevelBuilder<'a, S> {
         Ok(SharedPass { resolved, stats, hist })
     }
 
-    /// `--normals auto` still unresolved (a caller whose input was not read
-    /// by a vertex pass with a [`CreaseProbe`]: `build` and `plan` resolve
-    /// it there), before level 0 is simplified: its normals are averaged
-    /// out of the quadrics ([`Normals::Average`]) unless the sampled nodes
-    /// show a crease ([`NormalFit`]) or the simplifier cannot leave them
-    /// out; then carried.
-    fn resolve_normals(&mut self, lv: &LevelNodes, resolved: &Resolved) -> Result<()> {
-        let fit = self.normal_fit(lv, resolved)?;
-        let average = fit.smooth() && self.cfg.simplifier.average_normals();
-        debug_assert_eq!(average, self.cfg.simplifier.averages_normals());
-        if average {
-            self.cfg.a_len = self.cfg.simplifier.carried_len();
-        }
-        self.cfg.normals = Some(if average { Normals::Average } else { Normals::Carry });
-        Ok(())
-    }
-
-    /// Level 0's creases: the nodes the threshold samples, each position
-    /// no other node holds.
-    fn normal_fit(&self, lv: &LevelNodes, resolved: &Resolved) -> Result<NormalFit> {
-        let fits = self.each_sampled(lv, resolved, |g, w, shared| {
-            let mut fit = NormalFit::default();
-            for (p, at) in w.pos.iter().enumerate() {
-                if !shared(at) {
-                    fit.add(w.verts_at(p).iter().map(|&v| g.mesh.vertices[v as usize].normal));
-                }
-            }
-            fit
-        })?;
-        Ok(fits.into_iter().fold(NormalFit::default(), NormalFit::merge))
-    }
-
-    /// `f` of each node the level samples (every `SAMPLED_NODES`-th part),
-    /// in parallel: the node gathered, welded, and whether a position is
-    /// shared (with another node or shard).
-    fn each_sampled<T: Send>(
-        &self,
-        lv: &LevelNodes,
-        resolved: &Resolved,
-        f: impl Fn(&Gathered, &Welded, &dyn Fn(&[f64; 3]) -> bool) -> T + Sync,
-    ) -> Result<Vec<T>> {
-        let (cfg, cur) = (&self.cfg, self.cur.as_ref().expect("a current level"));
-        let stride = (lv.ids.len() / SAMPLED_NODES).max(1);
-        let picked: Vec<usize> = (0..lv.ids.len()).filter(|k| k % stride == 0).collect();
-        let mut reader = resolved.reopen()?;
-        let sets = picked.iter().map(|&k| reader.take((lv.base + k) as u32)).collect::<Result<Vec<_>>>()?;
-        let out: Vec<Result<T>> = picked
-            .par_iter()
-            .zip(sets.par_iter())
-            .map(|(&k, set)| {
-                let g = cur.chunks.gather(lv.ids[k])?;
-                let w = Welded::new(&g.mesh, cfg.unique_positions);
-                Ok(f(&g, &w, &|p: &[f64; 3]| set.contains_key(&pos_bits(*p)) || cfg.extra_locked(p)))
-            })
-            .collect();
-        out.into_iter().collect()
-    }
-
     /// Step 3, threshold: the simplifier's curves of a sample of nodes
     /// (every `SAMPLED_NODES`-th part of the level, with their exact locks)
     /// give the one limit for the whole level at which it keeps
@@ -542,12 +450,23 @@ impl<'a, S: NodeSimplifier> LevelBuilder<'a, S> {
         if lv.is_final {
             return Ok((0.0, 1.0));
         }
-        let cfg = &self.cfg;
-        let curves = self.each_sampled(lv, resolved, |g, w, shared| {
-            let locked = w.locks_at(|pi| shared(&w.pos[pi]));
-            let carried = (lv.level > 0).then_some(&g.a[..]);
-            cfg.simplifier.curve(&NodeInput { mesh: &g.mesh, carried, locked: &locked, pos_of: Some(&w.pos_of) })
-        })?;
+        let (cfg, cur) = (&self.cfg, self.cur.as_ref().expect("a current level"));
+        let stride = (lv.ids.len() / SAMPLED_NODES).max(1);
+        let picked: Vec<usize> = (0..lv.ids.len()).filter(|k| k % stride == 0).collect();
+        let mut reader = resolved.reopen()?;
+        let sets = picked.iter().map(|&k| reader.take((lv.base + k) as u32)).collect::<Result<Vec<_>>>()?;
+        let curves: Vec<Result<S::Curve>> = picked
+            .par_iter()
+            .zip(sets.par_iter())
+            .map(|(&k, set)| {
+                let g = cur.chunks.gather(lv.ids[k])?;
+                let w = Welded::new(&g.mesh, cfg.unique_positions);
+                let locked = w.locks_at(|pi| set.contains_key(&pos_bits(w.pos[pi])) || cfg.extra_locked(&w.pos[pi]));
+                let carried = (lv.level > 0).then_some(&g.a[..]);
+                Ok(cfg.simplifier.curve(&NodeInput { mesh: &g.mesh, carried, locked: &locked, pos_of: Some(&w.pos_of) }))
+            })
+            .collect();
+        let curves = curves.into_iter().collect::<Result<Vec<_>>>()?;
         Ok(cfg.simplifier.choose_limit(&curves, 1.0 / cfg.opts.params.level_ratio))
     }
 
@@ -687,8 +606,7 @@ impl<'a, S: NodeSimplifier> LevelBuilder<'a, S> {
         let Dag { mut nodes, children: node_children, .. } = self.dag;
         let (children, parents) = link_dag(&mut nodes, &node_children);
         crate::store::sync_packs(self.cfg.dir, &nodes)?;
-        // Never resolved: nothing was simplified (a single level).
-        let normals = self.cfg.normals.unwrap_or(Normals::Carry);
+        let normals = self.cfg.normals;
         let header = StoreHeader {
             attrs: self.cfg.attrs,
             derived_normals: self.cfg.derived,
@@ -1120,22 +1038,14 @@ mod tests {
         assert_eq!(of(5), (4, 2, 6, 0));
     }
 
-    /// A crease is a position whose vertices' normals are more than 10°
-    /// apart (or one has none); one vertex, or wedges alike, is none.
+    /// Two normals of a position more than 10° apart make a crease, or
+    /// one usable and one not; alike ones, or two unusable, do not.
     #[test]
-    fn normal_fit_sees_creases_only() {
+    fn creases_are_normals_apart() {
         let tilt = |deg: f64| [deg.to_radians().sin() as f32, 0.0, deg.to_radians().cos() as f32];
-        let mut f = NormalFit::default();
-        f.add([tilt(0.0)].into_iter());
-        f.add([tilt(0.0), tilt(9.0), tilt(-0.5)].into_iter());
-        f.add([[0.0; 3], [0.0; 3]].into_iter());
-        assert_eq!(f, NormalFit { positions: 3, creases: 0 });
-        assert!(f.smooth());
-        let mut g = NormalFit::default();
-        g.add([tilt(0.0), tilt(3.0), tilt(45.0)].into_iter());
-        g.add([tilt(0.0), [f32::NAN, 0.0, 1.0]].into_iter());
-        assert_eq!(g, NormalFit { positions: 2, creases: 2 });
-        assert!(!g.smooth() && !f.merge(g).smooth());
-        assert_eq!(f.merge(g).positions, 5);
+        assert!(!creased(tilt(0.0), tilt(9.0)) && !creased(tilt(0.0), tilt(-0.5)));
+        assert!(!creased([0.0; 3], [0.0; 3]));
+        assert!(creased(tilt(0.0), tilt(45.0)) && creased(tilt(3.0), tilt(45.0)));
+        assert!(creased(tilt(0.0), [f32::NAN, 0.0, 1.0]));
     }
 }

@@ -217,7 +217,8 @@ pub trait WithSimplifier {
 /// The one place a simplifier is chosen: runs `w` with `opts`' simplifier
 /// for a mesh with `attrs` (a new simplifier is a type and a line here).
 /// With `--normals average` clustering leaves normals out of its quadrics
-/// (`auto` decides once level 0 is tested, [`level::LevelBuilder`]).
+/// (`auto` is resolved by the caller from the input's creases,
+/// [`crate::manifest::Normals::resolved`]; unresolved, they are carried).
 pub fn with_simplifier<W: WithSimplifier>(opts: &LodOptions, attrs: crate::mesh::AttrSet, w: W) -> W::Out {
     match opts.params.simplifier.resolve(attrs) {
         Simplifier::Cluster | Simplifier::Auto => {

@@ -247,9 +247,8 @@ impl NodeSimplifier for CollapseNodes {
 const REPAIR_FACTOR: f64 = 4.0;
 /// At most this many such passes per node (3 rather than 2: on the
 /// Stanford dragon a first pass that folds the surface next to what it
-/// kept is followed by one that keeps that too; levels 1-7 at equal size
-/// then measured 0.49-1.07x the RMS and 0.22-1.06x the Hausdorff distance
-/// of 2, `docs/levels-of-detail.md`, "Lost surface").
+/// kept is followed by one that keeps that too; measured with the local
+/// prediction in `docs/levels-of-detail.md`, "Lost surface").
 const REPAIR_ROUNDS: usize = 3;
 /// Errors below this share of a node's extent are never repaired.
 const REPAIR_FLOOR: f64 = 1e-4;

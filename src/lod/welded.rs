@@ -85,7 +85,7 @@ impl Welded {
         self.pos_of.iter().map(|&p| at[p as usize]).collect()
     }
 
-    pub(super) fn verts_at(&self, p: usize) -> &[u32] {
+    fn verts_at(&self, p: usize) -> &[u32] {
         &self.members[self.first[p] as usize..self.first[p + 1] as usize]
     }
 
